@@ -1,0 +1,31 @@
+"""relmap: spatial uncertainty for robotics.
+
+Uncertain relative poses (approximate transformations, ATs) after Smith & Cheeseman, "On the
+Representation and Estimation of Spatial Uncertainty" (IJRR 1986): compounding (``a @ b``),
+reversal (``a.reverse()``), merging (``merge(a, b)``), confidence ellipses, first-order and
+unscented propagation, and Monte Carlo checks of every estimate.
+
+Convention (everywhere): an AT on the edge ``A → B`` is where frame B is in frame A, mean
+``(x, y, θ)`` with θ in [-π, π), covariance 3×3 on ``(x, y, θ)`` in the parent frame A.
+"""
+
+from relmap import errors, gaussian, lie, montecarlo, propagate
+from relmap.at import AT, compound, compound_chain, merge, reverse
+from relmap.gaussian import Ellipse
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "AT",
+    "Ellipse",
+    "__version__",
+    "compound",
+    "compound_chain",
+    "errors",
+    "gaussian",
+    "lie",
+    "merge",
+    "montecarlo",
+    "propagate",
+    "reverse",
+]

@@ -1,0 +1,66 @@
+"""The relmap exception hierarchy.
+
+Every error relmap raises on purpose is a :class:`RelmapError`; each kind of bad input has its
+own subclass, so callers can catch exactly what they mean to handle. Messages name what was wrong
+(which argument, which batch element, which file and line).
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "CovarianceError",
+    "FileFormatError",
+    "InconsistentMergeError",
+    "NonFiniteError",
+    "NotPositiveSemidefiniteError",
+    "NotSymmetricError",
+    "ParameterError",
+    "RelmapError",
+    "ShapeError",
+]
+
+
+class RelmapError(Exception):
+    """Base class of every error relmap raises on purpose."""
+
+
+class ShapeError(RelmapError, ValueError):
+    """An array has the wrong shape (e.g. a mean that is not ``(..., 3)``)."""
+
+
+class NonFiniteError(RelmapError, ValueError):
+    """An input holds NaN or infinity."""
+
+
+class ParameterError(RelmapError, ValueError):
+    """A scalar parameter is outside its domain (a probability not in (0, 1), a step <= 0, ...)."""
+
+
+class CovarianceError(RelmapError, ValueError):
+    """A covariance matrix is not a valid covariance (base of the two cases below)."""
+
+
+class NotSymmetricError(CovarianceError):
+    """A covariance matrix is not symmetric beyond the stated tolerance."""
+
+
+class NotPositiveSemidefiniteError(CovarianceError):
+    """A covariance matrix has a negative eigenvalue beyond the stated tolerance."""
+
+
+class InconsistentMergeError(RelmapError, ValueError):
+    """Parallel ATs disagree along a direction that all of them claim to know exactly.
+
+    Merging (Eqs. 8-10) weighs each AT by its uncertainty; along a direction where every AT has
+    zero variance there is nothing to weigh, so the means must already agree there.
+    """
+
+
+class FileFormatError(RelmapError, ValueError):
+    """A file is malformed; the message names the file and, where known, the line or entry."""
+
+    def __init__(self, path: object, message: str, line: int | None = None) -> None:
+        self.path = str(path)
+        self.line = line
+        where = f"{self.path}:{line}" if line is not None else self.path
+        super().__init__(f"{where}: {message}")

@@ -1,0 +1,290 @@
+"""N-dimensional Gaussian tools: covariance validation, confidence regions, ellipses, sampling.
+
+Everything here is batched: a covariance has shape ``(..., n, n)``, a mean or point ``(..., n)``.
+Nothing here knows about poses; angles are the caller's business.
+
+**Confidence regions (Appendix A, corrected).** A point x lies inside the k-ellipsoid of
+``N(x̂, C)`` when ``(x - x̂)ᵀ C⁻¹ (x - x̂) <= k²``. The probability of that is the χ² CDF with
+``n`` degrees of freedom at ``k²``: for n = 1, ``P = erf(k/√2)``; for n = 2, ``P = 1 - exp(-k²/2)``;
+for n = 3, ``P = erf(k/√2) - √(2/π)·k·exp(-k²/2)``. (The paper prints these garbled: its "erf" is
+the normal CDF Φ.) :func:`confidence_k2` inverts this for any n.
+
+**Tolerance.** A covariance is accepted when it is symmetric to ``rtol`` relative to its largest
+entry and the smallest eigenvalue of its *correlation* matrix ``D^-1/2 C D^-1/2`` (D its diagonal)
+is at least ``-rtol``. Testing the correlation matrix makes the test independent of units: metres
+and radians, or millimetres and degrees, are judged alike. A zero variance (an exactly known
+component) is allowed; its cross-covariances must then vanish to within the same tolerance.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from relmap.errors import (
+    NonFiniteError,
+    NotPositiveSemidefiniteError,
+    NotSymmetricError,
+    ParameterError,
+    ShapeError,
+)
+from relmap.typing import ArrayLike, FloatArray, SeedLike
+
+__all__ = [
+    "DEFAULT_RTOL",
+    "Ellipse",
+    "check_finite",
+    "check_probability",
+    "confidence_k2",
+    "ellipse",
+    "generalized_inverse",
+    "mahalanobis2",
+    "probability_inside",
+    "sample",
+    "sqrt_psd",
+    "validate_covariance",
+]
+
+#: Default relative tolerance of covariance validation (see the module docstring).
+DEFAULT_RTOL = 1e-9
+
+
+def _where(index: tuple[int, ...]) -> str:
+    return f"[{', '.join(map(str, index))}]" if index else ""
+
+
+def check_finite(arr: FloatArray, name: str) -> None:
+    """Raise :class:`NonFiniteError` naming the first NaN/inf entry of ``arr``."""
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        index = tuple(int(i) for i in np.argwhere(bad)[0])
+        raise NonFiniteError(f"{name}{_where(index)} is {arr[index]}: values must be finite")
+
+
+def check_probability(p: ArrayLike, name: str = "probability") -> FloatArray:
+    """Return ``p`` as a float array, raising :class:`ParameterError` unless 0 < p < 1."""
+    arr = np.asarray(p, dtype=np.float64)
+    bad = ~((arr > 0.0) & (arr < 1.0))
+    if bad.any():
+        value = arr[tuple(np.argwhere(bad)[0])] if arr.ndim else arr
+        raise ParameterError(f"{name} must lie strictly between 0 and 1; got {value}")
+    return arr
+
+
+def validate_covariance(
+    cov: ArrayLike,
+    *,
+    dim: int | None = None,
+    name: str = "cov",
+    rtol: float = DEFAULT_RTOL,
+) -> FloatArray:
+    """Check that ``cov`` (``(..., n, n)``) is a valid covariance; return it as a symmetrized copy.
+
+    Raises :class:`ShapeError`, :class:`NonFiniteError`, :class:`NotSymmetricError` or
+    :class:`NotPositiveSemidefiniteError`, naming the first offending batch element. The test is
+    vectorized: one batched Cholesky factorization of the shifted correlation matrix; only when
+    it fails are eigenvalues computed, to find and report the offender.
+    """
+    arr = np.array(cov, dtype=np.float64)  # a copy: the caller's array is never aliased
+    if arr.ndim < 2 or arr.shape[-1] != arr.shape[-2] or (dim is not None and arr.shape[-1] != dim):
+        want = f"({dim}, {dim})" if dim is not None else "(n, n)"
+        raise ShapeError(f"{name} must have shape (..., {want[1:-1]}); got {arr.shape}")
+    check_finite(arr, name)
+    n = arr.shape[-1]
+    if arr.size == 0:
+        return arr
+
+    transposed = np.swapaxes(arr, -1, -2)
+    scale = np.abs(arr).max(axis=(-2, -1))
+    asym = np.abs(arr - transposed).max(axis=(-2, -1))
+    bad = asym > rtol * scale
+    if bad.any():
+        index = tuple(int(i) for i in np.argwhere(bad)[0])
+        raise NotSymmetricError(
+            f"{name}{_where(index)} is not symmetric: |C - Cᵀ| reaches {asym[index]:.3g}, "
+            f"more than {rtol:g} times its largest entry {scale[index]:.3g}"
+        )
+    sym = 0.5 * (arr + transposed)
+
+    diag = np.diagonal(sym, axis1=-2, axis2=-1)
+    dmax = diag.max(axis=-1, keepdims=True)
+    negative = diag < -rtol * np.maximum(dmax, 0.0)
+    if negative.any():
+        index = tuple(int(i) for i in np.argwhere(negative)[0])
+        raise NotPositiveSemidefiniteError(
+            f"{name}{_where(index[:-1])} has a negative variance {diag[index]:.6g} "
+            f"on its diagonal entry {index[-1]}"
+        )
+    # Correlation scaling; an exactly known component (zero variance) keeps scale 1, so any
+    # cross-covariance it carries still shows up as a negative eigenvalue.
+    s = np.where(diag > 0.0, np.sqrt(np.abs(diag)), 1.0)
+    corr = sym / (s[..., :, None] * s[..., None, :])
+    try:
+        np.linalg.cholesky(corr + rtol * np.eye(n))
+    except np.linalg.LinAlgError:
+        lowest = np.linalg.eigvalsh(corr)[..., 0]
+        bad = lowest < -rtol
+        if bad.any():
+            index = tuple(int(i) for i in np.argwhere(bad)[0])
+            raise NotPositiveSemidefiniteError(
+                f"{name}{_where(index)} is not positive semi-definite: the smallest eigenvalue "
+                f"of its correlation matrix is {lowest[index]:.3g} (tolerance -{rtol:g})"
+            ) from None
+    return sym
+
+
+def generalized_inverse(
+    S: FloatArray, *, rtol: float = DEFAULT_RTOL
+) -> tuple[FloatArray, FloatArray]:
+    """A symmetric generalized inverse G of a PSD matrix S (``S G S = S``), and S's null space.
+
+    Returns ``(G, N)``, both ``(..., n, n)``. Computed on the correlation-scaled matrix, so an
+    entry's units do not decide what counts as singular: eigenvalues of the scaled matrix below
+    ``rtol·n`` are dropped. Where S is invertible, G is its inverse and N is zero; otherwise
+    N's non-zero columns are unit vectors (in S's own coordinates) spanning the directions
+    along which S has no variance at all. ``Nᵀ v`` tells how far a vector v leaves the support.
+    """
+    diag = np.diagonal(S, axis1=-2, axis2=-1)
+    positive = diag > 0.0
+    inv_s = np.where(positive, 1.0 / np.sqrt(np.where(positive, diag, 1.0)), 0.0)
+    scaled = S * inv_s[..., :, None] * inv_s[..., None, :]
+    lam, U = np.linalg.eigh(scaled)
+    n = S.shape[-1]
+    keep = lam > rtol * n
+    inv_lam = np.where(keep, 1.0 / np.where(keep, lam, 1.0), 0.0)
+    scaled_pinv = (U * inv_lam[..., None, :]) @ np.swapaxes(U, -1, -2)
+    G = scaled_pinv * inv_s[..., :, None] * inv_s[..., None, :]
+    # Null vectors of S are D^-1/2 u for null vectors u of the scaled matrix (an exactly known
+    # coordinate, zero on the diagonal, keeps scale 1).
+    null = np.where(positive, inv_s, 1.0)[..., :, None] * U * (~keep)[..., None, :]
+    norms = np.linalg.norm(null, axis=-2, keepdims=True)
+    null = null / np.where(norms > 0.0, norms, 1.0)
+    return G, null
+
+
+def mahalanobis2(
+    x: ArrayLike, mean: ArrayLike, cov: ArrayLike, *, atol: float = 1e-9
+) -> FloatArray:
+    """Squared Mahalanobis distance ``(x - mean)ᵀ C⁻¹ (x - mean)``, shape ``(...)``.
+
+    A singular C is handled: a deviation that leaves the subspace where the distribution lives
+    by more than ``atol`` (in the components' own units) is infinitely unlikely, distance
+    ``inf``; within it the distance is finite. The caller wraps angle components of
+    ``x - mean`` beforehand if there are any.
+    """
+    cov = np.asarray(cov, dtype=np.float64)
+    v = np.asarray(x, dtype=np.float64) - np.asarray(mean, dtype=np.float64)
+    G, null = generalized_inverse(cov)
+    d2 = np.einsum("...i,...ij,...j->...", v, G, v)
+    off_support = np.abs(np.einsum("...ij,...i->...j", null, v)).max(axis=-1)
+    return np.where(off_support > atol, np.inf, d2)
+
+
+def confidence_k2(probability: ArrayLike, dof: int) -> FloatArray:
+    """k² of the ellipsoid holding ``probability`` of an n-dimensional Gaussian (Eq. A1).
+
+    The χ² quantile with ``dof`` degrees of freedom; for dof = 2, ``k² = -2 ln(1 - P)``
+    (4.605 for 90%).
+    """
+    from scipy.special import gammaincinv  # lazy: scipy.special costs ~0.3 s to import
+
+    p = check_probability(probability)
+    if int(dof) != dof or dof < 1:
+        raise ParameterError(f"dof must be a positive integer; got {dof}")
+    return 2.0 * gammaincinv(0.5 * dof, p)
+
+
+def probability_inside(k: ArrayLike, dof: int) -> FloatArray:
+    """Probability that a Gaussian sample lies inside its k-ellipsoid (Appendix A, any n)."""
+    from scipy.special import gammainc
+
+    k = np.asarray(k, dtype=np.float64)
+    if (k < 0).any():
+        raise ParameterError(f"k must be non-negative; got {k.min()}")
+    if int(dof) != dof or dof < 1:
+        raise ParameterError(f"dof must be a positive integer; got {dof}")
+    return gammainc(0.5 * dof, 0.5 * k * k)
+
+
+@dataclass(frozen=True)
+class Ellipse:
+    """A confidence ellipse (Appendix A): center, half-axes and orientation, batched.
+
+    ``center`` is ``(..., 2)``; ``semi_major``, ``semi_minor`` and ``angle`` are ``(...)``.
+    ``angle`` is the direction of the major axis from the parent frame's x axis, radians in
+    (-π/2, π/2]. The ellipse holds ``probability`` of the 2-D marginal; ``k`` is its
+    Mahalanobis radius.
+    """
+
+    center: FloatArray
+    semi_major: FloatArray
+    semi_minor: FloatArray
+    angle: FloatArray
+    probability: float
+    k: float
+
+    def boundary(self, n: int = 100) -> FloatArray:
+        """``n`` points on the ellipse, shape ``(..., n, 2)`` (closed: first == last)."""
+        t = np.linspace(0.0, 2.0 * np.pi, n)
+        a = self.semi_major[..., None] * np.cos(t)
+        b = self.semi_minor[..., None] * np.sin(t)
+        c, s = np.cos(self.angle)[..., None], np.sin(self.angle)[..., None]
+        x = self.center[..., 0, None] + c * a - s * b
+        y = self.center[..., 1, None] + s * a + c * b
+        return np.stack([x, y], axis=-1)
+
+
+def ellipse(mean: ArrayLike, cov: ArrayLike, probability: float = 0.90) -> Ellipse:
+    """The ``probability`` confidence ellipse of a 2-D Gaussian.
+
+    ``mean`` is ``(..., 2)``, ``cov`` ``(..., 2, 2)``. Half-axes are ``k·√λ`` for the
+    eigenvalues λ of C; the major axis makes the angle ``½·atan2(2σxy, σx² - σy²)`` with x (the
+    printed ``½·arctan(2B/(A-C))`` gives the minor axis whenever σy > σx).
+    """
+    mean = np.asarray(mean, dtype=np.float64)
+    cov = np.asarray(cov, dtype=np.float64)
+    if mean.shape[-1:] != (2,) or cov.shape[-2:] != (2, 2):
+        raise ShapeError(
+            f"ellipse needs mean (..., 2) and cov (..., 2, 2); got {mean.shape}, {cov.shape}"
+        )
+    k2 = float(confidence_k2(probability, 2))
+    a, b, c = cov[..., 0, 0], cov[..., 0, 1], cov[..., 1, 1]
+    half_sum = 0.5 * (a + c)
+    radius = np.hypot(0.5 * (a - c), b)
+    lam_major = half_sum + radius
+    lam_minor = np.maximum(half_sum - radius, 0.0)
+    k = float(np.sqrt(k2))
+    return Ellipse(
+        center=mean,
+        semi_major=k * np.sqrt(lam_major),
+        semi_minor=k * np.sqrt(lam_minor),
+        angle=0.5 * np.arctan2(2.0 * b, a - c),
+        probability=float(probability),
+        k=k,
+    )
+
+
+def sqrt_psd(cov: ArrayLike) -> FloatArray:
+    """A square root L with ``L Lᵀ = C`` for a PSD ``C`` (``(..., n, n)``), singular C included.
+
+    Uses the eigendecomposition (a Cholesky factor does not exist for singular C); tiny negative
+    eigenvalues from rounding are clipped to zero.
+    """
+    lam, U = np.linalg.eigh(np.asarray(cov, dtype=np.float64))
+    return U * np.sqrt(np.clip(lam, 0.0, None))[..., None, :]
+
+
+def _rng(seed: SeedLike) -> np.random.Generator:
+    return seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+
+
+def sample(mean: ArrayLike, cov: ArrayLike, n: int, seed: SeedLike = None) -> FloatArray:
+    """``n`` draws from ``N(mean, cov)``, shape ``(n, ..., dim)``; singular covariances allowed."""
+    if int(n) != n or n < 1:
+        raise ParameterError(f"number of samples must be a positive integer; got {n}")
+    mean = np.asarray(mean, dtype=np.float64)
+    L = sqrt_psd(cov)
+    batch = np.broadcast_shapes(mean.shape[:-1], L.shape[:-2])
+    z = _rng(seed).standard_normal((int(n), *batch, L.shape[-1]))
+    return mean + np.einsum("...ij,...j->...i", L, z)

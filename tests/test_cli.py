@@ -1,0 +1,63 @@
+"""The relmap command: demo output equals the library's numbers; the import stays light."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+
+import numpy as np
+
+from relmap import __version__
+from relmap.demo import fig1
+
+
+def _run(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "relmap.cli", *args], capture_output=True, text=True, timeout=120
+    )
+
+
+def test_demo_prints_the_library_results():
+    out = _run("demo")
+    assert out.returncode == 0, out.stderr
+    text = out.stdout
+    result = fig1()
+    rows = {
+        m.group(1).strip(): m
+        for m in re.finditer(r"^(\S+(?: = \S+ ⊕ \S+)?|G ⊗ Sᴿ|Sᴿ)\s+(\S+→\S+)\s+(.*)$", text, re.M)
+    }
+    for label, _, _, at in result.compounds:
+        numbers = [float(v) for v in rows[label].group(3).split()]
+        np.testing.assert_allclose(numbers[:2], at.mean[:2], atol=5e-4)
+        np.testing.assert_allclose(numbers[2], np.degrees(at.mean[2]), atol=5e-3)
+        e = at.ellipse(0.9)
+        np.testing.assert_allclose(numbers[6:8], [e.semi_major, e.semi_minor], atol=5e-5)
+    merged = [float(v) for v in rows["G ⊗ Sᴿ"].group(3).split()]
+    np.testing.assert_allclose(merged[:2], result.merged.mean[:2], atol=5e-4)
+    assert "Monte Carlo check of G" in text
+
+
+def test_demo_merge_shrinks_uncertainty_and_monte_carlo_agrees():
+    result = fig1()
+    G = result.compounds[-1][3]
+    assert np.all(result.merged.sigmas < G.sigmas)
+    assert result.monte_carlo.cov_rel_error < 0.02
+
+
+def test_version_and_usage():
+    out = _run("--version")
+    assert out.returncode == 0 and __version__ in out.stdout
+    bad = _run("frobnicate")
+    assert bad.returncode == 2 and "invalid choice" in bad.stderr
+
+
+def test_import_stays_light():
+    """`import relmap` must not pull in matplotlib, scipy.sparse/stats/special or yaml."""
+    code = (
+        "import sys, relmap; "
+        "heavy = [m for m in sys.modules if m.split('.')[0] in ('matplotlib', 'yaml') "
+        "or m.startswith(('scipy.sparse', 'scipy.stats', 'scipy.special'))]; print(heavy)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert out.stdout.strip() == "[]", out.stdout
