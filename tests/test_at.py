@@ -98,6 +98,11 @@ def test_batch_broadcast_indexing_and_stack():
     np.testing.assert_array_equal(s.mean[:, 1], a[1].mean)
     with pytest.raises(TypeError):
         rm.AT.stack([a[0], "no"])  # type: ignore[list-item]
+    assert len(a) == 4 and [r.batch_shape for r in a] == [(5,)] * 4
+    with pytest.raises(TypeError):
+        len(b)
+    with pytest.raises(TypeError):
+        list(b)
 
 
 def test_from_sigmas_and_errors():

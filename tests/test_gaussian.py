@@ -203,6 +203,8 @@ def test_mahalanobis_regular_and_singular():
     sing = np.diag([1.0, 0.0])
     assert gaussian.mahalanobis2([3.0, 0.0], [0.0, 0.0], sing) == pytest.approx(9.0)
     assert gaussian.mahalanobis2([3.0, 0.1], [0.0, 0.0], sing) == np.inf
+    with pytest.raises(NonFiniteError):
+        gaussian.mahalanobis2([np.nan, 0.0], [0.0, 0.0], cov)
 
 
 # ----------------------------------------------------------------------- sampling

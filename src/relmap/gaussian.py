@@ -18,7 +18,7 @@ component) is allowed; its cross-covariances must then vanish to within the same
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -175,6 +175,8 @@ def mahalanobis2(
     """
     cov = np.asarray(cov, dtype=np.float64)
     v = np.asarray(x, dtype=np.float64) - np.asarray(mean, dtype=np.float64)
+    check_finite(v, "x - mean")
+    check_finite(cov, "cov")
     G, null = generalized_inverse(cov)
     d2 = np.einsum("...i,...ij,...j->...", v, G, v)
     off_support = np.abs(np.einsum("...ij,...i->...j", null, v)).max(axis=-1)
@@ -207,8 +209,7 @@ def probability_inside(k: ArrayLike, dof: int) -> FloatArray:
     return gammainc(0.5 * dof, 0.5 * k * k)
 
 
-@dataclass(frozen=True)
-class Ellipse:
+class Ellipse(NamedTuple):
     """A confidence ellipse (Appendix A): center, half-axes and orientation, batched.
 
     ``center`` is ``(..., 2)``; ``semi_major``, ``semi_minor`` and ``angle`` are ``(...)``.

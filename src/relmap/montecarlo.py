@@ -20,7 +20,7 @@ reference sample, so a distribution straddling ±π is handled.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -54,8 +54,7 @@ def sample_moments(samples: FloatArray) -> tuple[FloatArray, FloatArray]:
     return mean, cov
 
 
-@dataclass(frozen=True)
-class Agreement:
+class Agreement(NamedTuple):
     """How well an estimate matches a Monte Carlo sample (all fields batched like the estimate).
 
     - ``mean_error``: ``(..., 3)`` estimate ⊟ sample mean (heading wrapped).
@@ -87,8 +86,7 @@ class Agreement:
     excess_kurtosis: FloatArray
 
 
-@dataclass(frozen=True)
-class SampleSet:
+class SampleSet(NamedTuple):
     """Samples ``(n, ..., 3)`` of a pose-valued random quantity, with their moments."""
 
     samples: FloatArray

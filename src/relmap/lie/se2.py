@@ -21,6 +21,7 @@ from typing import Literal, overload
 
 import numpy as np
 
+from relmap._layout import matrix, stack_last
 from relmap.errors import ShapeError
 from relmap.typing import ArrayLike, FloatArray
 
@@ -73,12 +74,19 @@ def identity(batch_shape: tuple[int, ...] = ()) -> FloatArray:
     return np.zeros((*batch_shape, DOF))
 
 
-def _stack3x3(rows: list[list[FloatArray | float]], shape: tuple[int, ...]) -> FloatArray:
-    out = np.empty((*shape, 3, 3))
-    for i, row in enumerate(rows):
-        for j, value in enumerate(row):
-            out[..., i, j] = value
-    return out
+def _compose_terms(
+    a: FloatArray, b: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """``a ∘ b`` and the pieces its Jacobians and covariance are made of: ``(a ∘ b, cos θ_a,
+    sin θ_a, Δx, Δy)`` with ``(Δx, Δy) = R(θ_a) t_b`` (the trigonometry is computed once)."""
+    xa, ya, ta = a[..., 0], a[..., 1], a[..., 2]
+    xb, yb = b[..., 0], b[..., 1]
+    c, s = np.cos(ta), np.sin(ta)
+    dx = c * xb - s * yb  # b's translation rotated into a's parent frame
+    dy = s * xb + c * yb
+    shape = np.broadcast_shapes(a.shape[:-1], b.shape[:-1])
+    out = stack_last([xa + dx, ya + dy, wrap_angle(ta + b[..., 2])], shape)
+    return out, c, s, dx, dy
 
 
 @overload
@@ -96,19 +104,12 @@ def compose(
     ``J_c_a = [[1, 0, -(y_c - y_a)], [0, 1, x_c - x_a], [0, 0, 1]]`` and
     ``J_c_b = blkdiag(R(θ_a), 1)``.
     """
-    a = _pose(a, "a")
-    b = _pose(b, "b")
-    xa, ya, ta = a[..., 0], a[..., 1], a[..., 2]
-    xb, yb, tb = b[..., 0], b[..., 1], b[..., 2]
-    c, s = np.cos(ta), np.sin(ta)
-    dx = c * xb - s * yb  # b's translation rotated into a's parent frame: x_c - x_a
-    dy = s * xb + c * yb
-    out = np.stack(np.broadcast_arrays(xa + dx, ya + dy, wrap_angle(ta + tb)), axis=-1)
+    out, c, s, dx, dy = _compose_terms(_pose(a, "a"), _pose(b, "b"))
     if not jacobians:
         return out
     shape = out.shape[:-1]
-    J_c_a = _stack3x3([[1.0, 0.0, -dy], [0.0, 1.0, dx], [0.0, 0.0, 1.0]], shape)
-    J_c_b = _stack3x3([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]], shape)
+    J_c_a = matrix([[1.0, 0.0, -dy], [0.0, 1.0, dx], [0.0, 0.0, 1.0]], shape)
+    J_c_b = matrix([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]], shape)
     return out, J_c_a, J_c_b
 
 
@@ -127,10 +128,10 @@ def inverse(a: ArrayLike, *, jacobians: bool = False) -> FloatArray | tuple[Floa
     c, s = np.cos(t), np.sin(t)
     xi = -x * c - y * s
     yi = x * s - y * c
-    out = np.stack([xi, yi, wrap_angle(-t)], axis=-1)
+    out = stack_last([xi, yi, wrap_angle(-t)], t.shape)
     if not jacobians:
         return out
-    J = _stack3x3([[-c, -s, yi], [s, -c, -xi], [0.0, 0.0, -1.0]], out.shape[:-1])
+    J = matrix([[-c, -s, yi], [s, -c, -xi], [0.0, 0.0, -1.0]], out.shape[:-1])
     return out, J
 
 
@@ -156,12 +157,13 @@ def between(
     ey = b[..., 1] - a[..., 1]
     xd = c * ex + s * ey
     yd = -s * ex + c * ey
-    out = np.stack(np.broadcast_arrays(xd, yd, angle_difference(b[..., 2], ta)), axis=-1)
+    shape = np.broadcast_shapes(a.shape[:-1], b.shape[:-1])
+    out = stack_last([xd, yd, angle_difference(b[..., 2], ta)], shape)
     if not jacobians:
         return out
     shape = out.shape[:-1]
-    J_d_a = _stack3x3([[-c, -s, yd], [s, -c, -xd], [0.0, 0.0, -1.0]], shape)
-    J_d_b = _stack3x3([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]], shape)
+    J_d_a = matrix([[-c, -s, yd], [s, -c, -xd], [0.0, 0.0, -1.0]], shape)
+    J_d_b = matrix([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]], shape)
     return out, J_d_a, J_d_b
 
 
@@ -197,7 +199,7 @@ def body_to_chart(a: ArrayLike) -> FloatArray:
     a = _pose(a, "a")
     t = a[..., 2]
     c, s = np.cos(t), np.sin(t)
-    return _stack3x3([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]], t.shape)
+    return matrix([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]], t.shape)
 
 
 # exp/log are written in forms without cancellation (1 - cos ω = 2 sin²(ω/2)), accurate to
@@ -219,7 +221,7 @@ def exp(xi: ArrayLike) -> FloatArray:
     cos_over = np.where(tiny, 0.5 * w, 2.0 * np.sin(0.5 * w_safe) ** 2 / w_safe)
     x = sin_over * vx - cos_over * vy
     y = cos_over * vx + sin_over * vy
-    return np.stack([x, y, wrap_angle(w)], axis=-1)
+    return stack_last([x, y, wrap_angle(w)], w.shape)
 
 
 def log(a: ArrayLike) -> FloatArray:
@@ -232,7 +234,7 @@ def log(a: ArrayLike) -> FloatArray:
     half = 0.5 * np.where(np.abs(w) < _TINY, 1.0, w)
     h = np.where(np.abs(w) < _TINY, 1.0, half * np.cos(half) / np.sin(half))
     x, y = a[..., 0], a[..., 1]
-    return np.stack([h * x + 0.5 * w * y, -0.5 * w * x + h * y, w], axis=-1)
+    return stack_last([h * x + 0.5 * w * y, -0.5 * w * x + h * y, w], w.shape)
 
 
 def adjoint(a: ArrayLike) -> FloatArray:
@@ -243,4 +245,4 @@ def adjoint(a: ArrayLike) -> FloatArray:
     a = _pose(a, "a")
     x, y, t = a[..., 0], a[..., 1], a[..., 2]
     c, s = np.cos(t), np.sin(t)
-    return _stack3x3([[c, -s, y], [s, c, -x], [0.0, 0.0, 1.0]], t.shape)
+    return matrix([[c, -s, y], [s, c, -x], [0.0, 0.0, 1.0]], t.shape)
