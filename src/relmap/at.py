@@ -31,11 +31,6 @@ from relmap.typing import ArrayLike, FloatArray, SeedLike
 __all__ = ["AT", "compound", "compound_chain", "merge", "reverse"]
 
 
-def _frozen(arr: FloatArray) -> FloatArray:
-    arr.flags.writeable = False
-    return arr
-
-
 class AT:
     """An approximate transformation: uncertain pose of a child frame in its parent frame.
 
@@ -88,21 +83,18 @@ class AT:
                 f"{cov_arr.shape[:-2]} do not broadcast"
             ) from None
         mean_arr[..., 2] = se2.wrap_angle(mean_arr[..., 2])
-        self._set(
-            np.broadcast_to(components_outermost(mean_arr, 1), (*batch, 3)),
-            np.broadcast_to(components_outermost(cov_arr, 2), (*batch, 3, 3)),
-        )
+        self._set(components_outermost(mean_arr, 1), components_outermost(cov_arr, 2), batch)
 
-    def _set(self, mean: FloatArray, cov: FloatArray) -> None:
-        object.__setattr__(self, "_mean", _frozen(mean) if mean.flags.writeable else mean)
-        object.__setattr__(self, "_cov", _frozen(cov) if cov.flags.writeable else cov)
+    def _set(self, mean: FloatArray, cov: FloatArray, batch: tuple[int, ...]) -> None:
+        # np.broadcast_to returns read-only views: the arrays cannot be modified through the AT.
+        object.__setattr__(self, "_mean", np.broadcast_to(mean, (*batch, 3)))
+        object.__setattr__(self, "_cov", np.broadcast_to(cov, (*batch, 3, 3)))
 
     @classmethod
     def _trusted(cls, mean: FloatArray, cov: FloatArray) -> AT:
         """Build from arrays relmap computed itself (already valid, θ wrapped): no checks."""
         out = object.__new__(cls)
-        batch = np.broadcast_shapes(mean.shape[:-1], cov.shape[:-2])
-        out._set(np.broadcast_to(mean, (*batch, 3)), np.broadcast_to(cov, (*batch, 3, 3)))
+        out._set(mean, cov, np.broadcast_shapes(mean.shape[:-1], cov.shape[:-2]))
         return out
 
     def __setattr__(self, name: str, value: object) -> None:
