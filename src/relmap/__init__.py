@@ -12,12 +12,15 @@ Convention (everywhere): an AT on the edge ``A → B`` is where frame B is in fr
 from relmap import errors, gaussian, lie, montecarlo, propagate
 from relmap.at import AT, compound, compound_chain, merge, reverse
 from relmap.gaussian import Ellipse
+from relmap.network import Estimate, RelationalMap
 
 __version__ = "0.1.0"
 
 __all__ = [
     "AT",
     "Ellipse",
+    "Estimate",
+    "RelationalMap",
     "__version__",
     "compound",
     "compound_chain",

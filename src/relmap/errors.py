@@ -9,14 +9,20 @@ from __future__ import annotations
 
 __all__ = [
     "CovarianceError",
+    "DisconnectedError",
     "FileFormatError",
+    "InconsistentMapError",
     "InconsistentMergeError",
+    "IrreducibleNetworkError",
     "NonFiniteError",
     "NotPositiveSemidefiniteError",
     "NotSymmetricError",
     "ParameterError",
     "RelmapError",
     "ShapeError",
+    "SolverError",
+    "UnknownATError",
+    "UnknownFrameError",
 ]
 
 
@@ -54,6 +60,43 @@ class InconsistentMergeError(RelmapError, ValueError):
     Merging (Eqs. 8-10) weighs each AT by its uncertainty; along a direction where every AT has
     zero variance there is nothing to weigh, so the means must already agree there.
     """
+
+
+class UnknownFrameError(RelmapError, KeyError):
+    """A frame that is not in the relational map."""
+
+    def __str__(self) -> str:  # KeyError would quote the message
+        return str(self.args[0]) if self.args else ""
+
+
+class UnknownATError(RelmapError, KeyError):
+    """An AT name that is not in the relational map."""
+
+    def __str__(self) -> str:
+        return str(self.args[0]) if self.args else ""
+
+
+class DisconnectedError(RelmapError, ValueError):
+    """A query between frames that no chain of ATs connects."""
+
+
+class IrreducibleNetworkError(RelmapError, ValueError):
+    """The paper's reduction (with Delta-Y) cannot reduce the network to one AT (§5).
+
+    ``remaining`` holds the expressions of the ATs left in the irreducible loop.
+    """
+
+    def __init__(self, message: str, remaining: tuple[str, ...] = ()) -> None:
+        self.remaining = remaining
+        super().__init__(message)
+
+
+class InconsistentMapError(RelmapError, ValueError):
+    """Exactly known ATs (zero variance) that contradict each other around a loop."""
+
+
+class SolverError(RelmapError, RuntimeError):
+    """The joint (optimal) estimate failed: no convergence, or an unconstrained direction."""
 
 
 class FileFormatError(RelmapError, ValueError):

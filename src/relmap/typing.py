@@ -9,10 +9,13 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["ArrayLike", "FloatArray", "SeedLike"]
+__all__ = ["ArrayLike", "FloatArray", "IntArray", "SeedLike"]
 
 #: A float64 array (any shape; the docstring states which).
 FloatArray = npt.NDArray[np.float64]
+
+#: An int64 array of indices.
+IntArray = npt.NDArray[np.int64]
 
 #: Anything numpy can turn into a float array.
 ArrayLike = npt.ArrayLike

@@ -1,0 +1,332 @@
+"""RelationalMap: a network of frames linked by named ATs (the paper's relational map, §5).
+
+Frames are any hashable names. Each AT says where its destination frame is, seen from its
+source frame. Parallel ATs between the same frames are allowed, and so are groups of dependent
+ATs given with their joint covariance (§3.2: "a compound AT with nonzero covariance
+submatrices can be given directly"). :meth:`RelationalMap.query` estimates the AT between any
+two frames.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Hashable, Iterable, Iterator, Sequence
+from typing import TYPE_CHECKING, NamedTuple
+
+import numpy as np
+
+from relmap import gaussian
+from relmap.at import AT
+from relmap.errors import ShapeError, UnknownATError, UnknownFrameError
+from relmap.typing import ArrayLike, FloatArray
+
+if TYPE_CHECKING:
+    from relmap.io.mapfile import ATRecord
+    from relmap.network.query import Estimate
+
+__all__ = ["Edge", "JointGroup", "RelationalMap"]
+
+Frame = Hashable
+
+
+class Edge:
+    """One AT of a map: ``at`` is where frame ``dst`` is, seen from frame ``src``.
+
+    ``group`` names the dependent group the AT belongs to, if any. An edge of a map built from
+    a batch (a pose-graph file) keeps a reference into the batch and makes its AT on first use.
+    """
+
+    __slots__ = ("_at", "_index", "_source", "dst", "group", "name", "src")
+
+    def __init__(
+        self,
+        name: str,
+        src: Frame,
+        dst: Frame,
+        at: AT,
+        group: str | None = None,
+        index: int | None = None,
+    ) -> None:
+        self.name, self.src, self.dst, self.group = name, src, dst, group
+        self._source, self._index = at, index  # index: position in a batched source AT
+        self._at: AT | None = at if index is None else None
+
+    @property
+    def at(self) -> AT:
+        """The AT (a single one)."""
+        if self._at is None:
+            self._at = AT._trusted(self._source.mean[self._index], self._source.cov[self._index])
+        return self._at
+
+    def __repr__(self) -> str:
+        return f"Edge({self.name!r}: {self.src!r} → {self.dst!r}, {self.at!r})"
+
+
+class JointGroup(NamedTuple):
+    """Dependent ATs with their joint covariance ``(3k, 3k)`` (blocks in ``names`` order)."""
+
+    name: str
+    names: tuple[str, ...]
+    cov: FloatArray
+
+
+class RelationalMap:
+    """A network of frames linked by named ATs.
+
+    >>> import relmap as rm
+    >>> g = rm.RelationalMap()
+    >>> g.add("W", "L1", rm.AT.from_sigmas([1.0, 0.0, 0.1], [0.05, 0.05, 0.01]), name="A")
+    'A'
+    >>> g.add("L1", "L2", rm.AT.from_sigmas([1.0, 0.0, 0.1], [0.05, 0.05, 0.01]), name="B")
+    'B'
+    >>> g.query("W", "L2").expression
+    'A ⊕ B'
+    """
+
+    def __init__(self) -> None:
+        self._edges: dict[str, Edge] = {}
+        self._incident: dict[Frame, dict[str, None]] = {}  # frame -> names (an ordered set)
+        self._groups: dict[str, JointGroup] = {}
+        self._guesses: dict[Frame, FloatArray] = {}
+        self._auto = 0
+
+    # ----------------------------------------------------------------- building
+    def add(self, src: Frame, dst: Frame, at: AT, name: str | None = None) -> str:
+        """Add ``at``, the pose of frame ``dst`` seen from frame ``src``; return its name.
+
+        Names are unique; without one, the AT is named ``e<k>``. New frames are created.
+        """
+        if not isinstance(at, AT):
+            raise TypeError(f"expected an AT, got {type(at).__name__}")
+        if at.ndim:
+            raise ShapeError(f"a map holds single ATs; got batch shape {at.batch_shape}")
+        name = self._new_name(name)
+        self._insert(Edge(name, src, dst, at))
+        return name
+
+    def add_joint(
+        self,
+        edges: Sequence[tuple[Frame, Frame, ArrayLike]],
+        cov: ArrayLike,
+        names: Sequence[str] | None = None,
+        group: str | None = None,
+    ) -> tuple[str, ...]:
+        """Add k dependent ATs given as ``(src, dst, mean)`` with their joint ``(3k, 3k)`` cov.
+
+        Each AT's own covariance is its diagonal block; the off-diagonal blocks are the
+        cross-covariances ``E[δAᵢ δAⱼᵀ]`` (each AT in its own source frame). Returns the names.
+        """
+        k = len(edges)
+        if k < 2:
+            raise ShapeError("a joint group needs at least two ATs")
+        joint = gaussian.validate_covariance(cov, dim=3 * k, name="joint cov")
+        if names is not None and len(names) != k:
+            raise ShapeError(f"{len(names)} names given for {k} ATs")
+        group = self._new_group_name(group)
+        given = list(names) if names is not None else [None] * k
+        new_names = []
+        staged = []
+        for i, ((src, dst, mean), nm) in enumerate(zip(edges, given, strict=True)):
+            at = AT(mean, joint[3 * i : 3 * i + 3, 3 * i : 3 * i + 3])
+            new_name = self._new_name(nm, reserved=new_names)
+            new_names.append(new_name)
+            staged.append(Edge(new_name, src, dst, at, group))
+        for edge in staged:
+            self._insert(edge)
+        self._groups[group] = JointGroup(group, tuple(new_names), joint)
+        return tuple(new_names)
+
+    def remove(self, name: str) -> Edge:
+        """Remove the AT called ``name`` (and its whole dependent group, if it has one).
+
+        Returns the removed edge. Frames left without ATs disappear.
+        """
+        edge = self.edge(name)
+        names = self._groups.pop(edge.group).names if edge.group else (name,)
+        for nm in names:
+            e = self._edges.pop(nm)
+            for frame in (e.src, e.dst):
+                inc = self._incident[frame]
+                inc.pop(nm, None)
+                if not inc:
+                    del self._incident[frame]
+        return edge
+
+    @classmethod
+    def from_records(cls, records: Iterable[ATRecord]) -> RelationalMap:
+        """A map from map-file records (:func:`relmap.io.read_records`)."""
+        g = cls()
+        for r in records:
+            g.add(r.src, r.dst, r.at, name=r.name)
+        return g
+
+    @classmethod
+    def from_edges(
+        cls,
+        src: Sequence[Frame],
+        dst: Sequence[Frame],
+        ats: AT,
+        names: Sequence[str] | None = None,
+    ) -> RelationalMap:
+        """A map from parallel sequences of source frames, destination frames and a batch of ATs."""
+        m = len(src)
+        if len(dst) != m or ats.batch_shape != (m,):
+            raise ShapeError(
+                f"src ({m}), dst ({len(dst)}) and ats {ats.batch_shape} must have one entry per AT"
+            )
+        if ats.ndim != 1:
+            raise ShapeError(f"ats must be a 1-D batch of ATs; got batch shape {ats.batch_shape}")
+        g = cls()
+        for k in range(m):
+            g._insert(
+                Edge(g._new_name(None if names is None else names[k]), src[k], dst[k], ats, index=k)
+            )
+        return g
+
+    def _new_name(self, name: str | None, reserved: Sequence[str] = ()) -> str:
+        if name is None:
+            while f"e{self._auto}" in self._edges or f"e{self._auto}" in reserved:
+                self._auto += 1
+            name = f"e{self._auto}"
+            self._auto += 1
+        name = str(name)
+        if name in self._edges or name in reserved:
+            raise ValueError(f"an AT named {name!r} is already in the map")
+        return name
+
+    def _new_group_name(self, group: str | None) -> str:
+        if group is None:
+            k = len(self._groups)
+            while f"g{k}" in self._groups:
+                k += 1
+            return f"g{k}"
+        if group in self._groups:
+            raise ValueError(f"a group named {group!r} is already in the map")
+        return group
+
+    def _insert(self, edge: Edge) -> None:
+        self._edges[edge.name] = edge
+        for frame in (edge.src, edge.dst):
+            self._incident.setdefault(frame, {})[edge.name] = None
+
+    # ---------------------------------------------------------------- inspecting
+    @property
+    def frames(self) -> list[Frame]:
+        """All frames, in the order they first appeared."""
+        return list(self._incident)
+
+    @property
+    def groups(self) -> list[JointGroup]:
+        """The groups of dependent ATs."""
+        return list(self._groups.values())
+
+    def edges(self) -> Iterator[Edge]:
+        """All ATs, in insertion order."""
+        return iter(self._edges.values())
+
+    def edge(self, name: str) -> Edge:
+        """The AT called ``name``."""
+        try:
+            return self._edges[name]
+        except KeyError:
+            raise UnknownATError(f"no AT named {name!r} in the map") from None
+
+    def incident(self, frame: Frame) -> list[Edge]:
+        """The ATs that touch ``frame`` (as source or destination)."""
+        self._check_frame(frame)
+        return [self._edges[nm] for nm in self._incident[frame]]
+
+    def neighbors(self, frame: Frame) -> list[Frame]:
+        """Frames linked to ``frame`` by at least one AT (each once)."""
+        out: dict[Frame, None] = {}
+        for e in self.incident(frame):
+            out[e.dst if e.src == frame else e.src] = None
+        return list(out)
+
+    def __len__(self) -> int:
+        return len(self._edges)
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._edges
+
+    def __iter__(self) -> Iterator[Edge]:
+        return self.edges()
+
+    def __repr__(self) -> str:
+        return f"RelationalMap({len(self._incident)} frames, {len(self._edges)} ATs)"
+
+    def has_frame(self, frame: Frame) -> bool:
+        """Whether ``frame`` is in the map."""
+        return frame in self._incident
+
+    def _check_frame(self, frame: Frame) -> None:
+        if frame not in self._incident:
+            raise UnknownFrameError(f"no frame {frame!r} in the map")
+
+    def submap(self, frames: Iterable[Frame]) -> RelationalMap:
+        """The map restricted to ``frames``: the ATs with both ends among them.
+
+        A dependent group is kept only if all its ATs are kept.
+        """
+        keep = set(frames)
+        for f in keep:
+            self._check_frame(f)
+        sub = RelationalMap()
+        sub._auto = self._auto
+        for e in self._edges.values():
+            if e.src in keep and e.dst in keep:
+                group = self._groups.get(e.group) if e.group else None
+                if group and not all(
+                    self._edges[n].src in keep and self._edges[n].dst in keep for n in group.names
+                ):
+                    continue
+                sub._insert(e)
+        for g in self._groups.values():
+            if g.names[0] in sub._edges:
+                sub._groups[g.name] = g
+        return sub
+
+    def copy(self) -> RelationalMap:
+        """A shallow copy (ATs are immutable, so nothing is shared that can change)."""
+        return self.submap(self.frames) if self._incident else RelationalMap()
+
+    # ------------------------------------------------------- arrays for the solvers
+    def _gather(self, names: Sequence[str]) -> tuple[FloatArray, FloatArray]:
+        """Means (k, 3) and covariances (k, 3, 3) of the named ATs, gathered per source batch."""
+        k = len(names)
+        mean, cov = np.empty((k, 3)), np.empty((k, 3, 3))
+        by_source: dict[int, tuple[AT, list[int], list[int]]] = {}
+        for pos, nm in enumerate(names):
+            e = self._edges[nm]
+            if e._index is None:
+                mean[pos], cov[pos] = e._source.mean, e._source.cov
+            else:
+                entry = by_source.setdefault(id(e._source), (e._source, [], []))
+                entry[1].append(pos)
+                entry[2].append(e._index)
+        for source, positions, rows in by_source.values():
+            mean[positions] = source.mean[rows]
+            cov[positions] = source.cov[rows]
+        return mean, cov
+
+    def _guess(self, frames: Sequence[Frame]) -> FloatArray | None:
+        """Initial poses of the frames in a common frame, if the map has one for each."""
+        if not self._guesses or any(f not in self._guesses for f in frames):
+            return None
+        return np.array([self._guesses[f] for f in frames])
+
+    def set_guess(self, frame: Frame, pose: ArrayLike) -> None:
+        """Give an initial pose of ``frame`` (in any frame common to all guesses) for the
+        optimal method; pose-graph files come with one for every frame."""
+        self._check_frame(frame)
+        arr = np.asarray(pose, dtype=np.float64)
+        if arr.shape != (3,):
+            raise ShapeError(f"a guess is one pose (x, y, θ); got shape {arr.shape}")
+        gaussian.check_finite(arr, "guess")
+        self._guesses[frame] = arr
+
+    # ------------------------------------------------------------------- query
+    def query(self, src: Frame, dst: Frame, method: str = "auto", **options: object) -> Estimate:
+        """The AT of frame ``dst`` seen from frame ``src``; see :func:`relmap.network.query.query`."""
+        from relmap.network.query import query
+
+        return query(self, src, dst, method=method, **options)  # type: ignore[arg-type]

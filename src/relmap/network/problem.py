@@ -1,0 +1,270 @@
+"""A pose-graph least-squares problem: frames, relative-pose measurements, and its parameters.
+
+Each measurement (an AT on the edge i → j) contributes the residual
+``r = between(p_i, p_j) ⊟ z`` (heading wrapped), weighted by the inverse of its covariance in
+the paper's convention (the chart of frame i), so the objective is ``Σ rᵀ Σ⁻¹ r``. Dependent
+ATs contribute one joint residual weighted by their joint information.
+
+Exactly known components are not weighted infinitely but built into the parameters:
+
+- an AT with zero covariance ties its two frames rigidly: they share one set of parameters
+  (a *rigid set*, with the pose of each member fixed in the set's root frame);
+- an AT whose heading is exact (zero heading variance and cross-covariances) ties the headings
+  of its frames: they share one heading parameter (a *heading class*) with fixed offsets.
+
+Loops of exact ATs must agree (within ``atol``), or :class:`InconsistentMapError` is raised.
+Other singular covariances (e.g. only x known exactly) are not supported: a clear
+:class:`SolverError` says so. The anchor frame is fixed at its given pose.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import NamedTuple
+
+import numpy as np
+
+from relmap.errors import InconsistentMapError, SolverError
+from relmap.lie import se2
+from relmap.typing import FloatArray, IntArray
+
+__all__ = ["Parameterization", "Problem", "parameterize"]
+
+
+class Problem(NamedTuple):
+    """Arrays of a pose-graph problem over frames ``0 … n-1``.
+
+    ``i, j`` (m,) frame indices of each AT (where j is, seen from i); ``z`` (m, 3) measured
+    relative poses; ``cov`` (m, 3, 3) their covariances (paper's chart, in frame i);
+    ``groups``: dependent ATs as ``(indices into the m ATs, joint covariance (3k, 3k))``;
+    ``guess`` (n, 3) initial poses in a common frame; ``anchor`` the fixed frame;
+    ``names`` (m,) AT names for messages.
+    """
+
+    n: int
+    i: IntArray
+    j: IntArray
+    z: FloatArray
+    cov: FloatArray
+    groups: list[tuple[IntArray, FloatArray]]
+    guess: FloatArray
+    anchor: int
+    names: list[str]
+
+
+class Parameterization(NamedTuple):
+    """How frame poses follow from the free parameters.
+
+    Frame f's pose is ``p_r ∘ offset[f]`` with r = ``root[f]`` and
+    ``p_r = (x_r, y_r, ϑ_c + phase[r])``, c = ``heading_class[r]``; the state is ``xy``
+    (n, 2, used at roots) and ``theta`` (n, used at class roots). ``col`` (n, 3) gives the
+    parameter index of (x_r, y_r, ϑ_c) for each frame (-1 where fixed: the anchor's).
+    ``soft`` lists the ATs that remain residuals (exact ones hold by construction), ``kind``
+    says which are heading-exact (1) or fully uncertain (0).
+    """
+
+    root: IntArray
+    offset: FloatArray
+    heading_class: IntArray
+    phase: FloatArray
+    col: IntArray
+    size: int
+    soft: IntArray
+    kind: IntArray
+    rigid: bool  #: whether any frame is not its own root (offsets are not all identity)
+
+    def poses(self, xy: FloatArray, theta: FloatArray) -> FloatArray:
+        """Frame poses (n, 3) from the state."""
+        r = self.root
+        p_root = np.column_stack([xy[r], theta[self.heading_class[r]] + self.phase[r]])
+        if not self.rigid:
+            p_root[:, 2] = se2.wrap_angle(p_root[:, 2])
+            return p_root
+        return se2.compose(p_root, self.offset)
+
+    def initial_state(self, guess: FloatArray, anchor: int) -> tuple[FloatArray, FloatArray]:
+        """State from per-frame guesses (roots' guesses are used; the anchor keeps its own)."""
+        xy = guess[:, :2].copy()
+        theta = guess[:, 2].copy()
+        ra = self.root[anchor]
+        p_ra = se2.compose(guess[anchor], se2.inverse(self.offset[anchor]))
+        xy[ra] = p_ra[:2]
+        theta[self.heading_class[ra]] = p_ra[2] - self.phase[ra]
+        return xy, theta
+
+    def step(
+        self, xy: FloatArray, theta: FloatArray, delta: FloatArray
+    ) -> tuple[FloatArray, FloatArray]:
+        """The state moved by the parameter step ``delta`` (size,)."""
+        xy = xy.copy()
+        theta = theta.copy()
+        free_xy = self.col[:, 0] >= 0
+        roots = np.flatnonzero(free_xy & (self.root == np.arange(len(self.root))))
+        xy[roots, 0] += delta[self.col[roots, 0]]
+        xy[roots, 1] += delta[self.col[roots, 1]]
+        heads = np.unique(self.heading_class[self.root])
+        heads = heads[self.col_of_class(heads) >= 0]
+        theta[heads] += delta[self.col_of_class(heads)]
+        return xy, theta
+
+    def col_of_class(self, classes: IntArray) -> IntArray:
+        """Parameter index of each heading class's ϑ (-1 if fixed)."""
+        lookup = np.full(len(self.root), -1, dtype=np.int64)
+        frames_col = self.col[:, 2]
+        lookup[self.heading_class[self.root]] = frames_col
+        return lookup[classes]
+
+    def frame_jacobian(self, poses: FloatArray) -> FloatArray | None:
+        """∂p_f/∂(x_r, y_r, ϑ_c) per frame (n, 3, 3), or None when all are identity."""
+        if not self.rigid:
+            return None
+        xr = self._root_xy(poses)
+        J = np.zeros((len(self.root), 3, 3))
+        J[:, 0, 0] = J[:, 1, 1] = J[:, 2, 2] = 1.0
+        J[:, 0, 2] = -(poses[:, 1] - xr[:, 1])
+        J[:, 1, 2] = poses[:, 0] - xr[:, 0]
+        return J
+
+    def _root_xy(self, poses: FloatArray) -> FloatArray:
+        # p_f = p_r ∘ offset_f  ⇒  t_r = t_f - R(θ_r) t_offset
+        th_r = se2.angle_difference(poses[:, 2], self.offset[:, 2])
+        c, s = np.cos(th_r), np.sin(th_r)
+        ox, oy = self.offset[:, 0], self.offset[:, 1]
+        return np.column_stack([poses[:, 0] - (c * ox - s * oy), poses[:, 1] - (s * ox + c * oy)])
+
+
+def _exact_kind(cov: FloatArray, atol: float) -> IntArray:
+    """0: fully uncertain, 1: heading exact only, 2: exact. Other singular forms raise."""
+    scale = np.abs(cov).max(axis=(-2, -1))
+    exact = scale <= atol
+    heading_exact = ~exact & (np.abs(cov[:, 2, :]).max(axis=-1) <= 1e-12 * scale)
+    return np.where(exact, 2, np.where(heading_exact, 1, 0))
+
+
+def parameterize(p: Problem, *, atol: float = 1e-9) -> Parameterization:
+    """Rigid sets and heading classes from the exact ATs; parameter indices; consistency checks."""
+    n = p.n
+    kind = _exact_kind(p.cov, atol=0.0)
+    _check_supported(p, kind)
+    # Rigid sets: BFS over exact ATs, poses of members in the root's frame.
+    root, offset = _spread(n, p.i, p.j, p.z, kind == 2, p.names, full=True, atol=atol)
+    # Heading classes over roots, joined by heading-exact ATs (translated to their roots).
+    hmask = kind == 1
+    hi, hj = root[p.i[hmask]], root[p.j[hmask]]
+    # heading of j's root minus i's root implied by the AT: θ_j - θ_i = z_θ, θ_f = θ_r + off_f
+    zt = se2.angle_difference(p.z[hmask, 2] + offset[p.i[hmask], 2], offset[p.j[hmask], 2])
+    zh = np.zeros((int(hmask.sum()), 3))
+    zh[:, 2] = zt
+    names_h = [p.names[k] for k in np.flatnonzero(hmask)]
+    heading_class, phase_pose = _spread(
+        n, hi, hj, zh, np.ones(len(hi), bool), names_h, full=False, atol=atol
+    )
+    phase = phase_pose[:, 2]
+    roots = np.unique(root)
+    classes = np.unique(heading_class[roots])
+    anchor_root = root[p.anchor]
+    anchor_class = heading_class[anchor_root]
+    col = np.full((n, 3), -1, dtype=np.int64)
+    next_col = 0
+    xy_col = {}
+    for r in roots:
+        if r != anchor_root:
+            xy_col[r] = (next_col, next_col + 1)
+            next_col += 2
+    th_col = {}
+    for c in classes:
+        if c != anchor_class:
+            th_col[c] = next_col
+            next_col += 1
+    for f in range(n):
+        r = root[f]
+        if r in xy_col:
+            col[f, 0], col[f, 1] = xy_col[r]
+        c = heading_class[r]
+        if c in th_col:
+            col[f, 2] = th_col[c]
+    rigid = bool((root != np.arange(n)).any())
+    return Parameterization(
+        root, offset, heading_class, phase, col, next_col, np.flatnonzero(kind < 2), kind, rigid
+    )
+
+
+def _check_supported(p: Problem, kind: IntArray) -> None:
+    soft = np.flatnonzero(kind == 0)
+    if len(soft):
+        lam = np.linalg.eigvalsh(p.cov[soft])
+        bad = lam[:, 0] <= 1e-12 * lam[:, -1]
+        if bad.any():
+            _unsupported(p.names[int(soft[np.argmax(bad)])])
+    head = np.flatnonzero(kind == 1)
+    if len(head):
+        block = p.cov[head, :2, :2]
+        lam = np.linalg.eigvalsh(block)
+        bad = lam[:, 0] <= 1e-12 * lam[:, -1]
+        if bad.any():
+            _unsupported(p.names[int(head[np.argmax(bad)])])
+
+
+def _unsupported(name: str) -> None:
+    raise SolverError(
+        f"AT {name!r} has a singular covariance that is neither exact (all zero) nor exact in "
+        "heading only; the joint estimate supports those two cases (give the other exactly "
+        "known components a tiny variance, or use method='reduce')"
+    )
+
+
+def _spread(
+    n: int,
+    i: IntArray,
+    j: IntArray,
+    z: FloatArray,
+    use: np.ndarray,
+    names: list[str],
+    *,
+    full: bool,
+    atol: float,
+) -> tuple[IntArray, FloatArray]:
+    """Components of the graph of the ``use``d ATs; each frame's pose in its component root.
+
+    With ``full`` the whole pose is tied (rigid sets); otherwise only the heading (the x, y of
+    the returned offsets are zero). Loops must agree within ``atol``.
+    """
+    root = np.arange(n)
+    offset = np.zeros((n, 3))
+    ks = np.flatnonzero(use)
+    if not len(ks):
+        return root, offset
+    adj: dict[int, list[tuple[int, int, bool]]] = {}
+    for k in ks:
+        adj.setdefault(int(i[k]), []).append((int(k), int(j[k]), True))
+        adj.setdefault(int(j[k]), []).append((int(k), int(i[k]), False))
+    seen = np.zeros(n, bool)
+    for start in adj:
+        if seen[start]:
+            continue
+        seen[start] = True
+        queue = deque([start])
+        while queue:
+            f = queue.popleft()
+            for k, g, forward in adj[f]:
+                rel = z[k] if forward else se2.inverse(z[k])
+                if not full:
+                    rel = np.array([0.0, 0.0, rel[2]])
+                implied = se2.compose(offset[f], rel)
+                if not full:
+                    implied[:2] = 0.0
+                if not seen[g]:
+                    seen[g] = True
+                    root[g] = start
+                    offset[g] = implied
+                    queue.append(g)
+                else:
+                    gap = np.abs(se2.minus(implied, offset[g]))
+                    if gap.max() > atol:
+                        what = "exact ATs" if full else "ATs with exact headings"
+                        raise InconsistentMapError(
+                            f"{what} contradict each other around a loop through AT "
+                            f"{names[k]!r}: they disagree by {gap.max():.3g} (tolerance {atol:g})"
+                        )
+        root[start] = start
+    return root, offset

@@ -1,0 +1,492 @@
+"""The paper's reduction (§5): compounding, merging and the Delta-Y transformation.
+
+To estimate the AT from frame s to frame t, mark both, then repeat until one AT links them:
+compound the two ATs through any unmarked frame that has exactly two (step 2), and merge
+parallel ATs (step 3). Dangling ATs and self-loops are pruned first. Every new AT is oriented
+from the frame nearer the source to the frame nearer the destination (hop distances), so the
+ATs merged point the query's way: merging does not commute with reversal when there is angular
+error, and this fixes one orientation.
+
+When neither step applies (the Wheatstone bridge of Fig. 3), a triangle of ATs (Delta) is
+replaced by an equivalent star (Y) around a new frame o (Fig. 4): with the triangle's corners
+w, t, v and ATs A (w→t), B (w→v), C (t→v),
+
+    A' = A ⊗ (B ⊕ Cᴿ),  B' = B ⊗ (A ⊕ C),  C' = C ⊗ (Aᴿ ⊕ B),
+    X: w→o with identity mean,  Y: o→v with mean B',  Z: o→t with mean A',
+    C_X = ½(C_A' + C_B' - K C_C' Kᵀ),  C_Y = ½(-C_A' + C_B' + K C_C' Kᵀ),
+    C_Z = ½(C_A' - C_B' + K C_C' Kᵀ),
+
+with K = blkdiag(R(θ_A), 1) rotating C' from t's frame into w's (Eq. 3's K). The paper prints
+``K C_C Kᵀ`` (which gives negative variances even in one dimension) and a second, asymmetric
+form; relmap uses C_C' and symmetrizes. The star's covariances may be indefinite: they are
+intermediate quantities, never validated. **Delta-Y is exact only in the linear, isotropic
+case** (no angular error, position covariances σ²I), where it equals the Delta-Y rule of
+resistor networks; otherwise it is an approximation, and the optimal method is the reference.
+
+If even Delta-Y cannot reduce the network, :class:`IrreducibleNetworkError` names the loop;
+with ``on_irreducible="drop"`` the loop-forming AT whose deletion gives the smallest result
+(by ``criterion``) is deleted instead (the paper's "best deletion"), and reported.
+
+The reduction runs on batched ATs as well (all ATs with one batch shape), which Monte Carlo
+validation uses; best deletion needs single ATs.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable, Hashable, Sequence
+from itertools import count
+from typing import NamedTuple
+
+import numpy as np
+
+from relmap.at import AT, compound, merge, reverse
+from relmap.errors import IrreducibleNetworkError, ParameterError
+from relmap.lie import se2
+
+__all__ = ["Reduction", "reduce_network"]
+
+Frame = Hashable
+
+
+# --------------------------------------------------------------------- expressions
+class _Leaf(NamedTuple):
+    name: str
+
+
+class _Rev(NamedTuple):
+    inner: object
+
+
+class _Comp(NamedTuple):
+    parts: tuple[object, ...]
+
+
+class _Merge(NamedTuple):
+    parts: tuple[object, ...]
+
+
+def _render(e: object, inside: str = "") -> str:
+    if isinstance(e, _Leaf):
+        return e.name
+    if isinstance(e, _Rev):
+        inner = _render(e.inner, "rev")
+        return f"{inner}ᴿ" if isinstance(e.inner, _Leaf) else f"({inner})ᴿ"
+    if isinstance(e, _Comp):
+        text = " ⊕ ".join(_render(p, "comp") for p in e.parts)
+        return f"({text})" if inside in ("merge", "rev") else text
+    assert isinstance(e, _Merge)
+    text = " ⊗ ".join(_render(p, "merge") for p in e.parts)
+    return f"({text})" if inside in ("comp", "rev") else text
+
+
+def _comp(a: object, b: object) -> _Comp:
+    parts = (
+        *(a.parts if isinstance(a, _Comp) else (a,)),
+        *(b.parts if isinstance(b, _Comp) else (b,)),
+    )
+    return _Comp(parts)
+
+
+def _rev(e: object) -> object:
+    return e.inner if isinstance(e, _Rev) else _Rev(e)
+
+
+def _leaves(e: object) -> list[str]:
+    if isinstance(e, _Leaf):
+        return [e.name]
+    if isinstance(e, _Rev):
+        return _leaves(e.inner)
+    return [n for p in e.parts for n in _leaves(p)]  # type: ignore[attr-defined]
+
+
+# ---------------------------------------------------------------------- the network
+class _Edge(NamedTuple):
+    u: Frame
+    v: Frame
+    at: AT
+    expr: object
+    order: float  # for a stable, readable order of merge operands
+    groups: frozenset[str]  # dependent groups whose ATs this AT contains
+
+
+class Reduction(NamedTuple):
+    """Result of :func:`reduce_network`."""
+
+    at: AT
+    expression: str
+    dropped: tuple[str, ...]  #: expressions of ATs deleted by best deletion
+    definitions: dict[str, str]  #: what each Delta-Y star AT (X₁, Y₁, Z₁, ...) stands for
+
+
+class _State:
+    """The working network: ATs by id, incidence sets, frame order keys."""
+
+    def __init__(self, edges: dict[int, _Edge], rank: dict[Frame, tuple[float, ...]]):
+        self.edges = edges
+        self.rank = rank
+        self.incident: dict[Frame, set[int]] = {}
+        for k, e in edges.items():
+            self._link(k, e)
+
+    def _link(self, k: int, e: _Edge) -> None:
+        self.incident.setdefault(e.u, set()).add(k)
+        self.incident.setdefault(e.v, set()).add(k)
+
+    def add(self, k: int, e: _Edge) -> None:
+        self.edges[k] = e
+        self._link(k, e)
+
+    def drop(self, k: int) -> _Edge:
+        e = self.edges.pop(k)
+        for f in (e.u, e.v):
+            self.incident[f].discard(k)
+            if not self.incident[f]:
+                del self.incident[f]
+        return e
+
+    def copy(self) -> _State:
+        return _State(dict(self.edges), dict(self.rank))
+
+    def other(self, k: int, f: Frame) -> Frame:
+        e = self.edges[k]
+        return e.v if e.u == f else e.u
+
+
+class _Reducer:
+    def __init__(
+        self,
+        s: Frame,
+        t: Frame,
+        cross: dict[frozenset[str], tuple[str, str, np.ndarray]],
+        definitions: dict[str, str],
+    ):
+        self.s, self.t = s, t
+        self.cross = cross
+        self.definitions = definitions
+        self.ids = count(1_000_000)
+        self.stars = count(1)
+
+    # -------------------------------------------------------------- orientation
+    def oriented(self, st: _State, k: int, a: Frame) -> tuple[AT, object]:
+        """AT k pointing away from frame a, with its expression."""
+        e = st.edges[k]
+        if e.u == a:
+            return e.at, e.expr
+        return reverse(e.at), _rev(e.expr)
+
+    def first(self, st: _State, a: Frame, b: Frame) -> tuple[Frame, Frame]:
+        return (a, b) if st.rank[a] <= st.rank[b] else (b, a)
+
+    # ---------------------------------------------------------------- the steps
+    def prune(self, st: _State) -> bool:
+        changed = False
+        for k in [k for k, e in st.edges.items() if e.u == e.v]:
+            st.drop(k)
+            changed = True
+        queue = deque(st.incident)
+        while queue:
+            f = queue.popleft()
+            if f in (self.s, self.t) or f not in st.incident or len(st.incident[f]) != 1:
+                continue
+            (k,) = st.incident[f]
+            other = st.other(k, f)
+            st.drop(k)
+            changed = True
+            queue.append(other)
+        return changed
+
+    def merge_parallel(self, st: _State) -> bool:
+        pairs: dict[frozenset[Frame], list[int]] = {}
+        for k, e in st.edges.items():
+            pairs.setdefault(frozenset((e.u, e.v)), []).append(k)
+        changed = False
+        for ks in pairs.values():
+            if len(ks) < 2:
+                continue
+            e0 = st.edges[ks[0]]
+            a, b = self.first(st, e0.u, e0.v)
+            ks.sort(key=lambda k: st.edges[k].order)
+            parts = [self.oriented(st, k, a) for k in ks]
+            groups = self._independent([st.edges[k] for k in ks], "merged")
+            order = min(st.edges[k].order for k in ks)
+            for k in ks:
+                st.drop(k)
+            at = merge(*(p[0] for p in parts))
+            st.add(
+                next(self.ids), _Edge(a, b, at, _Merge(tuple(p[1] for p in parts)), order, groups)
+            )
+            changed = True
+        return changed
+
+    def compound_series(self, st: _State) -> bool:
+        for m in sorted(st.incident, key=lambda f: st.rank[f]):
+            if m in (self.s, self.t) or m not in st.incident or len(st.incident[m]) != 2:
+                continue
+            k1, k2 = sorted(st.incident[m], key=lambda k: st.edges[k].order)
+            a, b = st.other(k1, m), st.other(k2, m)
+            if a == b:
+                continue  # parallel ATs: merged first
+            if st.rank[a] > st.rank[b]:
+                (a, k1), (b, k2) = (b, k2), (a, k1)
+            first, e1 = self.oriented(st, k1, m)  # m → a
+            second, e2 = self.oriented(st, k2, m)  # m → b
+            ea, eb = st.edges[k1], st.edges[k2]
+            at = self._compound(ea, eb, reverse(first), second, m)
+            order = min(ea.order, eb.order)
+            st.drop(k1)
+            st.drop(k2)
+            st.add(
+                next(self.ids), _Edge(a, b, at, _comp(_rev(e1), e2), order, ea.groups | eb.groups)
+            )
+            return True
+        return False
+
+    def _compound(self, ea: _Edge, eb: _Edge, first: AT, second: AT, m: Frame) -> AT:
+        """first ⊕ second; for two given ATs of one dependent group, with their cross-covariance."""
+        if not ea.groups & eb.groups:
+            return compound(first, second)
+        pair = frozenset((*_leaves(ea.expr), *_leaves(eb.expr)))
+        if not (isinstance(ea.expr, _Leaf) and isinstance(eb.expr, _Leaf) and pair in self.cross):
+            self._independent([ea, eb], "compounded")
+        name_a, _, cov_ab = self.cross[pair]  # Cov(A, B) of the two ATs as given
+        X = cov_ab if ea.expr.name == name_a else cov_ab.T  # type: ignore[attr-defined]
+        # Each operand is the given AT or its reversal; the cross-covariance follows Eq. 7's R.
+        J_first = np.eye(3) if ea.v == m else se2.inverse(ea.at.mean, jacobians=True)[1]
+        J_second = np.eye(3) if eb.u == m else se2.inverse(eb.at.mean, jacobians=True)[1]
+        return compound(first, second, cross_cov=J_first @ X @ np.swapaxes(J_second, -1, -2))
+
+    def _independent(self, edges: Sequence[_Edge], what: str) -> frozenset[str]:
+        """The union of the ATs' dependent groups; raise if two of them share a group."""
+        union: frozenset[str] = frozenset()
+        for e in edges:
+            shared = union & e.groups
+            if shared:
+                raise IrreducibleNetworkError(
+                    f"the paper's reduction assumes independent ATs, but ATs of the dependent "
+                    f"group {sorted(shared)[0]!r} would be {what} here; use method='optimal'"
+                )
+            union |= e.groups
+        return union
+
+    # ------------------------------------------------------------------- Delta-Y
+    def triangles(self, st: _State) -> list[tuple[Frame, Frame, Frame]]:
+        adj: dict[Frame, set[Frame]] = {
+            f: {st.other(k, f) for k in ks} for f, ks in st.incident.items()
+        }
+        found = set()
+        for a in adj:
+            for b in adj[a]:
+                for c in adj[a] & adj[b]:
+                    if len({a, b, c}) == 3:
+                        found.add(tuple(sorted((a, b, c), key=lambda f: st.rank[f])))
+        marked = {self.s, self.t}
+        return sorted(found, key=lambda tri: (-len(marked & set(tri)), [st.rank[f] for f in tri]))
+
+    def delta_y(self, st: _State, tri: tuple[Frame, Frame, Frame]) -> None:
+        w, t, v = tri  # ordered by rank: w nearest the source
+        edge_between = {frozenset((st.edges[k].u, st.edges[k].v)): k for k in st.edges}
+        kA, kB, kC = (edge_between[frozenset(p)] for p in ((w, t), (w, v), (t, v)))
+        groups = self._independent([st.edges[k] for k in (kA, kB, kC)], "transformed by Delta-Y")
+        A, eA = self.oriented(st, kA, w)
+        B, eB = self.oriented(st, kB, w)
+        C, eC = self.oriented(st, kC, t)
+        A1 = merge(A, compound(B, reverse(C)))
+        B1 = merge(B, compound(A, C))
+        C1 = merge(C, compound(reverse(A), B))
+        th = A.mean[..., 2]
+        c, s = np.cos(th), np.sin(th)
+        K = np.zeros((*np.shape(th), 3, 3))
+        K[..., 0, 0], K[..., 0, 1], K[..., 1, 0], K[..., 1, 1], K[..., 2, 2] = c, -s, s, c, 1.0
+        KCK = K @ C1.cov @ np.swapaxes(K, -1, -2)
+        covs = (
+            0.5 * (A1.cov + B1.cov - KCK),
+            0.5 * (-A1.cov + B1.cov + KCK),
+            0.5 * (A1.cov - B1.cov + KCK),
+        )
+        covs = tuple(0.5 * (C + np.swapaxes(C, -1, -2)) for C in covs)
+        n = next(self.stars)
+        o = ("Δ-Y", n)
+        st.rank[o] = (*st.rank[w], 0.5)
+        names = [f"X{_sub(n)}", f"Y{_sub(n)}", f"Z{_sub(n)}"]
+        triangle = (
+            f"the Δ of {_render(eA)} ({w!r}→{t!r}), {_render(eB)} ({w!r}→{v!r}), "
+            f"{_render(eC)} ({t!r}→{v!r})"
+        )
+        o_name = f"o{_sub(n)}"
+        self.definitions[names[0]] = f"Y of {triangle}: {w!r}→{o_name}, identity mean"
+        self.definitions[names[1]] = f"Y of {triangle}: {o_name}→{v!r}, mean of B' = B ⊗ (A ⊕ C)"
+        self.definitions[names[2]] = f"Y of {triangle}: {o_name}→{t!r}, mean of A' = A ⊗ (B ⊕ Cᴿ)"
+        order = min(st.edges[k].order for k in (kA, kB, kC))
+        for k in (kA, kB, kC):
+            st.drop(k)
+        means = (np.zeros_like(A.mean), B1.mean, A1.mean)
+        ends = ((w, o), (o, v), (o, t))
+        for i, ((u, x), mean, cov) in enumerate(zip(ends, means, covs, strict=True)):
+            st.add(
+                next(self.ids),
+                _Edge(u, x, AT._trusted(mean, cov), _Leaf(names[i]), order + i * 1e-3, groups),
+            )
+
+    # --------------------------------------------------------------------- driver
+    def series_parallel(self, st: _State) -> None:
+        self.prune(st)
+        while self.merge_parallel(st) or self.compound_series(st):
+            self.prune(st)
+
+    def done(self, st: _State) -> bool:
+        return len(st.edges) == 1 and {st.edges[k].u for k in st.edges} | {
+            st.edges[k].v for k in st.edges
+        } == {self.s, self.t}
+
+    def reduce(self, st: _State) -> bool:
+        """Series-parallel reductions, with Delta-Y when stuck; True if one AT remains."""
+        self.series_parallel(st)
+        while not self.done(st):
+            size = len(st.edges)
+            for tri in self.triangles(st):
+                trial = st.copy()
+                saved = dict(self.definitions)
+                stars = self.stars
+                self.delta_y(trial, tri)
+                self.series_parallel(trial)
+                if len(trial.edges) < size:
+                    st.__dict__.update(trial.__dict__)
+                    break
+                self.definitions.clear()
+                self.definitions.update(saved)
+                self.stars = stars
+            else:
+                return False
+        return True
+
+
+def _sub(n: int) -> str:
+    return str(n).translate(str.maketrans("0123456789", "₀₁₂₃₄₅₆₇₈₉"))
+
+
+def _position_trace(at: AT) -> float:
+    return float(np.trace(at.cov[..., :2, :2]))
+
+
+def reduce_network(
+    edges: Sequence[tuple[str, Frame, Frame, AT]],
+    s: Frame,
+    t: Frame,
+    *,
+    on_irreducible: str = "raise",
+    criterion: Callable[[AT], float] = _position_trace,
+    groups: Sequence[tuple[Sequence[str], np.ndarray]] = (),
+) -> Reduction:
+    """Reduce ``edges`` (``(name, src, dst, AT)``) to the AT of frame t seen from frame s.
+
+    ``on_irreducible`` is ``"raise"`` or ``"drop"`` (best deletion, judged by ``criterion``,
+    by default the trace of the result's position covariance, m²). ``groups`` lists dependent
+    ATs as ``(names, joint covariance)``; a dependent pair can be compounded (with its
+    cross-covariance, §3.2), anything else involving it raises.
+    """
+    if on_irreducible not in ("raise", "drop"):
+        raise ParameterError(f"on_irreducible must be 'raise' or 'drop'; got {on_irreducible!r}")
+    group_of: dict[str, tuple[str, ...]] = {}
+    cross: dict[frozenset[str], tuple[str, str, np.ndarray]] = {}
+    for gi, (names, joint) in enumerate(groups):
+        for i, a in enumerate(names):
+            group_of[a] = (f"g{gi}",)
+            for j, b in enumerate(names):
+                if i < j:
+                    cross[frozenset((a, b))] = (
+                        a,
+                        b,
+                        np.asarray(joint)[3 * i : 3 * i + 3, 3 * j : 3 * j + 3],
+                    )
+    rank = _hop_rank(edges, s, t)
+    st = _State(
+        {
+            i: _Edge(u, v, at, _Leaf(name), float(i), frozenset(group_of.get(name, ())))
+            for i, (name, u, v, at) in enumerate(edges)
+        },
+        rank,
+    )
+    definitions: dict[str, str] = {}
+    reducer = _Reducer(s, t, cross, definitions)
+    result = _reduce_or_drop(reducer, st, on_irreducible, criterion)
+    at, expr, dropped = result
+    return Reduction(at, _render(expr), dropped, definitions)
+
+
+def _reduce_or_drop(
+    reducer: _Reducer, st: _State, on_irreducible: str, criterion: Callable[[AT], float]
+) -> tuple[AT, object, tuple[str, ...]]:
+    if reducer.reduce(st):
+        (k,) = st.edges
+        at, expr = reducer.oriented(st, k, reducer.s)
+        return at, expr, ()
+    remaining = tuple(_render(e.expr) for e in st.edges.values())
+    if on_irreducible == "raise":
+        raise IrreducibleNetworkError(
+            "the paper's reduction (with Delta-Y) cannot reduce the loop formed by "
+            + ", ".join(remaining)
+            + "; use method='optimal', or on_irreducible='drop' to delete the best AT",
+            remaining,
+        )
+    if any(e.at.ndim for e in st.edges.values()):
+        raise ParameterError("best deletion needs single ATs, not batches")
+    best: tuple[float, AT, object, tuple[str, ...]] | None = None
+    for k in list(st.edges):
+        trial = st.copy()
+        dropped = _render(trial.drop(k).expr)
+        if not _connected(trial, reducer.s, reducer.t):
+            continue
+        saved = dict(reducer.definitions)
+        at, expr, more = _reduce_or_drop(reducer, trial, on_irreducible, criterion)
+        score = criterion(at)
+        if best is None or score < best[0]:
+            best = (score, at, expr, (dropped, *more))
+        else:
+            reducer.definitions.clear()
+            reducer.definitions.update(saved)
+    if best is None:
+        raise IrreducibleNetworkError(
+            "no AT can be deleted without disconnecting the frames", remaining
+        )
+    return best[1], best[2], best[3]
+
+
+def _connected(st: _State, s: Frame, t: Frame) -> bool:
+    seen, queue = {s}, deque([s])
+    while queue:
+        f = queue.popleft()
+        for k in st.incident.get(f, ()):
+            g = st.other(k, f)
+            if g not in seen:
+                seen.add(g)
+                queue.append(g)
+    return t in seen
+
+
+def _hop_rank(
+    edges: Sequence[tuple[str, Frame, Frame, AT]], s: Frame, t: Frame
+) -> dict[Frame, tuple[float, ...]]:
+    """Order frames from the source's side to the destination's: (hops from s, -hops to t, first seen)."""
+    adj: dict[Frame, list[Frame]] = {}
+    seen_order: dict[Frame, int] = {}
+    for _, u, v, _ in edges:
+        for f in (u, v):
+            seen_order.setdefault(f, len(seen_order))
+        adj.setdefault(u, []).append(v)
+        adj.setdefault(v, []).append(u)
+
+    def hops(root: Frame) -> dict[Frame, int]:
+        dist = {root: 0}
+        queue = deque([root])
+        while queue:
+            f = queue.popleft()
+            for g in adj.get(f, ()):
+                if g not in dist:
+                    dist[g] = dist[f] + 1
+                    queue.append(g)
+        return dist
+
+    ds, dt = hops(s), hops(t)
+    big = len(seen_order) + 1
+    return {f: (ds.get(f, big), -dt.get(f, big), i) for f, i in seen_order.items()}
