@@ -326,7 +326,7 @@ class RelationalMap:
 
     # ------------------------------------------------------------------- query
     def query(self, src: Frame, dst: Frame, method: str = "auto", **options: object) -> Estimate:
-        """The AT of frame ``dst`` seen from frame ``src``; see :func:`relmap.network.query.query`."""
+        """The AT of frame ``dst`` seen from frame ``src`` (:func:`relmap.network.query.query`)."""
         from relmap.network.query import query
 
         return query(self, src, dst, method=method, **options)  # type: ignore[arg-type]

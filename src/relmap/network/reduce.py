@@ -467,7 +467,10 @@ def _connected(st: _State, s: Frame, t: Frame) -> bool:
 def _hop_rank(
     edges: Sequence[tuple[str, Frame, Frame, AT]], s: Frame, t: Frame
 ) -> dict[Frame, tuple[float, ...]]:
-    """Order frames from the source's side to the destination's: (hops from s, -hops to t, first seen)."""
+    """Frames ordered from the source's side to the destination's.
+
+    Key: (hops from s, -hops to t, order of first appearance).
+    """
     adj: dict[Frame, list[Frame]] = {}
     seen_order: dict[Frame, int] = {}
     for _, u, v, _ in edges:
