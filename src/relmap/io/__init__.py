@@ -1,6 +1,17 @@
-"""Files: relational-map files (JSON/YAML), 2-D pose graphs (g2o, TORO); dataset readers to come."""
+"""Files: relational-map files (JSON/YAML), 2-D pose graphs (g2o, TORO), loading either as a map."""
 
 from relmap.io.mapfile import ATRecord, read_records, write_records
+from relmap.io.maps import load_map, save_map, solve_graph
 from relmap.io.posegraph import PoseGraph, read_graph, write_graph
 
-__all__ = ["ATRecord", "PoseGraph", "read_graph", "read_records", "write_graph", "write_records"]
+__all__ = [
+    "ATRecord",
+    "PoseGraph",
+    "load_map",
+    "read_graph",
+    "read_records",
+    "save_map",
+    "solve_graph",
+    "write_graph",
+    "write_records",
+]

@@ -21,6 +21,7 @@ from relmap.typing import ArrayLike, FloatArray
 
 if TYPE_CHECKING:
     from relmap.io.mapfile import ATRecord
+    from relmap.io.posegraph import PoseGraph
     from relmap.network.query import Estimate
 
 __all__ = ["Edge", "JointGroup", "RelationalMap"]
@@ -180,6 +181,19 @@ class RelationalMap:
             g._insert(
                 Edge(g._new_name(None if names is None else names[k]), src[k], dst[k], ats, index=k)
             )
+        return g
+
+    @classmethod
+    def from_posegraph(cls, graph: PoseGraph) -> RelationalMap:
+        """A map from a pose graph (:func:`relmap.io.read_graph`): vertex ids become frames, edges
+        ATs named ``e0, e1, …`` in file order, and the file's poses the initial guess of the
+        optimal method."""
+        g = cls.from_edges(graph.edge_from.tolist(), graph.edge_to.tolist(), graph.measurements)
+        g._guesses = {
+            f: pose
+            for f, pose in zip(graph.vertex_ids.tolist(), graph.poses, strict=True)
+            if f in g._incident
+        }
         return g
 
     def _new_name(self, name: str | None, reserved: Sequence[str] = ()) -> str:

@@ -297,6 +297,8 @@ def optimize(
                 progress(iterations, cost)
             if converged:
                 break
+        elif new_cost - cost <= rtol * max(cost, 1e-300):
+            break  # no further decrease beyond rounding: the current point is the optimum
         else:
             lam = 1e-4 if lam == 0.0 else lam * 10.0
             if lam > 1e12:

@@ -1,0 +1,86 @@
+"""Load any supported file as a RelationalMap, and save a map."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from relmap.errors import FileFormatError
+from relmap.io.mapfile import ATRecord, read_records, write_records
+from relmap.io.posegraph import PoseGraph, read_graph
+from relmap.network.graph import RelationalMap
+
+if TYPE_CHECKING:
+    from relmap.network.optimal import Progress, Solution
+
+__all__ = ["load_map", "save_map", "solve_graph"]
+
+_GRAPH_TAGS = ("VERTEX_SE2", "EDGE_SE2", "FIX", "VERTEX2", "EDGE2")
+
+
+def _is_pose_graph(path: Path) -> bool:
+    try:
+        with path.open(encoding="utf-8") as fh:
+            for line in fh:
+                head = line.split(None, 1)
+                if head and not head[0].startswith("#"):
+                    return head[0] in _GRAPH_TAGS
+    except (OSError, UnicodeDecodeError):
+        return False
+    return False
+
+
+def load_map(path: str | os.PathLike[str]) -> RelationalMap:
+    """A map from a map file (JSON or YAML) or a 2-D pose graph (g2o, TORO), told apart by
+    content. Pose-graph vertex ids become integer frames, and their poses the initial guess."""
+    p = Path(path)
+    if not p.is_file():
+        raise FileFormatError(p, "no such file")
+    if _is_pose_graph(p):
+        return RelationalMap.from_posegraph(read_graph(p))
+    return RelationalMap.from_records(read_records(p))
+
+
+def save_map(
+    path: str | os.PathLike[str], g: RelationalMap, *, description: str | None = None
+) -> None:
+    """Write a map as a map file (JSON for ``.json``, YAML otherwise), atomically.
+
+    Dependent groups are not representable in map files yet and raise ``ValueError``.
+    """
+    if g.groups:
+        raise ValueError("map files cannot hold dependent ATs (joint groups) yet")
+    write_records(
+        path, [ATRecord(e.name, e.src, e.dst, e.at) for e in g.edges()], description=description
+    )
+
+
+def solve_graph(
+    graph: PoseGraph, *, progress: Progress | None = None, max_iterations: int = 100
+) -> Solution:
+    """Optimize a whole pose graph from the file's initial guess (the optimal method).
+
+    The anchor is the first ``FIX`` vertex if the file has one, else the first vertex; it
+    stays at its file pose. Returns the :class:`relmap.network.optimal.Solution` (poses in
+    :attr:`PoseGraph.vertex_ids` order).
+    """
+    from relmap.network.optimal import optimize
+    from relmap.network.problem import Problem
+
+    i, j = graph.edge_indices()
+    anchor = int(graph.index_of(graph.fixed[:1])[0]) if len(graph.fixed) else 0
+    problem = Problem(
+        len(graph.vertex_ids),
+        i,
+        j,
+        graph.measurements.mean,
+        graph.measurements.cov,
+        [],
+        np.array(graph.poses),
+        anchor,
+        [f"e{k}" for k in range(len(i))],
+    )
+    return optimize(problem, progress=progress, max_iterations=max_iterations)
