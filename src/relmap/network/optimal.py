@@ -21,7 +21,7 @@ from relmap.at import AT
 from relmap.errors import SolverError
 from relmap.lie import se2
 from relmap.network.problem import Parameterization, Problem, parameterize
-from relmap.network.sparse import SymmetricFactor, SymmetricPattern
+from relmap.network.sparse import SymmetricFactor, SymmetricPattern, selected_inverse_blocks
 from relmap.typing import FloatArray, IntArray
 
 if TYPE_CHECKING:
@@ -60,6 +60,7 @@ class Solution:
         iterations: int,
         initial_error: float,
         final_error: float,
+        data: FloatArray | None = None,
     ) -> None:
         self.problem = problem
         self.param = param
@@ -68,6 +69,7 @@ class Solution:
         self.iterations = iterations
         self.initial_error = initial_error  #: Σ rᵀ Σ⁻¹ r at the initial guess
         self.final_error = final_error  #: the same at the optimum
+        self._data = data  # the normal matrix at the optimum (pattern's CSC data)
 
     def _frame_blocks(self, frames: Sequence[int]) -> tuple[IntArray, FloatArray]:
         """Parameter columns of the frames and ∂pose/∂parameters, (k, 3) and (k, 3, 3)."""
@@ -95,6 +97,25 @@ class Solution:
             J[3 * a : 3 * a + 3, 3 * a : 3 * a + 3] = Jf[a]
         return J @ P_params @ J.T
 
+    def marginals(self) -> FloatArray:
+        """The 3×3 marginal covariance of every frame's pose (paper's chart), ``(n, 3, 3)``.
+
+        By selected inversion (Takahashi) of the normal matrix at the optimum: only the blocks
+        of the inverse on the factor's pattern are formed, never the dense inverse. The anchor
+        (fixed) has zero covariance. Without exact ATs; with them, frame by frame solves.
+        """
+        n = len(self.poses)
+        out = np.zeros((n, 3, 3))
+        free = np.flatnonzero(self.param.col[:, 0] >= 0)
+        standard = self.param.size == 3 * (n - 1) and not self.param.kind.any()
+        if standard and self.factor is not None and len(free):
+            blocks = selected_inverse_blocks(self.factor.pattern, self._data)
+            out[free] = blocks[self.param.col[free, 0] // 3]
+            return out
+        for f in range(n):
+            out[f] = self.joint_cov([f])
+        return out
+
     def relative(self, a: int, b: int) -> AT:
         """The AT of frame b seen from frame a, with its first-order covariance."""
         d, Ja, Jb = se2.between(self.poses[a], self.poses[b], jacobians=True)
@@ -106,6 +127,16 @@ class Solution:
             J = np.hstack([Ja, Jb])
         out = J @ cov @ J.T
         return AT._trusted(d, 0.5 * (out + out.T))
+
+
+def _between_terms(pi: FloatArray, pj: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """between(p_i, p_j) with cos θ_i, sin θ_i."""
+    c, s = np.cos(pi[:, 2]), np.sin(pi[:, 2])
+    ex, ey = pj[:, 0] - pi[:, 0], pj[:, 1] - pi[:, 1]
+    d = np.column_stack(
+        [c * ex + s * ey, -s * ex + c * ey, se2.angle_difference(pj[:, 2], pi[:, 2])]
+    )
+    return d, c, s
 
 
 def _sqrt_information(cov: FloatArray, kind: IntArray) -> FloatArray:
@@ -138,60 +169,153 @@ def _weights(p: Problem, param: Parameterization) -> _Weights:
 
 
 class _System:
-    """Residuals, Jacobians and the normal equations, assembled with a fixed pattern."""
+    """Residuals, Jacobians and the normal equations, assembled with a fixed pattern.
+
+    The contributions of every AT are laid out component-major: for each of the four 3×3
+    blocks (i,i), (i,j), (j,i), (j,j) and each of its 9 entries, one value per AT, so the
+    closed forms below fill them without any per-AT work. Entries of fixed parameters go to a
+    discarded slot.
+    """
 
     def __init__(self, p: Problem, param: Parameterization, w: _Weights):
         self.p, self.param, self.w = p, param, w
         i, j = p.i[w.edges], p.j[w.edges]
-        # 3×3 blocks (i,i), (i,j), (j,i), (j,j) of every AT, and the groups' blocks.
+        self.i, self.j = i, j
+        self.group_frames = [
+            np.unique(np.concatenate([p.i[members], p.j[members]])) for members, _ in w.groups
+        ]
+        standard = not w.groups and param.size == 3 * (len(param.root) - 1) and not param.kind.any()
+        if standard:
+            # every free frame owns the parameter block 3k..3k+2: assemble by blocks
+            node_of = np.where(param.col[:, 0] >= 0, param.col[:, 0] // 3, -1)
+            ni, nj = node_of[i], node_of[j]
+            brow = np.concatenate([ni, ni, nj, nj])
+            bcol = np.concatenate([ni, nj, ni, nj])
+            pattern = SymmetricPattern.from_blocks(param.size // 3, brow, bcol)
+            # contributions come as [type t][entry q][k]; from_blocks lays them out [q][t, k]
+            m = len(i)
+            pattern.position = pattern.position.reshape(9, 4, m).transpose(1, 0, 2).reshape(-1)
+            self.pattern = pattern
+        else:
+            self.pattern = self._scalar_pattern(p, param, w, i, j)
+        # gradient scatter: parameters of frames i then j, component-major; fixed → a spare slot
+        g_index = np.concatenate([param.col[i].T.reshape(-1), param.col[j].T.reshape(-1)])
+        self.g_index = np.where(g_index >= 0, g_index, param.size)
+        # information W = Σ⁻¹ (LᵀL) of each soft AT
+        self.W = np.swapaxes(w.L, -1, -2) @ w.L
+
+    def _scalar_pattern(
+        self, p: Problem, param: Parameterization, w: _Weights, i: IntArray, j: IntArray
+    ) -> SymmetricPattern:
         rows, cols = [], []
         for a, b in ((i, i), (i, j), (j, i), (j, j)):
-            rows.append(np.repeat(param.col[a], 3, axis=1).reshape(-1))
-            cols.append(np.tile(param.col[b], (1, 3)).reshape(-1))
-        self.group_frames = []
+            for r in range(3):
+                for c in range(3):
+                    rows.append(param.col[a, r])
+                    cols.append(param.col[b, c])
         for members, _ in w.groups:
             frames = np.unique(np.concatenate([p.i[members], p.j[members]]))
-            self.group_frames.append(frames)
             for fa in frames:
                 for fb in frames:
                     rows.append(np.repeat(param.col[fa], 3))
                     cols.append(np.tile(param.col[fb], 3))
         r = np.concatenate(rows) if rows else np.zeros(0, np.int64)
         c = np.concatenate(cols) if cols else np.zeros(0, np.int64)
-        self.keep = (r >= 0) & (c >= 0)
-        self.pattern = SymmetricPattern(param.size, r[self.keep], c[self.keep])
+        # the node of each parameter: its frame's root for x, y; its heading class for θ
+        node = np.empty(param.size, dtype=np.int64)
+        free = param.col >= 0
+        n = len(param.root)
+        node[param.col[:, 0][free[:, 0]]] = param.root[free[:, 0]]
+        node[param.col[:, 1][free[:, 1]]] = param.root[free[:, 1]]
+        heading_node = param.heading_class[param.root] + n
+        node[param.col[:, 2][free[:, 2]]] = heading_node[free[:, 2]]
+        return SymmetricPattern(param.size, r, c, node)
+
+    def _blocks(self, poses: FloatArray) -> tuple[float, FloatArray, FloatArray]:
+        """(cost, block values (4, 9, m), gradient parts (2, 3, m)) of the plain ATs.
+
+        With J_j = blkdiag(R(θ_i)ᵀ, 1) and J_i = -J_j T, T = [[1, 0, -Δy], [0, 1, Δx], [0, 0, 1]]
+        ((Δx, Δy) = t_j - t_i), the blocks are H_jj = Ω = J_jᵀ W J_j, H_ij = -Tᵀ Ω,
+        H_ji = H_ijᵀ, H_ii = Tᵀ Ω T, written out entry by entry.
+        """
+        p, W = self.p, self.W
+        i, j = self.i, self.j
+        pi, pj = poses[i], poses[j]
+        d, c, s = _between_terms(pi, pj)
+        r = se2.minus(d, p.z[self.w.edges])
+        Wr = np.einsum("kab,kb->ka", W, r)
+        cost = float(np.einsum("ka,ka->", r, Wr))
+        w00, w01, w02, w11, w12, w22 = (
+            W[:, a, b] for a, b in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+        )
+        # Ω = K W Kᵀ with K = blkdiag(R(θ_i), 1)
+        cc, ss, cs = c * c, s * s, c * s
+        a = cc * w00 - 2 * cs * w01 + ss * w11
+        b = cs * (w00 - w11) + (cc - ss) * w01
+        e02 = c * w02 - s * w12
+        d11 = ss * w00 + 2 * cs * w01 + cc * w11
+        e12 = s * w02 + c * w12
+        f = w22
+        dx, dy = pj[:, 0] - pi[:, 0], pj[:, 1] - pi[:, 1]
+        u0 = -dy * a + dx * b + e02  # third column of Ω T
+        u1 = -dy * b + dx * d11 + e12
+        u2 = -dy * e02 + dx * e12 + f
+        m = len(i)
+        out = np.empty((4, 9, m))
+        Hjj = (a, b, e02, b, d11, e12, e02, e12, f)
+        Hij = (-a, -b, -e02, -b, -d11, -e12, -u0, -u1, -u2)  # -Tᵀ Ω
+        Hii = (a, b, u0, b, d11, u1, u0, u1, -dy * u0 + dx * u1 + u2)
+        for q in range(9):
+            out[0, q] = Hii[q]
+            out[1, q] = Hij[q]
+            out[2, q] = Hij[3 * (q % 3) + q // 3]  # the transpose
+            out[3, q] = Hjj[q]
+        # gradient: g_j = J_jᵀ W r = blkdiag(R, 1) W r, g_i = -Tᵀ g_j
+        gj0 = c * Wr[:, 0] - s * Wr[:, 1]
+        gj1 = s * Wr[:, 0] + c * Wr[:, 1]
+        gj2 = Wr[:, 2]
+        grad = np.empty((2, 3, m))
+        grad[1, 0], grad[1, 1], grad[1, 2] = gj0, gj1, gj2
+        grad[0, 0], grad[0, 1], grad[0, 2] = -gj0, -gj1, -(-dy * gj0 + dx * gj1 + gj2)
+        return cost, out, grad
+
+    def _blocks_general(
+        self, poses: FloatArray, Jf: FloatArray
+    ) -> tuple[float, FloatArray, FloatArray]:
+        """The same through explicit Jacobians, for frames tied into rigid sets."""
+        p, w = self.p, self.w
+        i, j = self.i, self.j
+        d, Ji, Jj = se2.between(poses[i], poses[j], jacobians=True)
+        r = se2.minus(d, p.z[w.edges])
+        Ji, Jj = Ji @ Jf[i], Jj @ Jf[j]
+        Wr = np.einsum("kab,kb->ka", self.W, r)
+        cost = float(np.einsum("ka,ka->", r, Wr))
+        JiT, JjT = np.swapaxes(Ji, -1, -2), np.swapaxes(Jj, -1, -2)
+        blocks = [JiT @ self.W @ Ji, JiT @ self.W @ Jj, JjT @ self.W @ Ji, JjT @ self.W @ Jj]
+        out = np.stack([np.moveaxis(b.reshape(-1, 9), 0, -1) for b in blocks])
+        grad = np.stack([np.einsum("kba,kb->ak", Ji, Wr), np.einsum("kba,kb->ak", Jj, Wr)])
+        return cost, out, grad
 
     def linearize(
         self, xy: FloatArray, theta: FloatArray
     ) -> tuple[float, FloatArray, FloatArray, FloatArray]:
-        """(cost, poses, normal-matrix entries in pattern order, gradient)."""
-        p, param, w = self.p, self.param, self.w
+        """(cost, poses, normal-matrix CSC data, gradient)."""
+        param, w = self.param, self.w
         poses = param.poses(xy, theta)
         Jf = param.frame_jacobian(poses)
-        i, j = p.i[w.edges], p.j[w.edges]
-        d, Ji, Jj = se2.between(poses[i], poses[j], jacobians=True)
-        r = se2.minus(d, p.z[w.edges])
-        if Jf is not None:
-            Ji, Jj = Ji @ Jf[i], Jj @ Jf[j]
-        e = np.einsum("kab,kb->ka", w.L, r)
-        Li, Lj = w.L @ Ji, w.L @ Jj
-        cost = float(np.einsum("ka,ka->", e, e))
-        LiT, LjT = np.swapaxes(Li, -1, -2), np.swapaxes(Lj, -1, -2)
-        blocks = [LiT @ Li, LiT @ Lj, LjT @ Li, LjT @ Lj]
-        values = [b.reshape(-1) for b in blocks]
-        grad = np.zeros(param.size)
-        gi = np.einsum("kba,kb->ka", Li, e)
-        gj = np.einsum("kba,kb->ka", Lj, e)
-        for g_, f in ((gi, i), (gj, j)):
-            c = param.col[f].reshape(-1)
-            ok = c >= 0
-            np.add.at(grad, c[ok], g_.reshape(-1)[ok])
+        if Jf is None:
+            cost, blocks, g = self._blocks(poses)
+        else:
+            cost, blocks, g = self._blocks_general(poses, Jf)
+        values = [blocks.reshape(-1)]
+        grad = np.bincount(self.g_index, weights=g.reshape(-1), minlength=param.size + 1)[:-1]
+        grad = grad.astype(np.float64, copy=False)  # an empty bincount is integer
         for (members, Lg), frames in zip(w.groups, self.group_frames, strict=True):
             gcost, gvals, ggrad = self._group(poses, Jf, members, Lg, frames)
             cost += gcost
             values.extend(gvals)
             grad += ggrad
-        data = self.pattern.assemble(np.concatenate(values)[self.keep])
+        data = self.pattern.assemble(np.concatenate(values) if len(values) > 1 else values[0])
         return cost, poses, data, grad
 
     def _group(
@@ -229,34 +353,24 @@ class _System:
         np.add.at(grad, cols[ok], g[ok])
         return float(e @ e), vals, grad
 
-    def cost(self, xy: FloatArray, theta: FloatArray) -> float:
-        p, param, w = self.p, self.param, self.w
-        poses = param.poses(xy, theta)
-        i, j = p.i[w.edges], p.j[w.edges]
-        r = se2.minus(se2.between(poses[i], poses[j]), p.z[w.edges])
-        e = np.einsum("kab,kb->ka", w.L, r)
-        total = float(np.einsum("ka,ka->", e, e))
-        for members, Lg in w.groups:
-            rg = se2.minus(se2.between(poses[p.i[members]], poses[p.j[members]]), p.z[members])
-            eg = Lg @ rg.reshape(-1)
-            total += float(eg @ eg)
-        return total
-
 
 def optimize(
     p: Problem,
     *,
     max_iterations: int = 100,
-    rtol: float = 1e-10,
+    rtol: float = 1e-14,
     atol: float = 1e-9,
     progress: Progress | None = None,
 ) -> Solution:
     """Minimize ``Σ rᵀ Σ⁻¹ r`` over the frame poses, the anchor fixed, from ``p.guess``.
 
     Levenberg-Marquardt on the Gauss-Newton normal equations (damping ``λ·diag(H)``, λ shrunk
-    after a successful step and grown after a failed one). Stops when a step lowers the
-    objective by less than ``rtol`` relatively (or the step itself is below rounding). The
-    returned :class:`Solution` keeps the factorization of the normal matrix at the optimum.
+    after a successful step and grown after a failed one). Converged when the Gauss-Newton
+    step predicts a decrease of the objective below ``rtol`` relatively (so the factorization
+    that proved it is the one at the optimum, kept for covariances), or when steps stop
+    lowering the objective beyond rounding. Gauss-Newton converges quadratically near the
+    optimum, so the default asks for the last step to be negligible: the poses and the
+    covariances are then those of the optimum to rounding, at the price of one iteration.
     """
     param = parameterize(p, atol=atol)
     w = _weights(p, param)
@@ -269,10 +383,10 @@ def optimize(
     factor = SymmetricFactor(system.pattern)
     lam = 0.0  # plain Gauss-Newton first; damping only after a failed step
     iterations = 0
+    undamped_at_current = False  # whether the factor holds the undamped matrix at (xy, theta)
     if progress:
         progress(0, cost)
-    while iterations < max_iterations:
-        iterations += 1
+    while True:
         diag = system.pattern.diagonal(data)
         if not np.all(diag > 0):
             k = int(np.argmin(diag))
@@ -281,30 +395,33 @@ def optimize(
                 "informative measurement)"
             )
         factor.factorize(system.pattern.with_diagonal(data, diag * lam) if lam else data)
+        undamped_at_current = lam == 0.0
         delta = -factor.solve(grad)
+        # Gauss-Newton's model predicts the decrease -gᵀδ (the objective is Σ‖e‖², g = J̃ᵀe).
+        if lam == 0.0 and -float(grad @ delta) <= rtol * max(cost, 1e-300):
+            break
+        if iterations >= max_iterations:
+            break
+        iterations += 1
         xy_new, theta_new = param.step(xy, theta, delta)
-        new_cost = system.cost(xy_new, theta_new)
+        trial = system.linearize(xy_new, theta_new)  # usually accepted: linearize right away
+        new_cost = trial[0]
         if new_cost <= cost:
-            small_step = np.abs(delta).max() <= 1e-14 * (
-                1.0 + np.abs(np.concatenate([xy.ravel(), theta])).max()
-            )
-            decrease = cost - new_cost
             xy, theta = xy_new, theta_new
-            converged = decrease <= rtol * max(cost, 1e-300) or small_step
-            cost, poses, data, grad = system.linearize(xy, theta)
+            cost, poses, data, grad = trial
+            undamped_at_current = False
             lam = lam / 10.0 if lam > 1e-9 else 0.0
             if progress:
                 progress(iterations, cost)
-            if converged:
-                break
-        elif new_cost - cost <= rtol * max(cost, 1e-300):
+        elif new_cost - cost <= max(rtol, 1e-12) * max(cost, 1e-300):
             break  # no further decrease beyond rounding: the current point is the optimum
         else:
             lam = 1e-4 if lam == 0.0 else lam * 10.0
             if lam > 1e12:
                 break  # no descent possible: the current point is a minimum to rounding
-    factor.factorize(data)  # the undamped normal matrix at the optimum, for covariances
-    return Solution(p, param, poses, factor, iterations, initial, cost)
+    if not undamped_at_current:
+        factor.factorize(data)  # the undamped normal matrix at the optimum, for covariances
+    return Solution(p, param, poses, factor, iterations, initial, cost, data)
 
 
 def problem_from_map(

@@ -164,28 +164,28 @@ def parameterize(p: Problem, *, atol: float = 1e-9) -> Parameterization:
     classes = np.unique(heading_class[roots])
     anchor_root = root[p.anchor]
     anchor_class = heading_class[anchor_root]
+    free_roots = roots[roots != anchor_root]
+    free_classes = classes[classes != anchor_class]
     col = np.full((n, 3), -1, dtype=np.int64)
-    next_col = 0
-    xy_col = {}
-    for r in roots:
-        if r != anchor_root:
-            xy_col[r] = (next_col, next_col + 1)
-            next_col += 2
-    th_col = {}
-    for c in classes:
-        if c != anchor_class:
-            th_col[c] = next_col
-            next_col += 1
-    for f in range(n):
-        r = root[f]
-        if r in xy_col:
-            col[f, 0], col[f, 1] = xy_col[r]
-        c = heading_class[r]
-        if c in th_col:
-            col[f, 2] = th_col[c]
+    if len(free_roots) == n - 1 and len(free_classes) == n - 1:
+        # no exact ATs: every frame but the anchor owns (x, y, θ), laid out frame by frame
+        k = np.cumsum(np.arange(n) != p.anchor) - 1
+        free = np.arange(n) != p.anchor
+        col[free] = 3 * k[free, None] + np.arange(3)
+        size = 3 * (n - 1)
+    else:
+        xy_of = np.full(n, -1, dtype=np.int64)
+        xy_of[free_roots] = 2 * np.arange(len(free_roots))
+        th_of = np.full(n, -1, dtype=np.int64)
+        th_of[free_classes] = 2 * len(free_roots) + np.arange(len(free_classes))
+        has_xy = xy_of[root] >= 0
+        col[has_xy, 0] = xy_of[root][has_xy]
+        col[has_xy, 1] = xy_of[root][has_xy] + 1
+        col[:, 2] = th_of[heading_class[root]]
+        size = 2 * len(free_roots) + len(free_classes)
     rigid = bool((root != np.arange(n)).any())
     return Parameterization(
-        root, offset, heading_class, phase, col, next_col, np.flatnonzero(kind < 2), kind, rigid
+        root, offset, heading_class, phase, col, size, np.flatnonzero(kind < 2), kind, rigid
     )
 
 
