@@ -292,20 +292,30 @@ def selected_inverse_blocks(
     slots = n + nb
     ptr, gather = _gather_plan(colptr, rowidx, n)
     Z = np.zeros((2 * slots, block, block))
-    for J in range(n - 1, -1, -1):
-        p0, p1 = colptr[J], colptr[J + 1]
-        m = p1 - p0
+    count = np.diff(colptr)
+    # Columns at equal depth in the elimination tree do not depend on each other (each reads
+    # only its ancestors' blocks): process them together, grouped by their number of blocks.
+    depth = _etree_depth(colptr, rowidx, n)
+    order = np.lexsort((count, depth))
+    cuts = np.flatnonzero(np.diff(depth[order]) | np.diff(count[order])) + 1
+    for group in np.split(order, cuts):
+        m = int(count[group[0]])
         if m == 0:
-            Z[J] = Z[slots + J] = Dinv[J]
+            Z[group] = Z[slots + group] = Dinv[group]
             continue
-        Zss = Z[gather[ptr[J] : ptr[J + 1]]].reshape(m, m, block, block)
-        LS = Lt[p0:p1]
-        blocks = -np.einsum("klab,lbc->kac", Zss, LS)  # Z_SJ = -Z_SS L̃_SJ
-        Z[n + p0 : n + p1] = blocks
-        Z[slots + n + p0 : slots + n + p1] = np.swapaxes(blocks, -1, -2)
-        ZJJ = Dinv[J] - np.einsum("kba,kbc->ac", LS, blocks)
-        Z[J] = ZJJ
-        Z[slots + J] = ZJJ.T
+        g = len(group)
+        cells = ptr[group][:, None] + np.arange(m * m)  # (g, m²) into the gather plan
+        mb = m * block
+        Zss = Z[gather[cells]].reshape(g, m, m, block, block).transpose(0, 1, 3, 2, 4)
+        below = colptr[group][:, None] + np.arange(m)  # (g, m) this column's blocks
+        LS = Lt[below].reshape(g, mb, block)
+        ZSJ = -(Zss.reshape(g, mb, mb) @ LS)  # Z_SJ = -Z_SS L̃_SJ
+        blocks = ZSJ.reshape(g, m, block, block)
+        Z[n + below] = blocks
+        Z[slots + n + below] = np.swapaxes(blocks, -1, -2)
+        ZJJ = Dinv[group] - np.swapaxes(LS, -1, -2) @ ZSJ  # D̃⁻¹ - L̃_SJᵀ Z_SJ
+        Z[group] = ZJJ
+        Z[slots + group] = np.swapaxes(ZJJ, -1, -2)
     Zd = Z[:n]
     out = np.empty_like(Zd)
     out[groups[:, 0] // block] = Zd
@@ -331,3 +341,18 @@ def _gather_plan(colptr: IntArray, rowidx: IntArray, n: int) -> tuple[IntArray, 
     idx = np.where(k == m, k, n + pos)
     idx = np.where(k < m, idx + slots, idx)  # above the diagonal: the stored block's transpose
     return ptr, idx
+
+
+def _etree_depth(colptr: IntArray, rowidx: IntArray, n: int) -> IntArray:
+    """Depth of each block column in the elimination tree (parent = first block below)."""
+    count = np.diff(colptr)
+    parent = np.where(count > 0, rowidx[np.minimum(colptr[:-1], max(len(rowidx) - 1, 0))], -1)
+    # pointer jumping: depth = number of ancestors, in O(n log depth) vectorized steps
+    depth = (parent >= 0).astype(np.int64)
+    anc = np.where(parent >= 0, parent, np.arange(n))
+    while True:
+        more = depth[anc] * (anc != np.arange(n))
+        if not more.any():
+            return depth
+        depth = depth + more
+        anc = np.where(anc != np.arange(n), anc[anc], anc)
