@@ -364,8 +364,9 @@ def optimize(
 ) -> Solution:
     """Minimize ``Σ rᵀ Σ⁻¹ r`` over the frame poses, the anchor fixed, from ``p.guess``.
 
-    Levenberg-Marquardt on the Gauss-Newton normal equations (damping ``λ·diag(H)``, λ shrunk
-    after a successful step and grown after a failed one). Converged when the Gauss-Newton
+    Levenberg-Marquardt on the Gauss-Newton normal equations: damping ``λ·diag(H)`` with
+    Nielsen's update from the gain ratio, starting undamped (λ = 0, Gauss-Newton) and
+    returning to it once λ is negligible. Converged when the Gauss-Newton
     step predicts a decrease of the objective below ``rtol`` relatively (so the factorization
     that proved it is the one at the optimum, kept for covariances), or when steps stop
     lowering the objective beyond rounding. Gauss-Newton converges quadratically near the
@@ -381,7 +382,7 @@ def optimize(
     if param.size == 0:
         return Solution(p, param, poses, None, 0, initial, cost)
     factor = SymmetricFactor(system.pattern)
-    lam = 0.0  # plain Gauss-Newton first; damping only after a failed step
+    lam, nu = 0.0, 2.0  # plain Gauss-Newton first; damping only once a step fails
     iterations = 0
     undamped_at_current = False  # whether the factor holds the undamped matrix at (xy, theta)
     if progress:
@@ -397,8 +398,9 @@ def optimize(
         factor.factorize(system.pattern.with_diagonal(data, diag * lam) if lam else data)
         undamped_at_current = lam == 0.0
         delta = -factor.solve(grad)
-        # Gauss-Newton's model predicts the decrease -gᵀδ (the objective is Σ‖e‖², g = J̃ᵀe).
-        if lam == 0.0 and -float(grad @ delta) <= rtol * max(cost, 1e-300):
+        # The model predicts the decrease -gᵀδ + λ δᵀDδ (objective Σ‖e‖², g = J̃ᵀe).
+        predicted = -float(grad @ delta) + lam * float(delta @ (diag * delta))
+        if lam == 0.0 and predicted <= rtol * max(cost, 1e-300):
             break
         if iterations >= max_iterations:
             break
@@ -407,16 +409,21 @@ def optimize(
         trial = system.linearize(xy_new, theta_new)  # usually accepted: linearize right away
         new_cost = trial[0]
         if new_cost <= cost:
+            rho = (cost - new_cost) / max(predicted, 1e-300)  # gain ratio (Nielsen's update)
             xy, theta = xy_new, theta_new
             cost, poses, data, grad = trial
             undamped_at_current = False
-            lam = lam / 10.0 if lam > 1e-9 else 0.0
+            lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+            nu = 2.0
+            if lam < 1e-9:
+                lam = 0.0
             if progress:
                 progress(iterations, cost)
         elif new_cost - cost <= max(rtol, 1e-12) * max(cost, 1e-300):
             break  # no further decrease beyond rounding: the current point is the optimum
         else:
-            lam = 1e-4 if lam == 0.0 else lam * 10.0
+            lam = 1e-6 if lam == 0.0 else lam * nu
+            nu *= 2.0
             if lam > 1e12:
                 break  # no descent possible: the current point is a minimum to rounding
     if not undamped_at_current:
