@@ -23,7 +23,7 @@ import numpy as np
 
 from relmap import gaussian
 from relmap._layout import components_outermost, matrix
-from relmap.errors import InconsistentMergeError, ParameterError, ShapeError
+from relmap.errors import ParameterError, ShapeError
 from relmap.gaussian import DEFAULT_RTOL, Ellipse
 from relmap.lie import se2
 from relmap.typing import ArrayLike, FloatArray, SeedLike
@@ -130,21 +130,13 @@ class AT:
         ``angle`` the direction of the major axis from the parent's x axis (radians);
         the heading error ``sigma_theta`` is independent of the position error.
         """
-        a, b, t, st = (
-            np.asarray(v, dtype=np.float64) for v in (sigma_major, sigma_minor, angle, sigma_theta)
-        )
-        for name, v in (("sigma_major", a), ("sigma_minor", b), ("sigma_theta", st)):
-            gaussian.check_finite(v, name)
-            if (v < 0).any():
-                raise ParameterError(f"{name} must be non-negative; got {v.min()}")
-        gaussian.check_finite(t, "angle")
-        c, s = np.cos(t), np.sin(t)
-        a2, b2 = a * a, b * b
-        shape = np.broadcast_shapes(a.shape, b.shape, t.shape, st.shape)
-        cov = np.zeros((*shape, 3, 3))
-        cov[..., 0, 0] = c * c * a2 + s * s * b2
-        cov[..., 1, 1] = s * s * a2 + c * c * b2
-        cov[..., 0, 1] = cov[..., 1, 0] = c * s * (a2 - b2)
+        st = np.asarray(sigma_theta, dtype=np.float64)
+        gaussian.check_finite(st, "sigma_theta")
+        if (st < 0).any():
+            raise ParameterError(f"sigma_theta must be non-negative; got {st.min()}")
+        xy = gaussian.rotated_covariance(sigma_major, sigma_minor, angle)
+        cov = np.zeros((*np.broadcast_shapes(xy.shape[:-2], st.shape), 3, 3))
+        cov[..., :2, :2] = xy
         cov[..., 2, 2] = st * st
         return cls(mean, cov)
 
@@ -415,36 +407,18 @@ def merge(*ats: AT, atol: float = 1e-9) -> AT:
 
 
 def _merge_pair(a: AT, b: AT, atol: float, position: int) -> AT:
-    v = se2.minus(b.mean, a.mean)  # innovation, heading wrapped
-    S = a.cov + b.cov
-    G, null = gaussian.generalized_inverse(S)
-    # Along a direction where C₁ + C₂ has no variance both ATs are exact: they must agree there.
-    along = np.einsum("...ij,...i->...j", null, v)
-    gap = np.abs(along).max(axis=-1)
-    if (gap > atol).any():
-        index = tuple(int(i) for i in np.argwhere(gap > atol)[0])
-        k = int(np.argmax(np.abs(along[index])))
-        where = f" at batch index {list(index)}" if index else ""
-        raise InconsistentMergeError(
-            f"cannot merge AT #{position} into the preceding ones{where}: they disagree by "
-            f"{along[index][k]:.3g} along the direction "
-            f"{np.array2string(null[index][:, k], precision=3)} of (x, y, θ), which both know "
-            f"exactly (zero variance); tolerance {atol:g}"
-        )
-    Gv = np.einsum("...ij,...j->...i", G, v)
-    mean = se2.plus(a.mean, np.einsum("...ij,...j->...i", a.cov, Gv))
-    # Joseph form (I - K) C₁ (I - K)ᵀ + K C₂ Kᵀ rather than Eq. 9's C₁ - K C₁: a sum of two
-    # congruences, so it stays symmetric PSD under rounding, has no catastrophic cancellation
-    # when C₁ is huge, and keeps the zero cross-covariances of a (nearly) exact component exact.
-    K = a.cov @ G
-    I_K = np.eye(3) - K
-    cov = _congruence(I_K, a.cov) + _congruence(K, b.cov)
-    return AT._trusted(mean, 0.5 * (cov + np.swapaxes(cov, -1, -2)))
-
-
-def _congruence(A: FloatArray, C: FloatArray) -> FloatArray:
-    """``A C Aᵀ`` over batch axes."""
-    return A @ C @ np.swapaxes(A, -1, -2)
+    mean, cov = gaussian.fuse(
+        a.mean,
+        a.cov,
+        b.mean,
+        b.cov,
+        minus=se2.minus,
+        plus=se2.plus,
+        atol=atol,
+        what=f"AT #{position} into the preceding ones",
+        components="(x, y, θ)",
+    )
+    return AT._trusted(mean, cov)
 
 
 def compound_chain(steps: AT, *, axis: int = -1) -> AT:
