@@ -23,6 +23,7 @@ if TYPE_CHECKING:
     from relmap.io.mapfile import ATRecord
     from relmap.io.posegraph import PoseGraph
     from relmap.network.query import Estimate
+    from relmap.network.sensing import SensingDecision, SensingForecast
 
 __all__ = ["Edge", "JointGroup", "RelationalMap"]
 
@@ -337,6 +338,28 @@ class RelationalMap:
             raise ShapeError(f"a guess is one pose (x, y, θ); got shape {arr.shape}")
         gaussian.check_finite(arr, "guess")
         self._guesses[frame] = arr
+
+    # --------------------------------------------------------------- sensing (§6.2)
+    def sense(self, src: Frame, dst: Frame, reading: AT, **options: object) -> SensingDecision:
+        """Predict, check and test a sensed AT from ``src`` to ``dst``, and add it if it passes
+        (:func:`relmap.network.sensing.sense`)."""
+        from relmap.network.sensing import sense
+
+        return sense(self, src, dst, reading, **options)  # type: ignore[arg-type]
+
+    def forecast_sensing(
+        self,
+        sensed: tuple[Frame, Frame],
+        sensor_cov: ArrayLike,
+        of_interest: tuple[Frame, Frame],
+        *,
+        method: str = "auto",
+    ) -> SensingForecast:
+        """The relation ``of_interest`` before and after a proposed sensing of ``sensed``
+        (:func:`relmap.network.sensing.forecast_sensing`); the map is not changed."""
+        from relmap.network.sensing import forecast_sensing
+
+        return forecast_sensing(self, sensed, sensor_cov, of_interest, method=method)
 
     # ------------------------------------------------------------------- query
     def query(self, src: Frame, dst: Frame, method: str = "auto", **options: object) -> Estimate:

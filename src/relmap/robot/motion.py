@@ -38,6 +38,7 @@ from typing import Literal
 
 import numpy as np
 
+from relmap._layout import components_outermost, matrix
 from relmap.at import AT, compound, compound_chain
 from relmap.errors import ParameterError, ShapeError
 from relmap.gaussian import check_finite
@@ -58,6 +59,12 @@ __all__ = [
 ]
 
 Integration = Literal["midpoint", "arc"]
+Sym2 = tuple[FloatArray, FloatArray, FloatArray]
+
+
+def _sym2(e: Sym2) -> FloatArray:
+    s00, s01, s11 = e
+    return matrix([[s00, s01], [s01, s11]], np.shape(s00))
 
 
 def _positive(value: float, name: str) -> float:
@@ -183,15 +190,21 @@ class WheelNoise(_Noise):
     sigma: float
     k: float
 
-    def covariance(self, motion: FloatArray, drive: DiffDrive | None = None) -> FloatArray:
+    def entries(self, motion: FloatArray, drive: DiffDrive | None = None) -> Sym2:
+        """The distinct entries ``(s00, s01, s11)`` of the covariance of ``(Δs, Δθ)``."""
         if drive is None:
             raise ParameterError("WheelNoise needs the DiffDrive (wheel radius and baseline)")
-        W = drive.wheel_map()
-        u = np.asarray(motion) @ np.linalg.inv(W).T  # back to wheel increments
-        var = self.sigma**2 + self.k * np.abs(u)
-        Su = np.zeros((*var.shape, 2))
-        Su[..., 0, 0], Su[..., 1, 1] = var[..., 0], var[..., 1]
-        return W @ Su @ W.T
+        r, b = drive.wheel_radius, drive.baseline
+        ds, dt = motion[..., 0], motion[..., 1]
+        # back to the wheel increments: Δφl = (Δs - bΔθ/2)/r, Δφr = (Δs + bΔθ/2)/r
+        vl = self.sigma**2 + self.k * np.abs((ds - b * dt / 2) / r)
+        vr = self.sigma**2 + self.k * np.abs((ds + b * dt / 2) / r)
+        # W diag(vl, vr) Wᵀ with W's columns (r/2, -r/b) and (r/2, r/b)
+        return (r * r / 4 * (vl + vr), r * r / (2 * b) * (vr - vl), (r / b) ** 2 * (vl + vr))
+
+    def covariance(self, motion: FloatArray, drive: DiffDrive | None = None) -> FloatArray:
+        """The covariance (..., 2, 2) of ``(Δs, Δθ)``."""
+        return _sym2(self.entries(np.asarray(motion, dtype=np.float64), drive))
 
 
 class DistanceNoise(_Noise):
@@ -204,12 +217,14 @@ class DistanceNoise(_Noise):
     k_theta: float
     k_theta_s: float
 
-    def covariance(self, motion: FloatArray, drive: DiffDrive | None = None) -> FloatArray:
+    def entries(self, motion: FloatArray, drive: DiffDrive | None = None) -> Sym2:
+        """The distinct entries ``(s00, s01, s11)`` of the covariance of ``(Δs, Δθ)``."""
         ds, dt = np.abs(motion[..., 0]), np.abs(motion[..., 1])
-        out = np.zeros((*ds.shape, 2, 2))
-        out[..., 0, 0] = self.k_s * ds
-        out[..., 1, 1] = self.k_theta * dt + self.k_theta_s * ds
-        return out
+        return (self.k_s * ds, np.zeros_like(ds), self.k_theta * dt + self.k_theta_s * ds)
+
+    def covariance(self, motion: FloatArray, drive: DiffDrive | None = None) -> FloatArray:
+        """The covariance (..., 2, 2) of ``(Δs, Δθ)``."""
+        return _sym2(self.entries(np.asarray(motion, dtype=np.float64), drive))
 
 
 class AlphaNoise(_Noise):
@@ -250,11 +265,17 @@ def _step_ats(
     """The steps as ATs (batch of the motion's leading axes), in the robot frame."""
     delta, J = increment(motion, integration, jacobian=True)
     if isinstance(noise, AlphaNoise):
-        cov = noise.step_covariance(motion, integration)
-    else:
-        S = noise.covariance(motion, drive)
-        cov = J @ S @ np.swapaxes(J, -1, -2)
-    return AT._trusted(delta, 0.5 * (cov + np.swapaxes(cov, -1, -2)))
+        return AT._trusted(delta, noise.step_covariance(motion, integration))
+    s00, s01, s11 = noise.entries(motion, drive)
+    # J S Jᵀ written out: J's rows are (a, e), (b, f), (0, 1)
+    a, e, b, f = J[..., 0, 0], J[..., 0, 1], J[..., 1, 0], J[..., 1, 1]
+    r0 = (a * s00 + e * s01, a * s01 + e * s11)  # first row of J S
+    r1 = (b * s00 + f * s01, b * s01 + f * s11)
+    c00 = a * r0[0] + e * r0[1]
+    c01 = b * r0[0] + f * r0[1]
+    c11 = b * r1[0] + f * r1[1]
+    cov = matrix([[c00, c01, r0[1]], [c01, c11, r1[1]], [r0[1], r1[1], s11]], delta.shape[:-1])
+    return AT._trusted(delta, cov)
 
 
 def step(
@@ -302,10 +323,12 @@ def dead_reckon(
         m = drive.motion(m)
     start = AT.identity() if start is None else start
     steps = _step_ats(m, noise, integration, drive)
-    chain = AT._trusted(
-        np.concatenate([start.mean[None], steps.mean]), np.concatenate([start.cov[None], steps.cov])
-    )
-    return compound_chain(chain)
+    n = len(m)
+    mean = components_outermost(np.empty((n + 1, 3)), 1)
+    cov = components_outermost(np.empty((n + 1, 3, 3)), 2)
+    mean[0], mean[1:] = start.mean, steps.mean
+    cov[0], cov[1:] = start.cov, steps.cov
+    return compound_chain(AT._trusted(mean, cov))
 
 
 def increments_from_velocities(t: ArrayLike, v: ArrayLike, w: ArrayLike) -> FloatArray:

@@ -1,0 +1,227 @@
+"""The sensing procedure of §6.2, and decisions about sensing made before any reading.
+
+1. *Can the sensor see it?* The AT of the object seen from the sensor is predicted from the
+   map; the probability that it lies in the field of view is computed
+   (:func:`relmap.decisions.in_view`).
+2. *Is the reading reasonable?* The reading is compared with the prediction: its squared
+   Mahalanobis distance ``d² = vᵀ (P + R)⁻¹ v`` (v the wrapped innovation) against the χ²
+   quantile of the chosen probability (:func:`glitch_test`). A glitch is reported, never merged.
+3. *Combine.* An accepted reading becomes an AT of the map.
+
+And ahead of time: the covariance a proposed sensing would leave (:func:`covariance_after`,
+a merge that needs no reading), and its effect on any other relation of the map
+(:meth:`RelationalMap.forecast_sensing`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Hashable
+from typing import TYPE_CHECKING, NamedTuple
+
+import numpy as np
+
+from relmap import gaussian
+from relmap.at import AT, merge
+from relmap.errors import DisconnectedError, ShapeError, UnknownFrameError
+from relmap.lie import se2
+from relmap.typing import ArrayLike, FloatArray
+
+if TYPE_CHECKING:
+    from relmap.network.graph import RelationalMap
+    from relmap.network.query import Estimate
+
+__all__ = [
+    "GlitchTest",
+    "SensingDecision",
+    "SensingForecast",
+    "covariance_after",
+    "forecast_sensing",
+    "glitch_test",
+    "sense",
+]
+
+Frame = Hashable
+
+
+class GlitchTest(NamedTuple):
+    """The outcome of testing a reading against its prediction."""
+
+    mahalanobis2: float  #: d² of the innovation under P + R
+    threshold: float  #: the χ² quantile at ``probability`` with ``dof`` degrees of freedom
+    dof: int  #: the rank of P + R (exactly known directions add none)
+    p_value: float  #: probability of a reading at least this far from the prediction
+    accepted: bool  #: d² ≤ threshold
+
+
+def glitch_test(predicted: AT, reading: AT, probability: float = 0.99) -> GlitchTest:
+    """Is ``reading`` (an AT of the same relation as ``predicted``) plausible? (§6.2 step 2)
+
+    Innovation ``v = reading ⊟ predicted`` (heading wrapped), ``S = P + R`` (independent), and
+    ``d² = vᵀ S⁻¹ v``; accepted when ``d² ≤ χ²_dof(probability)``. A reading that leaves the
+    subspace where S has variance (disagrees with an exactly known component) has d² = ∞.
+    """
+    from scipy.special import gammaincc
+
+    gaussian.check_probability(probability)
+    if predicted.ndim or reading.ndim:
+        raise ShapeError("glitch_test compares single ATs")
+    v = se2.minus(reading.mean, predicted.mean)
+    S = predicted.cov + reading.cov
+    d2 = float(gaussian.mahalanobis2(v, np.zeros(3), S))
+    _, null = gaussian.generalized_inverse(S)
+    dof = 3 - int((np.abs(null).sum(axis=0) > 0).sum())
+    threshold = float(gaussian.confidence_k2(probability, dof)) if dof else 0.0
+    p_value = float(gammaincc(dof / 2, d2 / 2)) if dof and np.isfinite(d2) else float(d2 == 0)
+    return GlitchTest(d2, threshold, dof, p_value, bool(d2 <= threshold))
+
+
+def covariance_after(prior: AT, sensor_cov: ArrayLike) -> FloatArray:
+    """The covariance of a relation after a proposed sensing of it, before any reading.
+
+    Merging (Eqs. 8-10) needs the readings only for the mean: the covariance it leaves is known
+    ahead of time. ``sensor_cov`` (3, 3) is the sensing's covariance in the relation's frame.
+    """
+    cov = gaussian.validate_covariance(sensor_cov, dim=3, name="sensor cov")
+    return merge(prior, AT(prior.mean, cov)).cov
+
+
+class SensingForecast(NamedTuple):
+    """The relation of interest before and after a proposed sensing elsewhere in the map."""
+
+    before: Estimate
+    after: Estimate
+    position_shrink: float  #: ratio of the 90% position-ellipse areas, after / before
+    heading_shrink: float  #: ratio of the heading standard deviations, after / before
+
+
+def forecast_sensing(
+    g: RelationalMap,
+    sensed: tuple[Frame, Frame],
+    sensor_cov: ArrayLike,
+    of_interest: tuple[Frame, Frame],
+    *,
+    method: str = "auto",
+) -> SensingForecast:
+    """How much would sensing the relation ``sensed = (a, b)`` improve ``of_interest = (c, d)``?
+
+    The sensing is added to a copy of the map as an AT from a to b, its mean the current
+    estimate (a reading's value does not change covariances to first order) and its covariance
+    ``sensor_cov``; the relation of interest is queried before and after. Nothing is read and
+    the map is not changed.
+    """
+    before = g.query(*of_interest, method=method)
+    predicted = g.query(*sensed, method=method).at
+    cov = gaussian.validate_covariance(sensor_cov, dim=3, name="sensor cov")
+    trial = g.copy()
+    trial.add(sensed[0], sensed[1], AT(predicted.mean, cov), name=_fresh(trial, "proposed sensing"))
+    after = trial.query(*of_interest, method=method)
+    area = np.sqrt(
+        np.linalg.det(after.at.cov[:2, :2]) / max(np.linalg.det(before.at.cov[:2, :2]), 1e-300)
+    )
+    heading = float(after.at.sigmas[2] / before.at.sigmas[2]) if before.at.sigmas[2] > 0 else 1.0
+    return SensingForecast(before, after, float(area), heading)
+
+
+class SensingDecision(NamedTuple):
+    """What :func:`sense` decided, and why."""
+
+    added: bool  #: whether the reading was added to the map
+    name: str | None  #: its AT name if added
+    reason: str  #: a sentence saying why
+    predicted: AT | None  #: the map's prediction of the relation before the reading (None: none)
+    visible_probability: float | None  #: probability the object was in view (if a view was given)
+    glitch: GlitchTest | None  #: the test of the reading against the prediction
+
+
+def sense(
+    g: RelationalMap,
+    src: Frame,
+    dst: Frame,
+    reading: AT,
+    *,
+    name: str | None = None,
+    probability: float = 0.99,
+    fov: float | None = None,
+    max_range: float | None = None,
+    min_visible: float = 0.9,
+    method: str = "auto",
+) -> SensingDecision:
+    """Perform §6.2: predict the sensed relation, check it can be sensed, test the reading,
+    and add it to the map as an AT from ``src`` (the sensor's frame) to ``dst``.
+
+    With ``fov``/``max_range`` the object must be in view with probability ≥ ``min_visible``
+    (else the sensing is declined before the reading is used). The reading must pass
+    :func:`glitch_test` at ``probability``. The map changes only if the reading is added.
+    """
+    gaussian.check_probability(min_visible, "min_visible")
+    try:
+        predicted: AT | None = g.query(src, dst, method=method).at
+    except (DisconnectedError, UnknownFrameError):
+        predicted = None  # a new frame, or frames not yet related: nothing to predict
+    visible = None
+    if fov is not None or max_range is not None:
+        if predicted is None:
+            return SensingDecision(
+                False,
+                None,
+                "no prediction of the relation to check visibility against",
+                None,
+                None,
+                None,
+            )
+        from relmap.decisions import in_view
+
+        view = in_view(
+            predicted, 2 * np.pi if fov is None else fov, np.inf if max_range is None else max_range
+        )
+        visible = float(view.probability)
+        if visible < min_visible:
+            return SensingDecision(
+                False,
+                None,
+                f"the object is in view with probability {visible:.3g} only "
+                f"(< {min_visible:g}): not sensed",
+                predicted,
+                visible,
+                None,
+            )
+    if predicted is None:
+        added = g.add(src, dst, reading, name=name)
+        return SensingDecision(
+            True,
+            added,
+            "no prior relation between the frames: the reading is the first",
+            None,
+            visible,
+            None,
+        )
+    test = glitch_test(predicted, reading, probability)
+    if not test.accepted:
+        return SensingDecision(
+            False,
+            None,
+            f"glitch: the reading is {np.sqrt(test.mahalanobis2):.3g} standard deviations from "
+            f"the prediction (d² = {test.mahalanobis2:.3g} > {test.threshold:.3g}, "
+            f"p = {test.p_value:.2g}); rejected",
+            predicted,
+            visible,
+            test,
+        )
+    added = g.add(src, dst, reading, name=name)
+    return SensingDecision(
+        True,
+        added,
+        f"consistent with the prediction (d² = {test.mahalanobis2:.3g} ≤ "
+        f"{test.threshold:.3g}): added",
+        predicted,
+        visible,
+        test,
+    )
+
+
+def _fresh(g: RelationalMap, base: str) -> str:
+    name, k = base, 1
+    while name in g:
+        k += 1
+        name = f"{base} {k}"
+    return name
