@@ -1,15 +1,32 @@
-"""Files: relational-map files (JSON/YAML), 2-D pose graphs (g2o, TORO), loading either as a map."""
+"""Files: relational-map files (JSON/YAML), 2-D pose graphs (g2o, TORO), loading either as a map,
+landmark-localization datasets (UTIAS MRCLAM, CMU Plaza)."""
 
+from relmap.io.datasets import (
+    DatasetKind,
+    Mrclam,
+    Plaza,
+    RobotLog,
+    read_mrclam,
+    read_plaza,
+    recognise,
+)
 from relmap.io.mapfile import ATRecord, read_records, write_records
 from relmap.io.maps import load_map, save_map, solve_graph
 from relmap.io.posegraph import PoseGraph, read_graph, write_graph
 
 __all__ = [
     "ATRecord",
+    "DatasetKind",
+    "Mrclam",
+    "Plaza",
     "PoseGraph",
+    "RobotLog",
     "load_map",
     "read_graph",
+    "read_mrclam",
+    "read_plaza",
     "read_records",
+    "recognise",
     "save_map",
     "solve_graph",
     "write_graph",
