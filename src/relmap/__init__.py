@@ -9,7 +9,7 @@ Convention (everywhere): an AT on the edge ``A → B`` is where frame B is in fr
 ``(x, y, θ)`` with θ in [-π, π), covariance 3×3 on ``(x, y, θ)`` in the parent frame A.
 """
 
-from relmap import errors, gaussian, lie, montecarlo, propagate
+from relmap import decisions, errors, gaussian, lie, montecarlo, propagate
 from relmap.at import AT, compound, compound_chain, merge, reverse
 from relmap.gaussian import Ellipse
 from relmap.network import Estimate, RelationalMap
@@ -24,6 +24,7 @@ __all__ = [
     "__version__",
     "compound",
     "compound_chain",
+    "decisions",
     "errors",
     "gaussian",
     "lie",
