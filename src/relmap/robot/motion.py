@@ -38,7 +38,7 @@ from typing import Literal
 
 import numpy as np
 
-from relmap._layout import components_outermost, matrix
+from relmap._layout import components_outermost, matrix, stack_last
 from relmap.at import AT, compound, compound_chain
 from relmap.errors import ParameterError, ShapeError
 from relmap.gaussian import check_finite
@@ -129,11 +129,22 @@ def increment(
     """
     m = _pairs(motion, "motion (Δs, Δθ)")
     ds, dt = m[..., 0], m[..., 1]
+    a, b, da, db = _increment_parts(dt, integration)
+    out = stack_last([ds * a, ds * b, dt], dt.shape)
+    if not jacobian:
+        return out
+    J = matrix([[a, ds * da], [b, ds * db], [0.0, 1.0]], dt.shape)
+    return out, J
+
+
+def _increment_parts(
+    dt: FloatArray, integration: Integration
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """``(a, b, a', b')`` with ``Δ = (Δs·a(Δθ), Δs·b(Δθ), Δθ)`` and their derivatives in Δθ."""
     if integration == "midpoint":
         c, s = np.cos(dt / 2), np.sin(dt / 2)
-        a, b = c, s  # Δx = Δs·a, Δy = Δs·b
-        da, db = -s / 2, c / 2
-    elif integration == "arc":
+        return c, s, -s / 2, c / 2
+    if integration == "arc":
         small = np.abs(dt) < _ARC_SERIES
         t = np.where(small, 1.0, dt)
         t2 = dt * dt
@@ -143,16 +154,8 @@ def increment(
         db = np.where(
             small, 0.5 - t2 / 8 + t2 * t2 / 144, (t * np.sin(t) - 2 * np.sin(t / 2) ** 2) / (t * t)
         )
-    else:
-        raise ParameterError(f"integration must be 'midpoint' or 'arc'; got {integration!r}")
-    out = np.stack([ds * a, ds * b, dt], axis=-1)
-    if not jacobian:
-        return out
-    J = np.zeros((*out.shape[:-1], 3, 2))
-    J[..., 0, 0], J[..., 0, 1] = a, ds * da
-    J[..., 1, 0], J[..., 1, 1] = b, ds * db
-    J[..., 2, 1] = 1.0
-    return out, J
+        return a, b, da, db
+    raise ParameterError(f"integration must be 'midpoint' or 'arc'; got {integration!r}")
 
 
 # ------------------------------------------------------------------ noise models
@@ -263,12 +266,14 @@ def _step_ats(
     motion: FloatArray, noise: Noise, integration: Integration, drive: DiffDrive | None
 ) -> AT:
     """The steps as ATs (batch of the motion's leading axes), in the robot frame."""
-    delta, J = increment(motion, integration, jacobian=True)
+    ds, dt = motion[..., 0], motion[..., 1]
+    a, b, da, db = _increment_parts(dt, integration)
+    delta = stack_last([ds * a, ds * b, dt], dt.shape)
     if isinstance(noise, AlphaNoise):
         return AT._trusted(delta, noise.step_covariance(motion, integration))
     s00, s01, s11 = noise.entries(motion, drive)
     # J S Jᵀ written out: J's rows are (a, e), (b, f), (0, 1)
-    a, e, b, f = J[..., 0, 0], J[..., 0, 1], J[..., 1, 0], J[..., 1, 1]
+    e, f = ds * da, ds * db
     r0 = (a * s00 + e * s01, a * s01 + e * s11)  # first row of J S
     r1 = (b * s00 + f * s01, b * s01 + f * s11)
     c00 = a * r0[0] + e * r0[1]
