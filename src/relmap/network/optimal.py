@@ -119,7 +119,7 @@ class Solution:
     def relative(self, a: int, b: int) -> AT:
         """The AT of frame b seen from frame a, with its first-order covariance."""
         d, Ja, Jb = se2.between(self.poses[a], self.poses[b], jacobians=True)
-        if a == self.problem.anchor and Ja is not None:
+        if a == self.problem.anchor:  # the anchor is exact: only b's covariance matters
             cov = self.joint_cov([b])
             J = Jb
         else:
