@@ -7,10 +7,13 @@ unscented propagation, and Monte Carlo checks of every estimate.
 
 Convention (everywhere): an AT on the edge ``A → B`` is where frame B is in frame A, mean
 ``(x, y, θ)`` with θ in [-π, π), covariance 3×3 on ``(x, y, θ)`` in the parent frame A.
+In 3-D (:class:`AT3`) the mean is a translation and a rotation and the covariance is 6×6 on
+``(δx, δy, δz, δφx, δφy, δφz)``: translation in the parent frame, rotation applied on the left.
 """
 
 from relmap import decisions, errors, gaussian, lie, montecarlo, propagate
 from relmap.at import AT, compound, compound_chain, merge, reverse
+from relmap.at3 import AT3
 from relmap.gaussian import Ellipse
 from relmap.network import Estimate, RelationalMap
 
@@ -18,6 +21,7 @@ __version__ = "0.1.0"
 
 __all__ = [
     "AT",
+    "AT3",
     "Ellipse",
     "Estimate",
     "RelationalMap",

@@ -201,9 +201,39 @@ def fuse(
     m1, C1 = np.asarray(mean1, dtype=np.float64), np.asarray(cov1, dtype=np.float64)
     m2, C2 = np.asarray(mean2, dtype=np.float64), np.asarray(cov2, dtype=np.float64)
     v = minus(m2, m1)  # innovation
+    gain = fusion(C1, C2)
+    check_agreement(v, gain.null, atol=atol, what=what, components=components)
+    return plus(m1, np.einsum("...ij,...j->...i", gain.gain, v)), gain.cov
+
+
+class Fusion(NamedTuple):
+    """The covariance-only part of :func:`fuse`: gain ``K = C₁ (C₁ + C₂)⁻¹`` (..., n, n), the
+    directions both estimates know exactly (``null``, (..., n, k), orthonormal columns) and
+    the fused covariance (Joseph form)."""
+
+    gain: FloatArray
+    null: FloatArray
+    cov: FloatArray
+
+
+def fusion(cov1: ArrayLike, cov2: ArrayLike) -> Fusion:
+    """Gain, exactly known directions and fused covariance of two independent estimates; the
+    mean is then ``x₁ + K (x₂ - x₁)`` once :func:`check_agreement` has accepted ``x₂ - x₁``."""
+    C1, C2 = np.asarray(cov1, dtype=np.float64), np.asarray(cov2, dtype=np.float64)
     G, null = generalized_inverse(C1 + C2)
-    along = np.einsum("...ij,...i->...j", null, v)
-    gap = np.abs(along).max(axis=-1)
+    K = C1 @ G
+    I_K = np.eye(C1.shape[-1]) - K
+    cov = I_K @ C1 @ np.swapaxes(I_K, -1, -2) + K @ C2 @ np.swapaxes(K, -1, -2)
+    return Fusion(K, null, 0.5 * (cov + np.swapaxes(cov, -1, -2)))
+
+
+def check_agreement(
+    innovation: FloatArray, null: FloatArray, *, atol: float, what: str, components: str = ""
+) -> None:
+    """Raise :class:`InconsistentMergeError` when two estimates' difference ``innovation``
+    (..., n) exceeds ``atol`` along a direction (a column of ``null``) both know exactly."""
+    along = np.einsum("...ij,...i->...j", null, innovation)
+    gap = np.abs(along).max(axis=-1, initial=0.0)
     if (gap > atol).any():
         index = tuple(int(i) for i in np.argwhere(gap > atol)[0])
         k = int(np.argmax(np.abs(along[index])))
@@ -213,11 +243,6 @@ def fuse(
             f"direction {np.array2string(null[index][:, k], precision=3)} {components}, which "
             f"both know exactly (zero variance); tolerance {atol:g}".replace("  ", " ")
         )
-    K = C1 @ G
-    mean = plus(m1, np.einsum("...ij,...j->...i", K, v))
-    I_K = np.eye(C1.shape[-1]) - K
-    cov = I_K @ C1 @ np.swapaxes(I_K, -1, -2) + K @ C2 @ np.swapaxes(K, -1, -2)
-    return mean, 0.5 * (cov + np.swapaxes(cov, -1, -2))
 
 
 def mahalanobis2(

@@ -4,7 +4,7 @@ Draw every input AT from its Gaussian, push the samples through the same operati
 (nonlinear) arithmetic, and compare the empirical distribution with relmap's estimate:
 
 >>> import relmap as rm
->>> from relmap.lie import se2
+>>> from relmap.lie import SE2, Group
 >>> a = rm.AT.from_sigmas([1.0, 0.0, 0.3], [0.05, 0.05, 0.03])
 >>> b = rm.AT.from_sigmas([2.0, 0.5, 0.1], [0.05, 0.05, 0.03])
 >>> mc = rm.montecarlo.simulate(se2.compose, a, b, n=100_000, seed=1)
@@ -14,7 +14,8 @@ True
 
 Samples are vectorized over the sample axis (no Python loop per sample). Sample means and
 covariances are taken in relmap's chart: headings are averaged as wrapped deviations from a
-reference sample, so a distribution straddling ±π is handled.
+reference sample, so a distribution straddling ±π is handled. AT3 estimates are checked the same
+way in the SE(3) chart.
 """
 
 from __future__ import annotations
@@ -26,30 +27,36 @@ import numpy as np
 
 from relmap import gaussian
 from relmap.at import AT, merge
+from relmap.at3 import AT3
 from relmap.errors import ParameterError, ShapeError
-from relmap.lie import se2
+from relmap.lie import SE2, Group
 from relmap.typing import FloatArray, SeedLike
 
 __all__ = ["Agreement", "SampleSet", "sample_moments", "simulate", "simulate_merge"]
 
 
-def sample_moments(samples: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Mean ``(..., 3)`` and covariance ``(..., 3, 3)`` of pose samples ``(n, ..., 3)``.
+def sample_moments(samples: FloatArray, group: Group = SE2) -> tuple[FloatArray, FloatArray]:
+    """Mean pose and covariance ``(..., dof, dof)`` of pose samples ``(n, ..., *point)``.
 
-    The mean heading is the first sample's heading plus the average wrapped deviation from it
-    (iterated once more around the result, so the reference does not matter); the covariance
-    uses deviations in the chart (heading wrapped) and the unbiased 1/(n-1) normalization.
+    The mean is the first sample moved by the average chart deviation from it, iterated twice
+    more around the result (so the reference does not matter; for SE(2) the heading deviations
+    are wrapped, so a distribution straddling ±π is handled); the covariance uses deviations in
+    the chart and the unbiased 1/(n-1) normalization.
     """
     samples = np.asarray(samples, dtype=np.float64)
-    if samples.ndim < 2 or samples.shape[-1] != 3:
-        raise ShapeError(f"pose samples must have shape (n, ..., 3); got {samples.shape}")
+    k = group.point_ndim
+    if samples.ndim < k + 1 or samples.shape[samples.ndim - k :] != group.point_shape:
+        raise ShapeError(
+            f"{group} pose samples must have shape "
+            f"(n, ..., {', '.join(map(str, group.point_shape))}); got {samples.shape}"
+        )
     n = samples.shape[0]
     if n < 2:
         raise ParameterError("at least two samples are needed for a covariance")
     mean = samples[0]
-    for _ in range(2):
-        mean = se2.plus(mean, se2.minus(samples, mean).mean(axis=0))
-    d = se2.minus(samples, mean)
+    for _ in range(3):
+        mean = group.plus(mean, group.minus(samples, mean).mean(axis=0))
+    d = group.minus(samples, mean)
     cov = np.einsum("n...i,n...j->...ij", d, d) / (n - 1)
     return mean, cov
 
@@ -57,9 +64,9 @@ def sample_moments(samples: FloatArray) -> tuple[FloatArray, FloatArray]:
 class Agreement(NamedTuple):
     """How well an estimate matches a Monte Carlo sample (all fields batched like the estimate).
 
-    - ``mean_error``: ``(..., 3)`` estimate ⊟ sample mean (heading wrapped).
+    - ``mean_error``: ``(..., dof)`` estimate ⊟ sample mean in the chart (heading wrapped).
     - ``mean_error_sigmas``: the same in units of the sample's standard deviations.
-    - ``mean_standard_error``: ``(..., 3)`` the sampling error of the sample mean (σ/√n).
+    - ``mean_standard_error``: ``(..., dof)`` the sampling error of the sample mean (σ/√n).
     - ``cov_rel_error``: ``‖C_est - C_mc‖_F / ‖C_mc‖_F`` (Frobenius norm; a per-entry relative
       error is meaningless where a variance is nearly zero).
     - ``cov_rel_standard_error``: the relative sampling error of ``C_mc`` in the same norm,
@@ -87,43 +94,54 @@ class Agreement(NamedTuple):
 
 
 class SampleSet(NamedTuple):
-    """Samples ``(n, ..., 3)`` of a pose-valued random quantity, with their moments."""
+    """Samples ``(n, ..., 3)`` (SE(2)) or ``(n, ..., 4, 4)`` (SE(3)) of a pose-valued random
+    quantity, with their moments."""
 
     samples: FloatArray
     mean: FloatArray
     cov: FloatArray
+    group: Group = SE2
 
     @classmethod
-    def of(cls, samples: FloatArray) -> SampleSet:
-        """Wrap pose samples ``(n, ..., 3)`` and compute their moments."""
-        mean, cov = sample_moments(samples)
-        return cls(np.asarray(samples, dtype=np.float64), mean, cov)
+    def of(cls, samples: FloatArray, group: Group = SE2) -> SampleSet:
+        """Wrap pose samples of ``group`` and compute their moments."""
+        mean, cov = sample_moments(samples, group)
+        return cls(np.asarray(samples, dtype=np.float64), mean, cov, group)
 
     @property
     def n(self) -> int:
         """Number of samples."""
         return int(self.samples.shape[0])
 
-    def as_at(self) -> AT:
-        """The sample mean and covariance as an AT."""
-        return AT(self.mean, self.cov)
+    def as_at(self) -> AT | AT3:
+        """The sample mean and covariance as an AT (or AT3)."""
+        return (
+            AT(self.mean, self.cov) if self.group is SE2 else AT3.from_matrix(self.mean, self.cov)
+        )
 
-    def compare(self, estimate: AT, probability: float = 0.90) -> Agreement:
+    def compare(self, estimate: AT | AT3, probability: float = 0.90) -> Agreement:
         """Compare an estimate (batch shape matching the samples') with this sample."""
+        if estimate.group is not self.group:
+            raise ParameterError(
+                f"the estimate is in {estimate.group} but the samples are in {self.group}"
+            )
+        minus, dof = self.group.minus, self.group.dof
         n = self.n
         sig = np.sqrt(np.diagonal(self.cov, axis1=-2, axis2=-1))
-        err = se2.minus(estimate.mean, self.mean)
+        err = minus(estimate.mean, self.mean)
         diff_norm = np.linalg.norm(estimate.cov - self.cov, axis=(-2, -1))
         mc_norm = np.linalg.norm(self.cov, axis=(-2, -1))
         var = np.diagonal(self.cov, axis1=-2, axis2=-1)
         cov_se = np.sqrt((var[..., :, None] * var[..., None, :] + self.cov**2).sum((-2, -1)) / n)
-        d = se2.minus(self.samples, estimate.mean)
+        d = minus(self.samples, estimate.mean)
         d2 = gaussian.mahalanobis2(d, 0.0, estimate.cov)
         # The ellipsoid lives in as many dimensions as the estimate has uncertain directions.
         rank = _whitener(estimate.cov)[1]
-        k2_by_dof = np.array([0.0, *(gaussian.confidence_k2(probability, k) for k in (1, 2, 3))])
+        k2_by_dof = np.array(
+            [0.0, *(gaussian.confidence_k2(probability, k) for k in range(1, dof + 1))]
+        )
         k2 = k2_by_dof[rank]
-        skew, kurt = _mardia(se2.minus(self.samples, self.mean), self.cov)
+        skew, kurt = _mardia(minus(self.samples, self.mean), self.cov)
         with np.errstate(divide="ignore", invalid="ignore"):
             return Agreement(
                 n=n,
@@ -141,7 +159,7 @@ class SampleSet(NamedTuple):
 
 
 def _mardia(d: FloatArray, cov: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Mardia's skewness b₁ and excess kurtosis b₂ - p(p+2) of centred samples ``(n, ..., 3)``.
+    """Mardia's skewness b₁ and excess kurtosis b₂ - p(p+2) of centred samples ``(n, ..., dof)``.
 
     p is the rank of the sample covariance (an exactly known component adds no dimension).
     ``b₁ = Σ_ijk m_ijk²`` with ``m_ijk`` the third moments of the whitened sample: the same as
@@ -165,23 +183,25 @@ def _whitener(cov: FloatArray) -> tuple[FloatArray, FloatArray]:
 
 def simulate(
     operation: Callable[..., FloatArray],
-    *inputs: AT,
+    *inputs: AT | AT3,
     n: int = 100_000,
     seed: SeedLike = 0,
 ) -> SampleSet:
     """Sample every input AT independently, apply ``operation`` to the sampled means, collect.
 
-    ``operation`` takes one ``(n, ..., 3)`` array per input and returns pose samples
-    ``(n, ..., 3)``, exactly (no linearization): e.g. ``relmap.lie.se2.compose``. Inputs are
-    drawn from one generator seeded by ``seed``, in order.
+    ``operation`` takes one sample array per input (``(n, ..., 3)`` for AT, ``(n, ..., 4, 4)``
+    for AT3) and returns pose samples of the same group, exactly (no linearization): e.g.
+    ``relmap.lie.se2.compose``. Inputs are drawn from one generator seeded by ``seed``, in order.
     """
+    if not inputs:
+        raise ParameterError("simulate needs at least one input AT")
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
     draws = [a.sample(n, rng) for a in inputs]
-    return SampleSet.of(np.asarray(operation(*draws), dtype=np.float64))
+    return SampleSet.of(np.asarray(operation(*draws), dtype=np.float64), inputs[0].group)
 
 
 def simulate_merge(
-    *inputs: AT, truth: FloatArray | None = None, n: int = 100_000, seed: SeedLike = 0
+    *inputs: AT | AT3, truth: FloatArray | None = None, n: int = 100_000, seed: SeedLike = 0
 ) -> SampleSet:
     """Monte Carlo of the merge *estimator*: its error distribution around a known truth.
 
@@ -193,5 +213,6 @@ def simulate_merge(
     """
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
     center = merge(*inputs).mean if truth is None else np.asarray(truth, dtype=np.float64)
-    measured = [AT._trusted(AT._trusted(center, a.cov).sample(n, rng), a.cov) for a in inputs]
-    return SampleSet.of(merge(*measured).mean)
+    kind = type(inputs[0])
+    measured = [kind._trusted(kind._trusted(center, a.cov).sample(n, rng), a.cov) for a in inputs]
+    return SampleSet.of(merge(*measured).mean, kind.group)

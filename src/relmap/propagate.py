@@ -20,10 +20,19 @@ import numpy as np
 
 from relmap.errors import ParameterError, ShapeError
 from relmap.gaussian import sqrt_psd
-from relmap.lie import se2
+from relmap.lie import se2, se3
 from relmap.typing import ArrayLike, FloatArray
 
-__all__ = ["EUCLIDEAN", "SE2", "Chart", "Moments", "numerical_jacobian", "propagate", "unscented"]
+__all__ = [
+    "EUCLIDEAN",
+    "SE2",
+    "SE3",
+    "Chart",
+    "Moments",
+    "numerical_jacobian",
+    "propagate",
+    "unscented",
+]
 
 Function = Callable[[FloatArray], FloatArray]
 
@@ -32,11 +41,15 @@ class Chart(NamedTuple):
     """How to perturb a quantity and how to difference two of them.
 
     ``plus(x, δ)`` moves x by a tangent vector δ; ``minus(y1, y0)`` is the δ with
-    ``plus(y0, δ) = y1``. Both broadcast over leading axes.
+    ``plus(y0, δ) = y1``. Both broadcast over leading axes. Points are vectors ``(..., n)``
+    unless ``point_ndim`` says otherwise (2 for SE(3)'s ``(..., 4, 4)`` matrices, whose tangent
+    has ``dof`` components).
     """
 
     plus: Callable[[FloatArray, FloatArray], FloatArray]
     minus: Callable[[FloatArray, FloatArray], FloatArray]
+    point_ndim: int = 1
+    dof: int | None = None
 
 
 class Moments(NamedTuple):
@@ -60,6 +73,9 @@ EUCLIDEAN = Chart(_add, _sub)
 #: SE(2) poses ``(x, y, θ)`` in relmap's covariance chart (heading wrapped).
 SE2 = Chart(se2.plus, se2.minus)
 
+#: SE(3) poses ``(..., 4, 4)`` in relmap's covariance chart ``(δt, δφ)`` (left rotation).
+SE3 = Chart(se3.plus, se3.minus, point_ndim=2, dof=se3.DOF)
+
 
 def numerical_jacobian(
     f: Function,
@@ -69,7 +85,8 @@ def numerical_jacobian(
     chart_in: Chart = EUCLIDEAN,
     chart_out: Chart = EUCLIDEAN,
 ) -> FloatArray:
-    """Central-difference Jacobian of ``f`` at ``x`` (``(..., n)``), shape ``(..., m, n)``.
+    """Central-difference Jacobian of ``f`` at ``x`` (``(..., n)``, or SE(3) poses
+    ``(..., 4, 4)`` with ``chart_in=SE3``), shape ``(..., m, n)``.
 
     ``J[..., :, j] = minus(f(plus(x, h e_j)), f(plus(x, -h e_j))) / 2h``, perturbing in
     ``chart_in`` and differencing in ``chart_out``. All 2n evaluations go through ``f`` in one
@@ -79,11 +96,13 @@ def numerical_jacobian(
         raise ParameterError(f"step must be positive; got {step}")
     plus, minus = chart_in.plus, chart_out.minus
     x = np.asarray(x, dtype=np.float64)
-    if x.ndim == 0:
-        raise ShapeError("x must have shape (..., n)")
-    n = x.shape[-1]
+    k = chart_in.point_ndim
+    if x.ndim < k:
+        raise ShapeError(f"x must have {k} trailing point axes; got shape {x.shape}")
+    n = x.shape[-1] if chart_in.dof is None else chart_in.dof
     delta = step * np.eye(n)  # row j perturbs component j
-    xb = np.broadcast_to(x[..., None, :], (*x.shape[:-1], n, n))
+    point = x.shape[x.ndim - k :]
+    xb = np.broadcast_to(np.expand_dims(x, x.ndim - k), (*x.shape[: x.ndim - k], n, *point))
     f_plus = np.asarray(plus(xb, delta), dtype=np.float64)
     f_minus = np.asarray(plus(xb, -delta), dtype=np.float64)
     diff = minus(np.asarray(f(f_plus)), np.asarray(f(f_minus))) / (2.0 * step)  # (..., n, m)

@@ -17,7 +17,8 @@ body-frame perturbation into the paper's chart.
 
 from __future__ import annotations
 
-from typing import Literal, overload
+import math
+from typing import Any, Literal, overload
 
 import numpy as np
 
@@ -56,6 +57,8 @@ def _pose(a: ArrayLike, name: str) -> FloatArray:
 
 def wrap_angle(theta: ArrayLike) -> FloatArray:
     """Wrap angles (radians) to [-π, π); elementwise, any shape."""
+    if isinstance(theta, float) and -np.pi <= theta < np.pi:  # one angle in range: at once
+        return np.array(theta)
     theta = np.asarray(theta, dtype=np.float64)
     wrapped = np.mod(theta + np.pi, _TWO_PI) - np.pi
     # np.mod can round a tiny negative argument up to exactly 2π, which lands on +π.
@@ -74,18 +77,24 @@ def identity(batch_shape: tuple[int, ...] = ()) -> FloatArray:
     return np.zeros((*batch_shape, DOF))
 
 
-def _compose_terms(
-    a: FloatArray, b: FloatArray
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+def _compose_terms(a: FloatArray, b: FloatArray) -> tuple[FloatArray, Any, Any, Any, Any]:
     """``a ∘ b`` and the pieces its Jacobians and covariance are made of: ``(a ∘ b, cos θ_a,
-    sin θ_a, Δx, Δy)`` with ``(Δx, Δy) = R(θ_a) t_b`` (the trigonometry is computed once)."""
-    xa, ya, ta = a[..., 0], a[..., 1], a[..., 2]
-    xb, yb = b[..., 0], b[..., 1]
-    c, s = np.cos(ta), np.sin(ta)
+    sin θ_a, Δx, Δy)`` with ``(Δx, Δy) = R(θ_a) t_b`` (the trigonometry is computed once);
+    the pieces are arrays, or floats for two single poses."""
+    c: Any
+    s: Any
+    if a.ndim == 1 and b.ndim == 1:  # two poses: Python floats, far cheaper to combine, and
+        xa, ya, ta = a.tolist()  # math's cos and sin (bitwise numpy's here, and faster)
+        xb, yb, tb = b.tolist()
+        c, s = math.cos(ta), math.sin(ta)
+    else:
+        xa, ya, ta = a[..., 0], a[..., 1], a[..., 2]
+        xb, yb, tb = b[..., 0], b[..., 1], b[..., 2]
+        c, s = np.cos(ta), np.sin(ta)
     dx = c * xb - s * yb  # b's translation rotated into a's parent frame
     dy = s * xb + c * yb
-    shape = np.broadcast_shapes(a.shape[:-1], b.shape[:-1])
-    out = stack_last([xa + dx, ya + dy, wrap_angle(ta + b[..., 2])], shape)
+    shape = a.shape[:-1] if a.shape == b.shape else np.broadcast_shapes(a.shape[:-1], b.shape[:-1])
+    out = stack_last([xa + dx, ya + dy, wrap_angle(ta + tb)], shape)
     return out, c, s, dx, dy
 
 

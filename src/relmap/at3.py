@@ -1,0 +1,426 @@
+"""AT3: uncertain SE(3) relative poses — the paper's ATs in six degrees of freedom, without poles.
+
+The mean is a translation and a rotation (a homogeneous matrix ``(..., 4, 4)`` inside; quaternions
+``(qx, qy, qz, qw)`` at the edges), never Euler angles. The 6×6 covariance is on
+``(δx, δy, δz, δφx, δφy, δφz)``: the translation perturbation in the parent frame and a rotation
+perturbation applied on the left in the parent frame, ``T' = (t + δt, Exp(δφ) R)``
+(:mod:`relmap.lie.se3`). In the plane (rotation about z only) this is exactly the paper's
+``(x, y, θ)`` chart, so an AT3 reduces to an AT. Its Jacobians have no singularity anywhere —
+the §7 "poles" belong to Euler angles, which exist here only as a conversion
+(:meth:`AT3.to_euler`, :meth:`AT3.from_euler`) that detects them.
+
+Compounding, reversal and merging follow Eqs. (1)-(10) with the 3-D Jacobians; batch axes
+broadcast like numpy.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Literal, overload
+
+import numpy as np
+
+from relmap import gaussian
+from relmap.errors import ParameterError, ShapeError
+from relmap.gaussian import DEFAULT_RTOL
+from relmap.lie import SE3, se3, so3
+from relmap.lie.so3 import ROTATION_ATOL
+from relmap.typing import ArrayLike, FloatArray, SeedLike
+
+__all__ = ["AT3", "compound3", "ellipsoid", "merge3", "reverse3"]
+
+
+def _rotation(rotation: ArrayLike, *, atol: float) -> FloatArray:
+    """Rotation matrices from quaternions (..., 4) or matrices (..., 3, 3), checked."""
+    r = np.asarray(rotation, dtype=np.float64)
+    gaussian.check_finite(r, "rotation")
+    if r.shape[-1:] == (4,):
+        return so3.from_quaternion(r, atol=atol)
+    if r.shape[-2:] != (3, 3):
+        raise ShapeError(
+            f"rotation must be quaternions (..., 4) or matrices (..., 3, 3); got {r.shape}"
+        )
+    err = np.abs(np.swapaxes(r, -1, -2) @ r - np.eye(3)).max(axis=(-2, -1))
+    det = np.linalg.det(r)
+    bad = (err > atol) | (det < 0)
+    if bad.any():
+        idx = tuple(int(i) for i in np.argwhere(bad)[0])
+        raise ParameterError(
+            f"rotation{list(idx) if idx else ''} is not a rotation matrix: "
+            f"|RᵀR - I| = {err[idx]:.3g}, det = {det[idx]:.6g} (tolerance {atol:g})"
+        )
+    # project onto SO(3) (polar decomposition) so that rounding does not accumulate
+    U, _, Vt = np.linalg.svd(r)
+    return U @ Vt
+
+
+class AT3:
+    """An uncertain 3-D pose of a child frame in its parent frame.
+
+    ``AT3(translation (..., 3), rotation (..., 4) quaternion (qx, qy, qz, qw) or (..., 3, 3),
+    cov (..., 6, 6) on (δt, δφ) or None for exact)``. Quaternions and rotation matrices are
+    checked (unit norm, orthonormal, det 1) to ``atol`` (default
+    :data:`relmap.lie.so3.ROTATION_ATOL`), then normalized; covariances like
+    :class:`relmap.AT`'s.
+    """
+
+    __slots__ = ("_cov", "_mean")
+    group = SE3  #: the pose group (generic code reads it)
+    _mean: FloatArray
+    _cov: FloatArray
+    __array_ufunc__ = None
+
+    def __init__(
+        self,
+        translation: ArrayLike,
+        rotation: ArrayLike,
+        cov: ArrayLike | None = None,
+        *,
+        atol: float = ROTATION_ATOL,
+        rtol: float = DEFAULT_RTOL,
+    ) -> None:
+        t = np.asarray(translation, dtype=np.float64)
+        if t.ndim == 0 or t.shape[-1] != 3:
+            raise ShapeError(f"translation must have shape (..., 3); got {t.shape}")
+        gaussian.check_finite(t, "translation")
+        T = se3.from_parts(t, _rotation(rotation, atol=atol))
+        C = (
+            np.zeros((*T.shape[:-2], 6, 6))
+            if cov is None
+            else gaussian.validate_covariance(cov, dim=6, name="AT3 cov", rtol=rtol)
+        )
+        try:
+            batch = np.broadcast_shapes(T.shape[:-2], C.shape[:-2])
+        except ValueError:
+            raise ShapeError(
+                f"pose batch {T.shape[:-2]} and cov batch {C.shape[:-2]} do not broadcast"
+            ) from None
+        self._set(T, C, batch)
+
+    def _set(self, T: FloatArray, C: FloatArray, batch: tuple[int, ...]) -> None:
+        object.__setattr__(self, "_mean", np.broadcast_to(T, (*batch, 4, 4)))
+        object.__setattr__(self, "_cov", np.broadcast_to(C, (*batch, 6, 6)))
+
+    @classmethod
+    def _trusted(cls, T: FloatArray, C: FloatArray) -> AT3:
+        out = object.__new__(cls)
+        out._set(T, C, np.broadcast_shapes(T.shape[:-2], C.shape[:-2]))
+        return out
+
+    def __setattr__(self, name: str, value: object) -> None:
+        raise AttributeError("AT3 is immutable; operations return new ATs")
+
+    # ------------------------------------------------------------- constructors
+    @classmethod
+    def from_matrix(
+        cls, T: ArrayLike, cov: ArrayLike | None = None, *, atol: float = ROTATION_ATOL
+    ) -> AT3:
+        """From homogeneous matrices (..., 4, 4)."""
+        T = np.asarray(T, dtype=np.float64)
+        if T.shape[-2:] != (4, 4):
+            raise ShapeError(f"T must have shape (..., 4, 4); got {T.shape}")
+        return cls(T[..., :3, 3], T[..., :3, :3], cov, atol=atol)
+
+    @classmethod
+    def from_vector(
+        cls, v: ArrayLike, cov: ArrayLike | None = None, *, atol: float = ROTATION_ATOL
+    ) -> AT3:
+        """From ``[x, y, z, qx, qy, qz, qw]`` (..., 7) (g2o, ROS, SciPy order)."""
+        v = np.asarray(v, dtype=np.float64)
+        if v.shape[-1:] != (7,):
+            raise ShapeError(f"pose vectors must have shape (..., 7); got {v.shape}")
+        return cls(v[..., :3], v[..., 3:], cov, atol=atol)
+
+    @classmethod
+    def from_sigmas(cls, translation: ArrayLike, rotation: ArrayLike, sigmas: ArrayLike) -> AT3:
+        """Independent errors ``(σx, σy, σz, σφx, σφy, σφz)`` (..., 6)."""
+        s = np.asarray(sigmas, dtype=np.float64)
+        if s.shape[-1:] != (6,):
+            raise ShapeError(f"sigmas must have shape (..., 6); got {s.shape}")
+        if (s < 0).any():
+            raise ParameterError(f"standard deviations must be non-negative; got {s.min()}")
+        cov = np.zeros((*s.shape, 6))
+        idx = np.arange(6)
+        cov[..., idx, idx] = s * s
+        return cls(translation, rotation, cov)
+
+    @classmethod
+    def from_planar(cls, at: object) -> AT3:
+        """The AT3 of a planar :class:`relmap.AT` (rotation about z; z, roll, pitch exact)."""
+        from relmap.at import AT
+
+        if not isinstance(at, AT):
+            raise TypeError(f"expected an AT, got {type(at).__name__}")
+        x, y, th = at.mean[..., 0], at.mean[..., 1], at.mean[..., 2]
+        t = np.stack([x, y, np.zeros_like(x)], axis=-1)
+        R = so3.exp(np.stack([np.zeros_like(th), np.zeros_like(th), th], axis=-1))
+        cov = np.zeros((*at.batch_shape, 6, 6))
+        keep = np.array([0, 1, 5])
+        cov[..., keep[:, None], keep[None, :]] = at.cov
+        return cls._trusted(se3.from_parts(t, R), cov)
+
+    @classmethod
+    def identity(cls, batch_shape: tuple[int, ...] = ()) -> AT3:
+        return cls._trusted(se3.identity(batch_shape), np.zeros((*batch_shape, 6, 6)))
+
+    @classmethod
+    def from_euler(cls, xyz_rpy: ArrayLike, cov: ArrayLike | None = None) -> AT3:
+        """From ``(x, y, z, roll, pitch, yaw)`` (..., 6), ``R = Rz(yaw) Ry(pitch) Rx(roll)``, and
+        a covariance on those six numbers, mapped to relmap's chart by the first-order
+        Jacobian. At pitch = ±90° the Euler covariance cannot describe every rotation error: the
+        mapping is then singular, and this says so."""
+        v = np.asarray(xyz_rpy, dtype=np.float64)
+        if v.shape[-1:] != (6,):
+            raise ShapeError(f"(x, y, z, roll, pitch, yaw) must have shape (..., 6); got {v.shape}")
+        R = so3.from_euler(v[..., 3:])
+        if cov is None:
+            return cls._trusted(se3.from_parts(v[..., :3], R), np.zeros((*v.shape[:-1], 6, 6)))
+        C = gaussian.validate_covariance(cov, dim=6, name="Euler cov")
+        J = np.zeros((*v.shape[:-1], 6, 6))
+        J[..., :3, :3] = np.eye(3)
+        J[..., 3:, 3:] = _euler_rates(v[..., 3:])  # δφ = E(rpy) δrpy
+        return cls._trusted(se3.from_parts(v[..., :3], R), _sym(J @ C @ np.swapaxes(J, -1, -2)))
+
+    @classmethod
+    def stack(cls, ats: Sequence[AT3], axis: int = 0) -> AT3:
+        if not ats:
+            raise ShapeError("AT3.stack needs at least one AT3")
+        ax = axis if axis >= 0 else axis + ats[0].ndim + 1
+        return cls._trusted(
+            np.stack([a._mean for a in ats], ax), np.stack([a._cov for a in ats], ax)
+        )
+
+    # ----------------------------------------------------------------- accessors
+    @property
+    def mean(self) -> FloatArray:
+        """The mean pose: homogeneous matrices (..., 4, 4) (read-only)."""
+        return self._mean
+
+    @property
+    def matrix(self) -> FloatArray:
+        """(..., 4, 4) homogeneous matrices (read-only); the same as :attr:`mean`."""
+        return self._mean
+
+    @property
+    def translation(self) -> FloatArray:
+        return self._mean[..., :3, 3]
+
+    @property
+    def rotation(self) -> FloatArray:
+        return self._mean[..., :3, :3]
+
+    @property
+    def quaternion(self) -> FloatArray:
+        """``(qx, qy, qz, qw)`` with ``qw ≥ 0``."""
+        return so3.to_quaternion(self.rotation)
+
+    @property
+    def vector(self) -> FloatArray:
+        """``[x, y, z, qx, qy, qz, qw]`` (..., 7): the output format of JSON and text."""
+        return np.concatenate([self.translation, self.quaternion], axis=-1)
+
+    @property
+    def cov(self) -> FloatArray:
+        """(..., 6, 6) on ``(δt, δφ)``: parent-frame translation, left rotation perturbation."""
+        return self._cov
+
+    @property
+    def batch_shape(self) -> tuple[int, ...]:
+        return self._mean.shape[:-2]
+
+    @property
+    def ndim(self) -> int:
+        return self._mean.ndim - 2
+
+    @property
+    def sigmas(self) -> FloatArray:
+        return np.sqrt(np.diagonal(self._cov, axis1=-2, axis2=-1))
+
+    def __getitem__(self, index: object) -> AT3:
+        if self.ndim == 0:
+            raise IndexError("a single AT3 has no batch axes to index")
+        return AT3._trusted(self._mean[index], self._cov[index])
+
+    def __len__(self) -> int:
+        if self.ndim == 0:
+            raise TypeError("a single AT3 has no length")
+        return self.batch_shape[0]
+
+    def __repr__(self) -> str:
+        if self.ndim:
+            return f"AT3(batch_shape={self.batch_shape})"
+        t = ", ".join(f"{v:.6g}" for v in self.translation)
+        q = ", ".join(f"{v:.6g}" for v in self.quaternion)
+        s = ", ".join(f"{v:.3g}" for v in self.sigmas)
+        return f"AT3(t=[{t}], q=[{q}], sigmas=[{s}])"
+
+    # ---------------------------------------------------------------- operations
+    def __matmul__(self, other: AT3) -> AT3:
+        if not isinstance(other, AT3):
+            return NotImplemented
+        return compound3(self, other)
+
+    def reverse(self) -> AT3:
+        return reverse3(self)
+
+    def sample(self, n: int, seed: SeedLike = None) -> FloatArray:
+        """``n`` pose draws (n, ..., 4, 4) from ``N(mean, cov)`` in the chart."""
+        delta = gaussian.sample(np.zeros(6), self._cov, n, seed)
+        return se3.plus(self._mean, delta)
+
+    def ellipsoid(self, probability: float = 0.9) -> tuple[FloatArray, FloatArray]:
+        """The position's ``probability`` confidence ellipsoid (Appendix A, N = 3): half-axes
+        (..., 3) ascending and their directions (..., 3, 3) (columns), in the parent frame."""
+        return ellipsoid(self._cov[..., :3, :3], probability)
+
+    def to_euler(self) -> tuple[FloatArray, FloatArray]:
+        """``(x, y, z, roll, pitch, yaw)`` (..., 6) and the covariance on them (..., 6, 6).
+
+        The Euler covariance is ``E⁻¹ C_φ E⁻ᵀ`` with E the Euler-rate matrix: its entries grow
+        like ``1/cos(pitch)`` near the pole — the singularity of §7 — and at the pole
+        (gimbal lock) :class:`ParameterError` is raised rather than an infinite covariance.
+        """
+        rpy = so3.to_euler(self.rotation)
+        J = np.zeros((*self.batch_shape, 6, 6))
+        J[..., :3, :3] = np.eye(3)
+        J[..., 3:, 3:] = np.linalg.inv(_euler_rates(rpy))
+        return np.concatenate([self.translation, rpy], -1), _sym(
+            J @ self._cov @ np.swapaxes(J, -1, -2)
+        )
+
+    def to_body(self) -> FloatArray:
+        """The covariance in GTSAM's Pose3 convention: body (right) perturbation
+        ``T Exp(ξ)``, ``ξ = (ω, v)`` rotation first — ``M⁻¹ Σ M⁻ᵀ``
+        (:func:`relmap.lie.se3.body_to_chart`), (..., 6, 6)."""
+        Mi = np.swapaxes(se3.body_to_chart(self._mean), -1, -2)  # M is orthogonal
+        return _sym(Mi @ self._cov @ np.swapaxes(Mi, -1, -2))
+
+    @classmethod
+    def from_body(cls, T: ArrayLike, cov_body: ArrayLike, *, rtol: float = DEFAULT_RTOL) -> AT3:
+        """From homogeneous poses (..., 4, 4) and covariances in GTSAM's Pose3 convention
+        (body frame, rotation first; see :meth:`to_body`)."""
+        T = np.asarray(T, dtype=np.float64)
+        if T.shape[-2:] != (4, 4):
+            raise ShapeError(f"T must have shape (..., 4, 4); got {T.shape}")
+        C = gaussian.validate_covariance(cov_body, dim=6, name="body cov", rtol=rtol)
+        M = se3.body_to_chart(T)
+        return cls.from_matrix(T, _sym(M @ C @ np.swapaxes(M, -1, -2)))
+
+    def to_ros(self) -> FloatArray:
+        """ROS ``PoseWithCovariance``'s 6×6 on ``(x, y, z, rot_x, rot_y, rot_z)``: translation in
+        the parent (header) frame and rotation about the fixed parent axes — relmap's chart,
+        so the covariance is returned as it is (``.reshape(..., 36)`` for the message)."""
+        return np.array(self._cov)
+
+    @classmethod
+    def from_ros(cls, translation: ArrayLike, quaternion: ArrayLike, cov: ArrayLike) -> AT3:
+        """From a ROS pose (position, orientation ``(x, y, z, w)``) and its covariance
+        (..., 6, 6) or the message's row-major (..., 36)."""
+        c = np.asarray(cov, dtype=np.float64)
+        if c.shape[-1:] == (36,):
+            c = c.reshape(*c.shape[:-1], 6, 6)
+        return cls(translation, quaternion, c)
+
+
+def _sym(C: FloatArray) -> FloatArray:
+    return 0.5 * (C + np.swapaxes(C, -1, -2))
+
+
+def _euler_rates(rpy: FloatArray) -> FloatArray:
+    """E with ``δφ = E δ(roll, pitch, yaw)`` for ``R = Rz(y) Ry(p) Rx(r)`` (left perturbation):
+    the columns are the three rotation axes in the parent frame."""
+    r, p, y = rpy[..., 0], rpy[..., 1], rpy[..., 2]
+    cy, sy, cp, sp = np.cos(y), np.sin(y), np.cos(p), np.sin(p)
+    E = np.zeros((*rpy.shape[:-1], 3, 3))
+    # roll axis: Rz Ry x̂ ; pitch axis: Rz ŷ ; yaw axis: ẑ
+    E[..., 0, 0], E[..., 1, 0], E[..., 2, 0] = cy * cp, sy * cp, -sp
+    E[..., 0, 1], E[..., 1, 1] = -sy, cy
+    E[..., 2, 2] = 1.0
+    del r
+    return E
+
+
+def ellipsoid(cov3: ArrayLike, probability: float = 0.9) -> tuple[FloatArray, FloatArray]:
+    """Half-axes (..., 3), ascending, and axis directions (..., 3, 3) of the ``probability``
+    confidence ellipsoid of a 3-D Gaussian (Appendix A with N = 3)."""
+    k = np.sqrt(gaussian.confidence_k2(probability, 3))
+    lam, U = np.linalg.eigh(np.asarray(cov3, dtype=np.float64))
+    return k * np.sqrt(np.clip(lam, 0, None)), U
+
+
+def compound3(a: AT3, b: AT3, *, cross_cov: ArrayLike | None = None) -> AT3:
+    """``a ⊕ b`` in 3-D: ``C = J_a C_a J_aᵀ + J_b C_b J_bᵀ`` (+ the cross terms of a dependent
+    pair, ``cross_cov = E[δa δbᵀ]`` (..., 6, 6))."""
+    for i, x in enumerate((a, b)):
+        if not isinstance(x, AT3):
+            raise TypeError(f"argument {i} is a {type(x).__name__}, not an AT3")
+    T, Ja, Jb = se3.compose(a._mean, b._mean, jacobians=True)
+    C = Ja @ a._cov @ np.swapaxes(Ja, -1, -2) + Jb @ b._cov @ np.swapaxes(Jb, -1, -2)
+    if cross_cov is not None:
+        X = np.asarray(cross_cov, dtype=np.float64)
+        if X.shape[-2:] != (6, 6):
+            raise ShapeError(f"cross_cov must have shape (..., 6, 6); got {X.shape}")
+        JXJ = Ja @ X @ np.swapaxes(Jb, -1, -2)
+        C = C + JXJ + np.swapaxes(JXJ, -1, -2)
+    return AT3._trusted(T, _sym(C))
+
+
+@overload
+def reverse3(a: AT3, *, jacobian: Literal[False] = ...) -> AT3: ...
+@overload
+def reverse3(a: AT3, *, jacobian: Literal[True]) -> tuple[AT3, FloatArray]: ...
+def reverse3(a: AT3, *, jacobian: bool = False) -> AT3 | tuple[AT3, FloatArray]:
+    """``Aᴿ`` in 3-D: ``C' = J C Jᵀ`` with J the inverse's Jacobian (returned too with
+    ``jacobian=True``; A's cross-covariance with its reversal is then ``C Jᵀ``)."""
+    if not isinstance(a, AT3):
+        raise TypeError(f"expected an AT3, got {type(a).__name__}")
+    T, J = se3.inverse(a._mean, jacobians=True)
+    out = AT3._trusted(T, _sym(J @ a._cov @ np.swapaxes(J, -1, -2)))
+    return (out, J) if jacobian else out
+
+
+def merge3(*ats: AT3, atol: float = 1e-9, max_iterations: int = 50) -> AT3:
+    """Merge parallel AT3s (Eqs. 8-10), order-independent.
+
+    The rotation chart is curved, so fusing pairwise in each AT's own chart would depend on the
+    order at second order in the spread of the means. Instead every mean is expressed in the
+    chart at a common pose X (``δᵢ = minus(Tᵢ, X)``), the δᵢ are fused linearly with
+    :func:`relmap.gaussian.fuse` (Joseph form, exact components allowed; the same as the
+    information-weighted mean, which does not depend on the order), X moves by the result, and
+    this repeats until the step is at rounding level (a fixed point symmetric in the inputs).
+    Inputs are assumed independent; contradictions along exactly known directions raise
+    :class:`relmap.errors.InconsistentMergeError`.
+    """
+    if not ats:
+        raise ShapeError("merge3 needs at least one AT3")
+    for i, x in enumerate(ats):
+        if not isinstance(x, AT3):
+            raise TypeError(f"argument {i} is a {type(x).__name__}, not an AT3")
+    if len(ats) == 1:
+        return ats[0]
+    # the gains depend on the covariances only: compute them once
+    gains, C = [], ats[0]._cov
+    for b in ats[1:]:
+        gains.append(gaussian.fusion(C, b._cov))
+        C = gains[-1].cov
+    X = ats[0]._mean
+    for _ in range(max_iterations):
+        d = se3.minus(ats[0]._mean, X)
+        for k, (b, g) in enumerate(zip(ats[1:], gains, strict=True), start=1):
+            v = se3.minus(b._mean, X) - d
+            gaussian.check_agreement(
+                v,
+                g.null,
+                atol=atol,
+                what=f"AT3 #{k} into the preceding ones",
+                components="(δt, δφ)",
+            )
+            d = d + np.einsum("...ij,...j->...i", g.gain, v)
+        X = se3.plus(X, d)
+        scale = 1.0 + np.abs(X[..., :3, 3]).max(initial=0.0)  # translations round at ε·|t|
+        if (
+            np.abs(d[..., :3]).max(initial=0.0) <= 1e-13 * scale
+            and np.abs(d[..., 3:]).max(initial=0.0) <= 1e-13
+        ):
+            break
+    return AT3._trusted(X, C)
