@@ -148,3 +148,72 @@ def test_failed_write_leaves_previous_file_intact(tmp_path):
     with pytest.raises(ValueError, match="batch shape"):
         write_records(p, [ATRecord("B", "a", "b", batch)])
     assert p.read_text() == before
+
+
+@pytest.mark.parametrize("suffix", [".json", ".yaml"])
+def test_3d_maps_round_trip_and_query(tmp_path, suffix):
+    """AT3 entries: mean [x, y, z, qx, qy, qz, qw], 6×6 cov; the rotation is kept to rounding
+    (the quaternion is re-normalized on reading) and the covariance exactly."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(1)
+    L = rng.normal(size=(2, 6, 6)) * 0.1
+    q = Rotation.random(2, random_state=1).as_quat()
+    recs = [
+        ATRecord(f"e{i}", f"f{i}", f"f{i + 1}", rm.AT3(rng.normal(size=3), q[i], L[i] @ L[i].T))
+        for i in range(2)
+    ]
+    path = tmp_path / f"map3{suffix}"
+    write_records(path, recs)
+    back = read_records(path)
+    for r, b in zip(recs, back, strict=True):
+        assert isinstance(b.at, rm.AT3)
+        np.testing.assert_allclose(b.at.matrix, r.at.matrix, atol=1e-15)
+        np.testing.assert_array_equal(b.at.cov, r.at.cov)
+    g = rm.io.load_map(path)
+    assert g.group is rm.lie.SE3
+    est = g.query("f0", "f2")
+    np.testing.assert_allclose(est.at.cov, (recs[0].at @ recs[1].at).cov, atol=1e-15)
+
+
+def test_3d_sigma_in_degrees_and_mixed_files(tmp_path):
+    p = tmp_path / "m.yaml"
+    p.write_text(
+        "angle_unit: deg\nats:\n"
+        "  - {from: a, to: b, mean: [1, 2, 3, 0, 0, 0, 1], sigma: [1, 1, 1, 2, 2, 2]}\n"
+    )
+    (r,) = read_records(p)
+    np.testing.assert_allclose(r.at.sigmas, [1, 1, 1, *np.deg2rad([2, 2, 2])])
+    p.write_text(
+        "ats:\n  - {from: a, to: b, mean: [1, 2, 3, 0, 0, 0, 1]}\n"
+        "  - {from: b, to: c, mean: [1, 2, 0.3]}\n"
+    )
+    with pytest.raises(FileFormatError, match=r"ats\[1\].*SE\(2\) AT in a file of SE\(3\) ATs"):
+        read_records(p)
+    p.write_text("ats:\n  - {from: a, to: b, mean: [1, 2, 3, 0, 0, 0.5, 1]}\n")
+    with pytest.raises(FileFormatError, match=r"ats\[0\].*norm"):
+        read_records(p)
+
+
+def test_query_command_on_a_3d_map(tmp_path, capsys):
+    from relmap.cli import main
+
+    p = tmp_path / "m3.yaml"
+    p.write_text(
+        "ats:\n"
+        "  - {name: A, from: W, to: L1, mean: [1, 0, 0.2, 0, 0, 0.0998, 0.995],"
+        " sigma: [0.05, 0.05, 0.02, 0.01, 0.01, 0.02]}\n"
+        "  - {name: B, from: L1, to: L2, mean: [1, 0.2, 0, 0.0998, 0, 0, 0.995],"
+        " sigma: [0.05, 0.05, 0.02, 0.01, 0.01, 0.02]}\n"
+    )
+    assert main(["query", str(p), "W", "L2", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    g = rm.io.load_map(p)
+    expected = g.edge("A").at @ g.edge("B").at
+    assert out["expression"] == "A ⊕ B" and len(out["mean"]) == 7
+    np.testing.assert_allclose(out["mean"], expected.vector, atol=1e-15)
+    np.testing.assert_allclose(out["cov"], expected.cov, atol=1e-18)
+    assert main(["query", str(p), "W", "L2"]) == 0
+    text = capsys.readouterr().out
+    assert "quaternion" not in text and "(qx qy qz qw)" in text and "roll" in text
+    assert "90% position ellipsoid" in text

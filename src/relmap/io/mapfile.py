@@ -17,6 +17,11 @@ Each AT says where frame ``to`` is, seen from frame ``from``: ``mean`` is ``(x, 
 uncertainty is ``sigma`` (independent standard deviations), ``cov`` (3×3 on ``(x, y, θ)`` in the
 ``from`` frame), or neither (exactly known). Names must be unique. Unknown keys are errors, so a
 typo never passes silently. Errors name the file and the entry.
+
+3-D maps give ``mean: [x, y, z, qx, qy, qz, qw]`` (scalar-last unit quaternion), ``sigma`` of
+``(x, y, z, φx, φy, φz)`` and a 6×6 ``cov`` in relmap's convention (translation in the ``from``
+frame, rotation applied on the left; :class:`relmap.AT3`); ``angle_unit: deg`` then scales the
+rotation rows of ``sigma``/``cov`` (never the quaternion). A file holds one kind or the other.
 """
 
 from __future__ import annotations
@@ -30,6 +35,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from relmap.at import AT
+from relmap.at3 import AT3
 from relmap.errors import FileFormatError, RelmapError
 from relmap.io.atomic import write_text_atomic
 
@@ -46,7 +52,7 @@ class ATRecord(NamedTuple):
     name: str
     src: Hashable
     dst: Hashable
-    at: AT
+    at: AT | AT3
 
 
 def _parse(path: Path, text: str) -> Any:
@@ -88,7 +94,9 @@ def read_records(path: str | os.PathLike[str]) -> list[ATRecord]:
     unit = doc.get("angle_unit", "rad")
     if unit not in ("rad", "deg"):
         raise FileFormatError(p, f"angle_unit must be 'rad' or 'deg'; got {unit!r}")
-    scale = np.array([1.0, 1.0, np.pi / 180.0 if unit == "deg" else 1.0])
+    to_rad = np.pi / 180.0 if unit == "deg" else 1.0
+    scale = np.array([1.0, 1.0, to_rad])
+    scale3 = np.array([1.0, 1.0, 1.0, to_rad, to_rad, to_rad])
     entries = doc.get("ats")
     if not isinstance(entries, list):
         raise FileFormatError(p, "'ats' must be a list of AT entries")
@@ -117,17 +125,35 @@ def read_records(path: str | os.PathLike[str]) -> list[ATRecord]:
         if "sigma" in entry and "cov" in entry:
             raise FileFormatError(p, f"{where}: give 'sigma' or 'cov', not both")
         try:
-            mean = _numbers(entry["mean"], (3,), "mean") * scale
-            if "sigma" in entry:
-                at = AT.from_sigmas(mean, _numbers(entry["sigma"], (3,), "sigma") * scale)
-            elif "cov" in entry:
-                at = AT(mean, _numbers(entry["cov"], (3, 3), "cov") * np.outer(scale, scale))
-            else:
-                at = AT(mean)
+            at = _at(entry, scale, scale3)
         except (RelmapError, TypeError, ValueError) as exc:
             raise FileFormatError(p, f"{where}: {exc}") from None
+        if records and type(at) is not type(records[0].at):
+            raise FileFormatError(
+                p, f"{where}: a {at.group} AT in a file of {records[0].at.group} ATs"
+            )
         records.append(ATRecord(name, entry["from"], entry["to"], at))
     return records
+
+
+def _at(entry: dict[str, Any], scale: np.ndarray, scale3: np.ndarray) -> AT | AT3:
+    """The AT (3 mean numbers) or AT3 (7) of one entry, angles converted to radians."""
+    raw = entry["mean"]
+    if isinstance(raw, list) and len(raw) == 7:
+        mean = _numbers(raw, (7,), "mean")
+        if "sigma" in entry:
+            sig = _numbers(entry["sigma"], (6,), "sigma") * scale3
+            return AT3.from_sigmas(mean[:3], mean[3:], sig)
+        cov = None
+        if "cov" in entry:
+            cov = _numbers(entry["cov"], (6, 6), "cov") * np.outer(scale3, scale3)
+        return AT3.from_vector(mean, cov)
+    mean = _numbers(raw, (3,), "mean") * scale
+    if "sigma" in entry:
+        return AT.from_sigmas(mean, _numbers(entry["sigma"], (3,), "sigma") * scale)
+    if "cov" in entry:
+        return AT(mean, _numbers(entry["cov"], (3, 3), "cov") * np.outer(scale, scale))
+    return AT(mean)
 
 
 def _numbers(value: Any, shape: tuple[int, ...], what: str) -> np.ndarray:
@@ -163,7 +189,7 @@ def write_records(
             "name": r.name,
             "from": r.src,
             "to": r.dst,
-            "mean": [float(v) for v in r.at.mean],
+            "mean": [float(v) for v in (r.at.vector if isinstance(r.at, AT3) else r.at.mean)],
             "cov": [[float(v) for v in row] for row in r.at.cov],
         }
         for r in records

@@ -82,5 +82,6 @@ def solve_graph(
         np.array(graph.poses),
         anchor,
         [f"e{k}" for k in range(len(i))],
+        graph.measurements.group,
     )
     return optimize(problem, progress=progress, max_iterations=max_iterations)

@@ -5,6 +5,10 @@ source frame. Parallel ATs between the same frames are allowed, and so are group
 ATs given with their joint covariance (§3.2: "a compound AT with nonzero covariance
 submatrices can be given directly"). :meth:`RelationalMap.query` estimates the AT between any
 two frames.
+
+A map holds planar ATs (:class:`relmap.AT`) or 3-D ones (:class:`relmap.AT3`), not both: the
+first AT added decides, and everything downstream (reduction, joint estimate, sensing) runs the
+same code on that group.
 """
 
 from __future__ import annotations
@@ -16,7 +20,9 @@ import numpy as np
 
 from relmap import gaussian
 from relmap.at import AT
+from relmap.at3 import AT3
 from relmap.errors import ShapeError, UnknownATError, UnknownFrameError
+from relmap.lie import Group
 from relmap.typing import ArrayLike, FloatArray
 
 if TYPE_CHECKING:
@@ -44,19 +50,20 @@ class Edge:
         name: str,
         src: Frame,
         dst: Frame,
-        at: AT,
+        at: AT | AT3,
         group: str | None = None,
         index: int | None = None,
     ) -> None:
         self.name, self.src, self.dst, self.group = name, src, dst, group
         self._source, self._index = at, index  # index: position in a batched source AT
-        self._at: AT | None = at if index is None else None
+        self._at: AT | AT3 | None = at if index is None else None
 
     @property
-    def at(self) -> AT:
+    def at(self) -> AT | AT3:
         """The AT (a single one)."""
         if self._at is None:
-            self._at = AT._trusted(self._source.mean[self._index], self._source.cov[self._index])
+            source = self._source
+            self._at = type(source)._trusted(source.mean[self._index], source.cov[self._index])
         return self._at
 
     def __repr__(self) -> str:
@@ -64,7 +71,7 @@ class Edge:
 
 
 class JointGroup(NamedTuple):
-    """Dependent ATs with their joint covariance ``(3k, 3k)`` (blocks in ``names`` order)."""
+    """Dependent ATs with their joint covariance ``(dof·k, dof·k)`` (blocks in ``names`` order)."""
 
     name: str
     names: tuple[str, ...]
@@ -90,15 +97,39 @@ class RelationalMap:
         self._groups: dict[str, JointGroup] = {}
         self._guesses: dict[Frame, FloatArray] = {}
         self._auto = 0
+        self._kind: type[AT] | type[AT3] | None = None  # fixed by the first AT
+
+    @property
+    def group(self) -> Group | None:
+        """The map's pose group (:data:`relmap.lie.SE2` or :data:`~relmap.lie.SE3`); None while
+        the map has never held an AT."""
+        return None if self._kind is None else self._kind.group
+
+    @property
+    def at_type(self) -> type[AT] | type[AT3]:
+        """:class:`relmap.AT` or :class:`relmap.AT3`: the kind the map holds (AT when empty)."""
+        return AT if self._kind is None else self._kind
+
+    def _accept(self, at: object) -> None:
+        """Check that ``at`` is an AT of the map's kind (fixing the kind on the first one)."""
+        if not isinstance(at, (AT, AT3)):
+            raise TypeError(f"expected an AT or AT3, got {type(at).__name__}")
+        if self._kind is None:
+            self._kind = type(at)
+        elif type(at) is not self._kind:
+            raise TypeError(
+                f"this map holds {self._kind.group} ATs ({self._kind.__name__}); "
+                f"got a {type(at).__name__}"
+            )
 
     # ----------------------------------------------------------------- building
-    def add(self, src: Frame, dst: Frame, at: AT, name: str | None = None) -> str:
-        """Add ``at``, the pose of frame ``dst`` seen from frame ``src``; return its name.
+    def add(self, src: Frame, dst: Frame, at: AT | AT3, name: str | None = None) -> str:
+        """Add ``at`` (an :class:`AT`, or an :class:`AT3` in a 3-D map), the pose of frame
+        ``dst`` seen from frame ``src``; return its name.
 
         Names are unique; without one, the AT is named ``e<k>``. New frames are created.
         """
-        if not isinstance(at, AT):
-            raise TypeError(f"expected an AT, got {type(at).__name__}")
+        self._accept(at)
         if at.ndim:
             raise ShapeError(f"a map holds single ATs; got batch shape {at.batch_shape}")
         name = self._new_name(name)
@@ -112,15 +143,19 @@ class RelationalMap:
         names: Sequence[str] | None = None,
         group: str | None = None,
     ) -> tuple[str, ...]:
-        """Add k dependent ATs given as ``(src, dst, mean)`` with their joint ``(3k, 3k)`` cov.
+        """Add k dependent ATs given as ``(src, dst, mean)`` with their joint covariance.
 
-        Each AT's own covariance is its diagonal block; the off-diagonal blocks are the
-        cross-covariances ``E[δAᵢ δAⱼᵀ]`` (each AT in its own source frame). Returns the names.
+        Means are ``(x, y, θ)`` (planar, joint ``(3k, 3k)``) or, in a 3-D map, 4×4 matrices or
+        ``[x, y, z, qx, qy, qz, qw]`` (joint ``(6k, 6k)``). Each AT's own covariance is its
+        diagonal block; the off-diagonal blocks are the cross-covariances ``E[δAᵢ δAⱼᵀ]`` (each
+        AT in its own source frame). Returns the names.
         """
         k = len(edges)
         if k < 2:
             raise ShapeError("a joint group needs at least two ATs")
-        joint = gaussian.validate_covariance(cov, dim=3 * k, name="joint cov")
+        kind = self._kind or (AT3 if np.shape(edges[0][2]) in ((7,), (4, 4)) else AT)
+        dof = kind.group.dof
+        joint = gaussian.validate_covariance(cov, dim=dof * k, name="joint cov")
         if names is not None and len(names) != k:
             raise ShapeError(f"{len(names)} names given for {k} ATs")
         group = self._new_group_name(group)
@@ -128,10 +163,12 @@ class RelationalMap:
         new_names = []
         staged = []
         for i, ((src, dst, mean), nm) in enumerate(zip(edges, given, strict=True)):
-            at = AT(mean, joint[3 * i : 3 * i + 3, 3 * i : 3 * i + 3])
+            block = joint[dof * i : dof * (i + 1), dof * i : dof * (i + 1)]
+            at = _make_at(kind, mean, block)
             new_name = self._new_name(nm, reserved=new_names)
             new_names.append(new_name)
             staged.append(Edge(new_name, src, dst, at, group))
+        self._accept(staged[0].at)
         for edge in staged:
             self._insert(edge)
         self._groups[group] = JointGroup(group, tuple(new_names), joint)
@@ -166,10 +203,11 @@ class RelationalMap:
         cls,
         src: Sequence[Frame],
         dst: Sequence[Frame],
-        ats: AT,
+        ats: AT | AT3,
         names: Sequence[str] | None = None,
     ) -> RelationalMap:
-        """A map from parallel sequences of source frames, destination frames and a batch of ATs."""
+        """A map from parallel sequences of source frames, destination frames and a batch of ATs
+        (or AT3s)."""
         m = len(src)
         if len(dst) != m or ats.batch_shape != (m,):
             raise ShapeError(
@@ -178,6 +216,7 @@ class RelationalMap:
         if ats.ndim != 1:
             raise ShapeError(f"ats must be a 1-D batch of ATs; got batch shape {ats.batch_shape}")
         g = cls()
+        g._accept(ats)
         for k in range(m):
             g._insert(
                 Edge(g._new_name(None if names is None else names[k]), src[k], dst[k], ats, index=k)
@@ -287,6 +326,7 @@ class RelationalMap:
             self._check_frame(f)
         sub = RelationalMap()
         sub._auto = self._auto
+        sub._kind = self._kind
         for e in self._edges.values():
             if e.src in keep and e.dst in keep:
                 group = self._groups.get(e.group) if e.group else None
@@ -306,10 +346,12 @@ class RelationalMap:
 
     # ------------------------------------------------------- arrays for the solvers
     def _gather(self, names: Sequence[str]) -> tuple[FloatArray, FloatArray]:
-        """Means (k, 3) and covariances (k, 3, 3) of the named ATs, gathered per source batch."""
+        """Means (k, *point) and covariances (k, dof, dof) of the named ATs, gathered per
+        source batch."""
         k = len(names)
-        mean, cov = np.empty((k, 3)), np.empty((k, 3, 3))
-        by_source: dict[int, tuple[AT, list[int], list[int]]] = {}
+        group = self.at_type.group
+        mean, cov = np.empty((k, *group.point_shape)), np.empty((k, group.dof, group.dof))
+        by_source: dict[int, tuple[AT | AT3, list[int], list[int]]] = {}
         for pos, nm in enumerate(names):
             e = self._edges[nm]
             if e._index is None:
@@ -331,16 +373,29 @@ class RelationalMap:
 
     def set_guess(self, frame: Frame, pose: ArrayLike) -> None:
         """Give an initial pose of ``frame`` (in any frame common to all guesses) for the
-        optimal method; pose-graph files come with one for every frame."""
+        optimal method: ``(x, y, θ)``, or in a 3-D map a 4×4 matrix or ``[x, y, z, qx, qy,
+        qz, qw]``. Pose-graph files come with one for every frame."""
         self._check_frame(frame)
         arr = np.asarray(pose, dtype=np.float64)
-        if arr.shape != (3,):
-            raise ShapeError(f"a guess is one pose (x, y, θ); got shape {arr.shape}")
         gaussian.check_finite(arr, "guess")
+        if self.at_type is AT3:
+            if arr.shape == (7,):
+                arr = AT3.from_vector(arr).matrix
+            elif arr.shape == (4, 4):
+                arr = AT3.from_matrix(arr).matrix
+            else:
+                raise ShapeError(
+                    "a 3-D guess is a 4×4 matrix or [x, y, z, qx, qy, qz, qw]; "
+                    f"got shape {arr.shape}"
+                )
+        elif arr.shape != (3,):
+            raise ShapeError(f"a guess is one pose (x, y, θ); got shape {arr.shape}")
         self._guesses[frame] = arr
 
     # --------------------------------------------------------------- sensing (§6.2)
-    def sense(self, src: Frame, dst: Frame, reading: AT, **options: object) -> SensingDecision:
+    def sense(
+        self, src: Frame, dst: Frame, reading: AT | AT3, **options: object
+    ) -> SensingDecision:
         """Predict, check and test a sensed AT from ``src`` to ``dst``, and add it if it passes
         (:func:`relmap.network.sensing.sense`)."""
         from relmap.network.sensing import sense
@@ -367,3 +422,12 @@ class RelationalMap:
         from relmap.network.query import query
 
         return query(self, src, dst, method=method, **options)  # type: ignore[arg-type]
+
+
+def _make_at(kind: type[AT] | type[AT3], mean: ArrayLike, cov: FloatArray) -> AT | AT3:
+    """An AT of ``kind`` from a mean as users give it: ``(x, y, θ)``, or for AT3 a 4×4 matrix
+    or ``[x, y, z, qx, qy, qz, qw]``."""
+    if kind is AT:
+        return AT(mean, cov)
+    m = np.asarray(mean, dtype=np.float64)
+    return AT3.from_matrix(m, cov) if m.shape[-2:] == (4, 4) else AT3.from_vector(m, cov)

@@ -7,6 +7,10 @@ joint covariance (the inverse of the normal matrix at the optimum), by solving f
 columns needed from the one sparse factorization. Exact in the linear case (no angular error),
 where one step reaches the optimum.
 
+Planar problems assemble the normal equations from closed forms (:class:`_System`); 3-D ones
+(and any group) from the group's Jacobians (:class:`_LieSystem`); one Levenberg-Marquardt loop
+drives both.
+
 Residuals, weights and exact components: see :mod:`relmap.network.problem`.
 """
 
@@ -18,8 +22,9 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 from relmap.at import AT
+from relmap.at3 import AT3
 from relmap.errors import SolverError
-from relmap.lie import se2
+from relmap.lie import SE2, Group, se2, so3
 from relmap.network.problem import Parameterization, Problem, parameterize
 from relmap.network.sparse import SymmetricFactor, SymmetricPattern, selected_inverse_blocks
 from relmap.typing import FloatArray, IntArray
@@ -36,7 +41,7 @@ Progress = Callable[[int, float], None]
 class Solved(NamedTuple):
     """An AT from a joint solve and the iterations it took."""
 
-    at: AT
+    at: AT | AT3
     iterations: int
 
 
@@ -44,8 +49,8 @@ class _Weights(NamedTuple):
     """Square-root information L (LᵀL = Σ⁻¹) of the soft ATs and of the dependent groups."""
 
     edges: IntArray  #: soft ATs not in a group
-    L: FloatArray  #: (k, 3, 3)
-    groups: list[tuple[IntArray, FloatArray]]  #: (AT indices, L of the joint (3k, 3k))
+    L: FloatArray  #: (k, dof, dof)
+    groups: list[tuple[IntArray, FloatArray]]  #: (AT indices, L of the joint (dof·k, dof·k))
 
 
 class Solution:
@@ -64,7 +69,8 @@ class Solution:
     ) -> None:
         self.problem = problem
         self.param = param
-        self.poses = poses  #: (n, 3) optimized frame poses (anchor at its given pose)
+        self.poses = poses  #: (n, 3) or (n, 4, 4) optimized frame poses (anchor at its given pose)
+        self.group: Group = problem.group
         self.factor = factor
         self.iterations = iterations
         self.initial_error = initial_error  #: Σ rᵀ Σ⁻¹ r at the initial guess
@@ -72,19 +78,20 @@ class Solution:
         self._data = data  # the normal matrix at the optimum (pattern's CSC data)
 
     def _frame_blocks(self, frames: Sequence[int]) -> tuple[IntArray, FloatArray]:
-        """Parameter columns of the frames and ∂pose/∂parameters, (k, 3) and (k, 3, 3)."""
+        """Parameter columns of the frames and ∂pose/∂parameters, (k, dof) and (k, dof, dof)."""
         frames = np.asarray(frames, dtype=np.int64)
-        J = self.param.frame_jacobian(self.poses)
-        Jf = np.broadcast_to(np.eye(3), (len(frames), 3, 3)) if J is None else J[frames]
+        dof = self.group.dof
+        J = self.param.frame_jacobian(self.poses) if self.group is SE2 else None
+        Jf = np.broadcast_to(np.eye(dof), (len(frames), dof, dof)) if J is None else J[frames]
         return self.param.col[frames], Jf
 
     def joint_cov(self, frames: Sequence[int]) -> FloatArray:
-        """Joint covariance (3k, 3k) of the frames' poses (paper's chart), from one solve."""
+        """Joint covariance (dof·k, dof·k) of the frames' poses (relmap's chart), from one solve."""
         cols, Jf = self._frame_blocks(frames)
-        k = len(cols)
+        k, b = len(cols), self.group.dof
         flat = cols.reshape(-1)
         free = flat >= 0
-        P_params = np.zeros((3 * k, 3 * k))
+        P_params = np.zeros((b * k, b * k))
         if free.any() and self.factor is not None:
             idx = flat[free]
             E = np.zeros((self.param.size, len(idx)))
@@ -92,33 +99,33 @@ class Solution:
             X = self.factor.solve(E)
             sub = X[idx, :]
             P_params[np.ix_(free, free)] = 0.5 * (sub + sub.T)
-        J = np.zeros((3 * k, 3 * k))
+        J = np.zeros((b * k, b * k))
         for a in range(k):
-            J[3 * a : 3 * a + 3, 3 * a : 3 * a + 3] = Jf[a]
+            J[b * a : b * a + b, b * a : b * a + b] = Jf[a]
         return J @ P_params @ J.T
 
     def marginals(self) -> FloatArray:
-        """The 3×3 marginal covariance of every frame's pose (paper's chart), ``(n, 3, 3)``.
+        """The marginal covariance of every frame's pose (relmap's chart), ``(n, dof, dof)``.
 
         By selected inversion (Takahashi) of the normal matrix at the optimum: only the blocks
         of the inverse on the factor's pattern are formed, never the dense inverse. The anchor
         (fixed) has zero covariance. Without exact ATs; with them, frame by frame solves.
         """
-        n = len(self.poses)
-        out = np.zeros((n, 3, 3))
+        n, b = len(self.poses), self.group.dof
+        out = np.zeros((n, b, b))
         free = np.flatnonzero(self.param.col[:, 0] >= 0)
-        standard = self.param.size == 3 * (n - 1) and not self.param.kind.any()
+        standard = self.param.size == b * (n - 1) and not self.param.kind.any()
         if standard and self.factor is not None and len(free):
-            blocks = selected_inverse_blocks(self.factor.pattern, self._data)
-            out[free] = blocks[self.param.col[free, 0] // 3]
+            blocks = selected_inverse_blocks(self.factor.pattern, self._data, block=b)
+            out[free] = blocks[self.param.col[free, 0] // b]
             return out
         for f in range(n):
             out[f] = self.joint_cov([f])
         return out
 
-    def relative(self, a: int, b: int) -> AT:
-        """The AT of frame b seen from frame a, with its first-order covariance."""
-        d, Ja, Jb = se2.between(self.poses[a], self.poses[b], jacobians=True)
+    def relative(self, a: int, b: int) -> AT | AT3:
+        """The AT (AT3 in 3-D) of frame b seen from frame a, with its first-order covariance."""
+        d, Ja, Jb = self.group.between(self.poses[a], self.poses[b], jacobians=True)
         if a == self.problem.anchor:  # the anchor is exact: only b's covariance matters
             cov = self.joint_cov([b])
             J = Jb
@@ -126,7 +133,8 @@ class Solution:
             cov = self.joint_cov([a, b])
             J = np.hstack([Ja, Jb])
         out = J @ cov @ J.T
-        return AT._trusted(d, 0.5 * (out + out.T))
+        kind = AT if self.group is SE2 else AT3
+        return kind._trusted(d, 0.5 * (out + out.T))
 
 
 def _between_terms(pi: FloatArray, pj: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -354,6 +362,117 @@ class _System:
         return float(e @ e), vals, grad
 
 
+def _residual(group: Group, d: FloatArray, z: FloatArray) -> tuple[FloatArray, FloatArray | None]:
+    """The residual ``r = d ⊟ z`` (m, dof) of predicted relative poses d against measured z, and
+    its Jacobian with respect to d in the chart (None for SE(2), where it is the identity).
+
+    In SE(3), ``r = (t_d - t_z, Log(R_d R_zᵀ))``: exactly the noise of relmap's measurement model
+    ``z = d ⊞ n``, ``n ~ N(0, Σ)`` (up to sign), so ``Σ rᵀ Σ⁻¹ r`` is its negative
+    log-likelihood, and in the plane it is the planar residual. A left perturbation δφ of R_d
+    moves the rotation part by ``J_l(r_φ)⁻¹ δφ``. GTSAM's between factor weighs ``Log(z⁻¹ d)``
+    instead, which agrees to first order; the optima differ at second order in the residuals.
+    """
+    if group is SE2:
+        return group.minus(d, z), None
+    r = group.minus(d, z)
+    Jr = np.zeros((len(r), 6, 6))
+    Jr[:, 0, 0] = Jr[:, 1, 1] = Jr[:, 2, 2] = 1.0
+    Jr[:, 3:, 3:] = so3.left_jacobian_inverse(r[:, 3:])
+    return r, Jr
+
+
+class _LieSystem:
+    """Residuals, Jacobians and normal equations for any pose group, from its Jacobians.
+
+    The standard layout only: every frame but the anchor owns one ``dof`` parameter block and a
+    step moves it in the chart, ``p_f ← p_f ⊞ δ_f``. The block contributions are laid out
+    ``[entry q][block k]`` for :meth:`SymmetricPattern.from_blocks`: the four blocks
+    (i,i), (i,j), (j,i), (j,j) of every AT, then every block pair of each dependent group.
+    """
+
+    def __init__(self, p: Problem, param: Parameterization, w: _Weights):
+        self.p, self.param, self.w = p, param, w
+        self.group, self.dof = p.group, p.group.dof
+        b = self.dof
+        self.i, self.j = p.i[w.edges], p.j[w.edges]
+        node_of = np.where(param.col[:, 0] >= 0, param.col[:, 0] // b, -1)
+        ni, nj = node_of[self.i], node_of[self.j]
+        brow, bcol = [ni, ni, nj, nj], [ni, nj, ni, nj]
+        self.group_frames = []
+        for members, _ in w.groups:
+            frames = np.unique(np.concatenate([p.i[members], p.j[members]]))
+            self.group_frames.append(frames)
+            brow.append(np.repeat(node_of[frames], len(frames)))
+            bcol.append(np.tile(node_of[frames], len(frames)))
+        self.pattern = SymmetricPattern.from_blocks(
+            param.size // b, np.concatenate(brow), np.concatenate(bcol), block=b
+        )
+        g_index = np.concatenate([param.col[self.i].T.reshape(-1), param.col[self.j].T.reshape(-1)])
+        self.g_index = np.where(g_index >= 0, g_index, param.size)
+        self.W = np.swapaxes(w.L, -1, -2) @ w.L
+
+    def linearize(self, poses: FloatArray) -> tuple[float, FloatArray, FloatArray, FloatArray]:
+        """(cost, poses, normal-matrix CSC data, gradient) at ``poses``."""
+        p, group, b = self.p, self.group, self.dof
+        d, Ji, Jj = group.between(poses[self.i], poses[self.j], jacobians=True)
+        r, Jr = _residual(group, d, p.z[self.w.edges])
+        if Jr is not None:
+            Ji, Jj = Jr @ Ji, Jr @ Jj
+        Wr = np.einsum("kab,kb->ka", self.W, r)
+        cost = float(np.einsum("ka,ka->", r, Wr))
+        JiT, JjT = np.swapaxes(Ji, -1, -2), np.swapaxes(Jj, -1, -2)
+        WJi, WJj = self.W @ Ji, self.W @ Jj
+        blocks = [JiT @ WJi, JiT @ WJj, JjT @ WJi, JjT @ WJj]
+        grad_parts = [
+            np.einsum("kba,kb->ak", Ji, Wr).reshape(-1),
+            np.einsum("kba,kb->ak", Jj, Wr).reshape(-1),
+        ]
+        grad = np.bincount(
+            self.g_index, weights=np.concatenate(grad_parts), minlength=self.param.size + 1
+        )[:-1]
+        grad = grad.astype(np.float64, copy=False)
+        for (members, Lg), frames in zip(self.w.groups, self.group_frames, strict=True):
+            gcost, H, ggrad = self._group(poses, members, Lg, frames)
+            cost += gcost
+            blocks.append(H)
+            grad += ggrad
+        values = np.concatenate([B.reshape(-1, b * b) for B in blocks]).T.reshape(-1)
+        return cost, poses, self.pattern.assemble(values), grad
+
+    def _group(
+        self, poses: FloatArray, members: IntArray, Lg: FloatArray, frames: IntArray
+    ) -> tuple[float, FloatArray, FloatArray]:
+        """One dependent group: cost, its Hessian blocks (f², b, b) in (frame, frame) order,
+        and its gradient."""
+        p, group, b = self.p, self.group, self.dof
+        k, nf = len(members), len(frames)
+        where = np.searchsorted(frames, np.stack([p.i[members], p.j[members]]))
+        d, Ji, Jj = group.between(poses[p.i[members]], poses[p.j[members]], jacobians=True)
+        r, Jr = _residual(group, d, p.z[members])
+        if Jr is not None:
+            Ji, Jj = Jr @ Ji, Jr @ Jj
+        J = np.zeros((k, b, nf, b))
+        rows = np.arange(k)
+        np.add.at(J, (rows, slice(None), where[0]), Ji)  # J[k, :, f, :] += ∂r_k/∂p_f
+        np.add.at(J, (rows, slice(None), where[1]), Jj)
+        J = J.reshape(k * b, nf * b)
+        e, LJ = Lg @ r.reshape(-1), Lg @ J
+        H = (LJ.T @ LJ).reshape(nf, b, nf, b).transpose(0, 2, 1, 3).reshape(nf * nf, b, b)
+        g = LJ.T @ e
+        grad = np.zeros(self.param.size)
+        cols = self.param.col[frames].reshape(-1)
+        ok = cols >= 0
+        np.add.at(grad, cols[ok], g[ok])
+        return float(e @ e), H, grad
+
+    def step(self, poses: FloatArray, delta: FloatArray) -> FloatArray:
+        """The poses moved by the parameter step ``delta`` (size,), anchor fixed."""
+        D = np.zeros((len(poses), self.dof))
+        free = self.param.col[:, 0] >= 0
+        D[free] = delta[self.param.col[free]]
+        return self.group.plus(poses, D)
+
+
 def optimize(
     p: Problem,
     *,
@@ -375,27 +494,39 @@ def optimize(
     """
     param = parameterize(p, atol=atol)
     w = _weights(p, param)
-    system = _System(p, param, w)
-    xy, theta = param.initial_state(p.guess, p.anchor)
-    cost, poses, data, grad = system.linearize(xy, theta)
+    if p.group is SE2:
+        planar = _System(p, param, w)
+        state: object = param.initial_state(p.guess, p.anchor)
+        pattern = planar.pattern
+
+        def linearize(x: object) -> tuple[float, FloatArray, FloatArray, FloatArray]:
+            return planar.linearize(*x)  # type: ignore[misc]
+
+        def step(x: object, delta: FloatArray) -> object:
+            return param.step(*x, delta)  # type: ignore[misc]
+    else:
+        system = _LieSystem(p, param, w)
+        state, pattern = np.array(p.guess, dtype=np.float64), system.pattern
+        linearize, step = system.linearize, system.step  # type: ignore[assignment]
+    cost, poses, data, grad = linearize(state)
     initial = cost
     if param.size == 0:
         return Solution(p, param, poses, None, 0, initial, cost)
-    factor = SymmetricFactor(system.pattern)
+    factor = SymmetricFactor(pattern)
     lam, nu = 0.0, 2.0  # plain Gauss-Newton first; damping only once a step fails
     iterations = 0
-    undamped_at_current = False  # whether the factor holds the undamped matrix at (xy, theta)
+    undamped_at_current = False  # whether the factor holds the undamped matrix at the state
     if progress:
         progress(0, cost)
     while True:
-        diag = system.pattern.diagonal(data)
+        diag = pattern.diagonal(data)
         if not np.all(diag > 0):
             k = int(np.argmin(diag))
             raise SolverError(
                 f"parameter {k} of the network is not constrained by any AT (a frame with no "
                 "informative measurement)"
             )
-        factor.factorize(system.pattern.with_diagonal(data, diag * lam) if lam else data)
+        factor.factorize(pattern.with_diagonal(data, diag * lam) if lam else data)
         undamped_at_current = lam == 0.0
         delta = -factor.solve(grad)
         # The model predicts the decrease -gᵀδ + λ δᵀDδ (objective Σ‖e‖², g = J̃ᵀe).
@@ -405,12 +536,12 @@ def optimize(
         if iterations >= max_iterations:
             break
         iterations += 1
-        xy_new, theta_new = param.step(xy, theta, delta)
-        trial = system.linearize(xy_new, theta_new)  # usually accepted: linearize right away
+        state_new = step(state, delta)
+        trial = linearize(state_new)  # usually accepted: linearize right away
         new_cost = trial[0]
         if new_cost <= cost:
             rho = (cost - new_cost) / max(predicted, 1e-300)  # gain ratio (Nielsen's update)
-            xy, theta = xy_new, theta_new
+            state = state_new
             cost, poses, data, grad = trial
             undamped_at_current = False
             lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
@@ -449,6 +580,8 @@ def problem_from_map(
     i = np.array([index[e.src] for e in edges], dtype=np.int64)
     j = np.array([index[e.dst] for e in edges], dtype=np.int64)
     z, cov = g._gather(names)
+    group = g.at_type.group
+    b = group.dof
     position = {nm: k for k, nm in enumerate(names)}
     groups = []
     for grp in g.groups:
@@ -456,17 +589,17 @@ def problem_from_map(
         if len(members) < 2:
             continue
         sel = np.array([grp.names.index(nm) for nm in members])
-        rows = (3 * sel[:, None] + np.arange(3)).reshape(-1)
+        rows = (b * sel[:, None] + np.arange(b)).reshape(-1)
         groups.append((np.array([position[nm] for nm in members]), grp.cov[np.ix_(rows, rows)]))
     guess = g._guess([f for f in index])
     if guess is None:
-        guess = _tree_guess(n, i, j, z)
+        guess = _tree_guess(n, i, j, z, group)
     else:
-        guess = se2.between(guess[0], guess)
-    return Problem(n, i, j, z, cov, groups, guess, 0, list(names)), index
+        guess = group.between(guess[0], guess)
+    return Problem(n, i, j, z, cov, groups, guess, 0, list(names), group), index
 
 
-def _tree_guess(n: int, i: IntArray, j: IntArray, z: FloatArray) -> FloatArray:
+def _tree_guess(n: int, i: IntArray, j: IntArray, z: FloatArray, group: Group = SE2) -> FloatArray:
     """Poses along a spanning tree (BFS from frame 0), composed by pointer jumping:
     O(n log depth) vectorized work, no Python loop per frame."""
     import scipy.sparse as sp
@@ -486,13 +619,15 @@ def _tree_guess(n: int, i: IntArray, j: IntArray, z: FloatArray) -> FloatArray:
     hit = sort[np.searchsorted(keys[sort], parent[child] * n + child)]
     edge = hit % m
     forward = hit < m  # stored as (i, j): the AT points parent → child
-    rel = np.zeros((n, 3))
-    rel[child] = np.where(forward[:, None], z[edge], se2.inverse(z[edge]))
+    rel = group.identity((n,))
+    flip = np.expand_dims(forward, tuple(range(1, 1 + len(group.point_shape))))
+    rel[child] = np.where(flip, z[edge], group.inverse(z[edge]))
     anc = parent.copy()
     anc[0] = 0
+    origin = group.identity(())
     for _ in range(int(np.ceil(np.log2(max(n, 2))))):
-        rel = se2.compose(rel[anc], rel)
-        rel[0] = 0.0
+        rel = group.compose(rel[anc], rel)
+        rel[0] = origin
         anc = anc[anc]
     return rel
 

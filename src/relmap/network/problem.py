@@ -15,6 +15,12 @@ Exactly known components are not weighted infinitely but built into the paramete
 Loops of exact ATs must agree (within ``atol``), or :class:`InconsistentMapError` is raised.
 Other singular covariances (e.g. only x known exactly) are not supported: a clear
 :class:`SolverError` says so. The anchor frame is fixed at its given pose.
+
+3-D problems (:data:`relmap.lie.SE3`) use the same residual in relmap's SE(3) chart,
+``r = between(p_i, p_j) ⊟ z = (t - t_z, Log(R R_zᵀ))``, the negative log-likelihood of the
+measurement model ``z = d ⊞ n`` that :class:`relmap.AT3` defines (and samples); every frame but
+the anchor owns six parameters, and covariances must be positive definite (exact components are
+planar-only).
 """
 
 from __future__ import annotations
@@ -25,20 +31,20 @@ from typing import NamedTuple
 import numpy as np
 
 from relmap.errors import InconsistentMapError, SolverError
-from relmap.lie import se2
+from relmap.lie import SE2, Group, se2
 from relmap.typing import FloatArray, IntArray
 
-__all__ = ["Parameterization", "Problem", "parameterize"]
+__all__ = ["Parameterization", "Problem", "parameterize", "standard_parameterization"]
 
 
 class Problem(NamedTuple):
     """Arrays of a pose-graph problem over frames ``0 … n-1``.
 
     ``i, j`` (m,) frame indices of each AT (where j is, seen from i); ``z`` (m, 3) measured
-    relative poses; ``cov`` (m, 3, 3) their covariances (paper's chart, in frame i);
-    ``groups``: dependent ATs as ``(indices into the m ATs, joint covariance (3k, 3k))``;
-    ``guess`` (n, 3) initial poses in a common frame; ``anchor`` the fixed frame;
-    ``names`` (m,) AT names for messages.
+    relative poses (m, 4, 4 in 3-D); ``cov`` (m, dof, dof) their covariances (relmap's chart,
+    in frame i); ``groups``: dependent ATs as ``(indices into the m ATs, joint covariance
+    (dof·k, dof·k))``; ``guess`` (n, 3) or (n, 4, 4) initial poses in a common frame;
+    ``anchor`` the fixed frame; ``names`` (m,) AT names for messages; ``group`` the pose group.
     """
 
     n: int
@@ -50,6 +56,7 @@ class Problem(NamedTuple):
     guess: FloatArray
     anchor: int
     names: list[str]
+    group: Group = SE2
 
 
 class Parameterization(NamedTuple):
@@ -141,8 +148,41 @@ def _exact_kind(cov: FloatArray, atol: float) -> IntArray:
     return np.where(exact, 2, np.where(heading_exact, 1, 0))
 
 
+def standard_parameterization(n: int, anchor: int, dof: int, m: int) -> Parameterization:
+    """Every frame but the anchor owns ``dof`` parameters, laid out frame by frame; all ATs soft."""
+    col = np.full((n, dof), -1, dtype=np.int64)
+    free = np.arange(n) != anchor
+    k = np.cumsum(free) - 1
+    col[free] = dof * k[free, None] + np.arange(dof)
+    frames = np.arange(n)
+    return Parameterization(
+        frames,
+        np.zeros((n, 3)),
+        frames,
+        np.zeros(n),
+        col,
+        dof * (n - 1),
+        np.arange(m),
+        np.zeros(m, dtype=np.int64),
+        False,
+    )
+
+
 def parameterize(p: Problem, *, atol: float = 1e-9) -> Parameterization:
-    """Rigid sets and heading classes from the exact ATs; parameter indices; consistency checks."""
+    """Rigid sets and heading classes from the exact ATs; parameter indices; consistency checks.
+
+    3-D problems take the standard layout; their covariances must be positive definite."""
+    if p.group is not SE2:
+        if len(p.cov):
+            lam = np.linalg.eigvalsh(p.cov)
+            bad = lam[:, 0] <= 1e-12 * lam[:, -1]
+            if bad.any():
+                raise SolverError(
+                    f"AT {p.names[int(np.argmax(bad))]!r} has a singular covariance; the 3-D joint "
+                    "estimate needs positive-definite ones (give exactly known components a tiny "
+                    "variance, or use method='reduce')"
+                )
+        return standard_parameterization(p.n, p.anchor, p.group.dof, len(p.i))
     n = p.n
     kind = _exact_kind(p.cov, atol=0.0)
     _check_supported(p, kind)

@@ -19,7 +19,10 @@ from __future__ import annotations
 from collections.abc import Callable, Hashable
 from typing import TYPE_CHECKING, NamedTuple
 
+import numpy as np
+
 from relmap.at import AT, compound, reverse
+from relmap.at3 import AT3
 from relmap.errors import ParameterError
 from relmap.network.blocks import blocks_between
 from relmap.network.reduce import reduce_network
@@ -36,7 +39,7 @@ METHODS = ("auto", "reduce", "optimal")
 class Estimate(NamedTuple):
     """The estimated AT of frame ``dst`` seen from frame ``src``, and how it was obtained."""
 
-    at: AT
+    at: AT | AT3
     method: str  #: "reduce" or "optimal": the method actually used
     expression: str | None  #: the reduction evaluated (AT names, ⊕ ⊗ ᴿ); None when optimal
     src: Frame
@@ -46,8 +49,10 @@ class Estimate(NamedTuple):
     iterations: int | None = None  #: Gauss-Newton/LM iterations (optimal)
 
 
-def _position_trace(at: AT) -> float:
-    return float(at.cov[0, 0] + at.cov[1, 1])
+def _position_trace(at: AT | AT3) -> float:
+    """Trace of the position covariance (m²): (x, y), or (x, y, z) in 3-D."""
+    k = 2 if isinstance(at, AT) else 3
+    return float(np.trace(at.cov[:k, :k]))
 
 
 def query(
@@ -57,7 +62,7 @@ def query(
     *,
     method: str = "auto",
     on_irreducible: str = "raise",
-    criterion: Callable[[AT], float] = _position_trace,
+    criterion: Callable[[AT | AT3], float] = _position_trace,
 ) -> Estimate:
     """The AT of frame ``dst`` seen from frame ``src`` (mean in ``src``'s frame, covariance
     on ``(x, y, θ)`` in ``src``'s frame).
@@ -76,7 +81,7 @@ def query(
     ends = {e.name: (e.src, e.dst) for e in g.edges()}
     blocks = blocks_between(incident, ends, src, dst)
     if not blocks:
-        return Estimate(AT.identity(), "reduce", "I", src, dst)
+        return Estimate(g.at_type.identity(), "reduce", "I", src, dst)
     if method == "auto":
         method = "reduce" if all(len(b.names) == 1 for b in blocks) else "optimal"
     order = {name: i for i, name in enumerate(g._edges)}
@@ -98,7 +103,7 @@ def query(
 
     from relmap.network.optimal import solve_relative  # scipy.sparse: imported only when used
 
-    total: AT | None = None
+    total: AT | AT3 | None = None
     iterations = 0
     for part in _solve_regions(g, blocks):
         if len(part.names) == 1:

@@ -16,7 +16,8 @@ w, t, v and ATs A (w→t), B (w→v), C (t→v),
     C_X = ½(C_A' + C_B' - K C_C' Kᵀ),  C_Y = ½(-C_A' + C_B' + K C_C' Kᵀ),
     C_Z = ½(C_A' - C_B' + K C_C' Kᵀ),
 
-with K = blkdiag(R(θ_A), 1) rotating C' from t's frame into w's (Eq. 3's K). The paper prints
+with K = blkdiag(R(θ_A), 1) rotating C' from t's frame into w's (Eq. 3's K; in 3-D the same
+Jacobian of ``A ⊕ ·``, blkdiag(R_A, R_A)). The paper prints
 ``K C_C Kᵀ`` (which gives negative variances even in one dimension) and a second, asymmetric
 form; relmap uses C_C' and symmetrizes. The star's covariances may be indefinite: they are
 intermediate quantities, never validated. **Delta-Y is exact only in the linear, isotropic
@@ -28,7 +29,7 @@ with ``on_irreducible="drop"`` the loop-forming AT whose deletion gives the smal
 (by ``criterion``) is deleted instead (the paper's "best deletion"), and reported.
 
 The reduction runs on batched ATs as well (all ATs with one batch shape), which Monte Carlo
-validation uses; best deletion needs single ATs.
+validation uses; best deletion needs single ATs. It runs unchanged on 3-D ATs (:class:`AT3`).
 """
 
 from __future__ import annotations
@@ -41,8 +42,8 @@ from typing import NamedTuple
 import numpy as np
 
 from relmap.at import AT, compound, merge, reverse
+from relmap.at3 import AT3
 from relmap.errors import IrreducibleNetworkError, ParameterError
-from relmap.lie import se2
 
 __all__ = ["Reduction", "reduce_network"]
 
@@ -104,7 +105,7 @@ def _leaves(e: object) -> list[str]:
 class _Edge(NamedTuple):
     u: Frame
     v: Frame
-    at: AT
+    at: AT | AT3
     expr: object
     order: float  # for a stable, readable order of merge operands
     groups: frozenset[str]  # dependent groups whose ATs this AT contains
@@ -113,7 +114,7 @@ class _Edge(NamedTuple):
 class Reduction(NamedTuple):
     """Result of :func:`reduce_network`."""
 
-    at: AT
+    at: AT | AT3
     expression: str
     dropped: tuple[str, ...]  #: expressions of ATs deleted by best deletion
     definitions: dict[str, str]  #: what each Delta-Y star AT (X₁, Y₁, Z₁, ...) stands for
@@ -168,7 +169,7 @@ class _Reducer:
         self.stars = count(1)
 
     # -------------------------------------------------------------- orientation
-    def oriented(self, st: _State, k: int, a: Frame) -> tuple[AT, object]:
+    def oriented(self, st: _State, k: int, a: Frame) -> tuple[AT | AT3, object]:
         """AT k pointing away from frame a, with its expression."""
         e = st.edges[k]
         if e.u == a:
@@ -242,7 +243,9 @@ class _Reducer:
             return True
         return False
 
-    def _compound(self, ea: _Edge, eb: _Edge, first: AT, second: AT, m: Frame) -> AT:
+    def _compound(
+        self, ea: _Edge, eb: _Edge, first: AT | AT3, second: AT | AT3, m: Frame
+    ) -> AT | AT3:
         """first ⊕ second; for two given ATs of one dependent group, with their cross-covariance."""
         if not ea.groups & eb.groups:
             return compound(first, second)
@@ -252,8 +255,10 @@ class _Reducer:
         name_a, _, cov_ab = self.cross[pair]  # Cov(A, B) of the two ATs as given
         X = cov_ab if ea.expr.name == name_a else cov_ab.T  # type: ignore[attr-defined]
         # Each operand is the given AT or its reversal; the cross-covariance follows Eq. 7's R.
-        J_first = np.eye(3) if ea.v == m else se2.inverse(ea.at.mean, jacobians=True)[1]
-        J_second = np.eye(3) if eb.u == m else se2.inverse(eb.at.mean, jacobians=True)[1]
+        group = first.group
+        eye = np.eye(group.dof)
+        J_first = eye if ea.v == m else group.inverse(ea.at.mean, jacobians=True)[1]
+        J_second = eye if eb.u == m else group.inverse(eb.at.mean, jacobians=True)[1]
         return compound(first, second, cross_cov=J_first @ X @ np.swapaxes(J_second, -1, -2))
 
     def _independent(self, edges: Sequence[_Edge], what: str) -> frozenset[str]:
@@ -294,10 +299,8 @@ class _Reducer:
         A1 = merge(A, compound(B, reverse(C)))
         B1 = merge(B, compound(A, C))
         C1 = merge(C, compound(reverse(A), B))
-        th = A.mean[..., 2]
-        c, s = np.cos(th), np.sin(th)
-        K = np.zeros((*np.shape(th), 3, 3))
-        K[..., 0, 0], K[..., 0, 1], K[..., 1, 0], K[..., 1, 1], K[..., 2, 2] = c, -s, s, c, 1.0
+        group, kind = A.group, type(A)
+        K = group.compose(A.mean, A.mean, jacobians=True)[2]  # ∂(A ⊕ b)/∂b: independent of b
         KCK = K @ C1.cov @ np.swapaxes(K, -1, -2)
         covs = (
             0.5 * (A1.cov + B1.cov - KCK),
@@ -320,12 +323,12 @@ class _Reducer:
         order = min(st.edges[k].order for k in (kA, kB, kC))
         for k in (kA, kB, kC):
             st.drop(k)
-        means = (np.zeros_like(A.mean), B1.mean, A1.mean)
+        means = (group.identity(A.batch_shape), B1.mean, A1.mean)
         ends = ((w, o), (o, v), (o, t))
         for i, ((u, x), mean, cov) in enumerate(zip(ends, means, covs, strict=True)):
             st.add(
                 next(self.ids),
-                _Edge(u, x, AT._trusted(mean, cov), _Leaf(names[i]), order + i * 1e-3, groups),
+                _Edge(u, x, kind._trusted(mean, cov), _Leaf(names[i]), order + i * 1e-3, groups),
             )
 
     # --------------------------------------------------------------------- driver
@@ -365,17 +368,19 @@ def _sub(n: int) -> str:
     return str(n).translate(str.maketrans("0123456789", "₀₁₂₃₄₅₆₇₈₉"))
 
 
-def _position_trace(at: AT) -> float:
-    return float(np.trace(at.cov[..., :2, :2]))
+def _position_trace(at: AT | AT3) -> float:
+    """Trace of the position block of the covariance (m²): (x, y), or (x, y, z) in 3-D."""
+    k = 2 if isinstance(at, AT) else 3
+    return float(np.trace(at.cov[..., :k, :k]))
 
 
 def reduce_network(
-    edges: Sequence[tuple[str, Frame, Frame, AT]],
+    edges: Sequence[tuple[str, Frame, Frame, AT | AT3]],
     s: Frame,
     t: Frame,
     *,
     on_irreducible: str = "raise",
-    criterion: Callable[[AT], float] = _position_trace,
+    criterion: Callable[[AT | AT3], float] = _position_trace,
     groups: Sequence[tuple[Sequence[str], np.ndarray]] = (),
 ) -> Reduction:
     """Reduce ``edges`` (``(name, src, dst, AT)``) to the AT of frame t seen from frame s.
@@ -389,6 +394,7 @@ def reduce_network(
         raise ParameterError(f"on_irreducible must be 'raise' or 'drop'; got {on_irreducible!r}")
     group_of: dict[str, tuple[str, ...]] = {}
     cross: dict[frozenset[str], tuple[str, str, np.ndarray]] = {}
+    dof = edges[0][3].group.dof if edges else 3
     for gi, (names, joint) in enumerate(groups):
         for i, a in enumerate(names):
             group_of[a] = (f"g{gi}",)
@@ -397,7 +403,7 @@ def reduce_network(
                     cross[frozenset((a, b))] = (
                         a,
                         b,
-                        np.asarray(joint)[3 * i : 3 * i + 3, 3 * j : 3 * j + 3],
+                        np.asarray(joint)[dof * i : dof * (i + 1), dof * j : dof * (j + 1)],
                     )
     rank = _hop_rank(edges, s, t)
     st = _State(
@@ -415,8 +421,8 @@ def reduce_network(
 
 
 def _reduce_or_drop(
-    reducer: _Reducer, st: _State, on_irreducible: str, criterion: Callable[[AT], float]
-) -> tuple[AT, object, tuple[str, ...]]:
+    reducer: _Reducer, st: _State, on_irreducible: str, criterion: Callable[[AT | AT3], float]
+) -> tuple[AT | AT3, object, tuple[str, ...]]:
     if reducer.reduce(st):
         (k,) = st.edges
         at, expr = reducer.oriented(st, k, reducer.s)
@@ -431,7 +437,7 @@ def _reduce_or_drop(
         )
     if any(e.at.ndim for e in st.edges.values()):
         raise ParameterError("best deletion needs single ATs, not batches")
-    best: tuple[float, AT, object, tuple[str, ...]] | None = None
+    best: tuple[float, AT | AT3, object, tuple[str, ...]] | None = None
     for k in list(st.edges):
         trial = st.copy()
         dropped = _render(trial.drop(k).expr)
@@ -465,7 +471,7 @@ def _connected(st: _State, s: Frame, t: Frame) -> bool:
 
 
 def _hop_rank(
-    edges: Sequence[tuple[str, Frame, Frame, AT]], s: Frame, t: Frame
+    edges: Sequence[tuple[str, Frame, Frame, AT | AT3]], s: Frame, t: Frame
 ) -> dict[Frame, tuple[float, ...]]:
     """Frames ordered from the source's side to the destination's.
 

@@ -22,8 +22,8 @@ import numpy as np
 
 from relmap import gaussian
 from relmap.at import AT, merge
-from relmap.errors import DisconnectedError, ShapeError, UnknownFrameError
-from relmap.lie import se2
+from relmap.at3 import AT3
+from relmap.errors import DisconnectedError, ParameterError, ShapeError, UnknownFrameError
 from relmap.typing import ArrayLike, FloatArray
 
 if TYPE_CHECKING:
@@ -53,10 +53,11 @@ class GlitchTest(NamedTuple):
     accepted: bool  #: d² ≤ threshold
 
 
-def glitch_test(predicted: AT, reading: AT, probability: float = 0.99) -> GlitchTest:
+def glitch_test(predicted: AT | AT3, reading: AT | AT3, probability: float = 0.99) -> GlitchTest:
     """Is ``reading`` (an AT of the same relation as ``predicted``) plausible? (§6.2 step 2)
 
-    Innovation ``v = reading ⊟ predicted`` (heading wrapped), ``S = P + R`` (independent), and
+    Innovation ``v = reading ⊟ predicted`` (heading wrapped; in 3-D the chart difference
+    ``(δt, δφ)``), ``S = P + R`` (independent), and
     ``d² = vᵀ S⁻¹ v``; accepted when ``d² ≤ χ²_dof(probability)``. A reading that leaves the
     subspace where S has variance (disagrees with an exactly known component) has d² = ∞.
     """
@@ -65,24 +66,30 @@ def glitch_test(predicted: AT, reading: AT, probability: float = 0.99) -> Glitch
     gaussian.check_probability(probability)
     if predicted.ndim or reading.ndim:
         raise ShapeError("glitch_test compares single ATs")
-    v = se2.minus(reading.mean, predicted.mean)
+    if type(predicted) is not type(reading):
+        raise TypeError(
+            f"cannot compare a {type(reading).__name__} with a {type(predicted).__name__}"
+        )
+    group = predicted.group
+    v = group.minus(reading.mean, predicted.mean)
     S = predicted.cov + reading.cov
-    d2 = float(gaussian.mahalanobis2(v, np.zeros(3), S))
+    d2 = float(gaussian.mahalanobis2(v, np.zeros(group.dof), S))
     _, null = gaussian.generalized_inverse(S)
-    dof = 3 - int((np.abs(null).sum(axis=0) > 0).sum())
+    dof = group.dof - int((np.abs(null).sum(axis=0) > 0).sum())
     threshold = float(gaussian.confidence_k2(probability, dof)) if dof else 0.0
     p_value = float(gammaincc(dof / 2, d2 / 2)) if dof and np.isfinite(d2) else float(d2 == 0)
     return GlitchTest(d2, threshold, dof, p_value, bool(d2 <= threshold))
 
 
-def covariance_after(prior: AT, sensor_cov: ArrayLike) -> FloatArray:
+def covariance_after(prior: AT | AT3, sensor_cov: ArrayLike) -> FloatArray:
     """The covariance of a relation after a proposed sensing of it, before any reading.
 
     Merging (Eqs. 8-10) needs the readings only for the mean: the covariance it leaves is known
-    ahead of time. ``sensor_cov`` (3, 3) is the sensing's covariance in the relation's frame.
+    ahead of time. ``sensor_cov`` (3, 3), or (6, 6) for an AT3, is the sensing's covariance in
+    the relation's frame.
     """
-    cov = gaussian.validate_covariance(sensor_cov, dim=3, name="sensor cov")
-    return merge(prior, AT(prior.mean, cov)).cov
+    cov = gaussian.validate_covariance(sensor_cov, dim=prior.group.dof, name="sensor cov")
+    return merge(prior, type(prior)._trusted(prior.mean, cov)).cov
 
 
 class SensingForecast(NamedTuple):
@@ -90,8 +97,10 @@ class SensingForecast(NamedTuple):
 
     before: Estimate
     after: Estimate
-    position_shrink: float  #: ratio of the 90% position-ellipse areas, after / before
-    heading_shrink: float  #: ratio of the heading standard deviations, after / before
+    #: ratio of the 90% position-ellipse areas (ellipsoid volumes in 3-D), after / before
+    position_shrink: float
+    #: ratio of the heading standard deviations (in 3-D: of √trace of the rotation covariance)
+    heading_shrink: float
 
 
 def forecast_sensing(
@@ -111,14 +120,16 @@ def forecast_sensing(
     """
     before = g.query(*of_interest, method=method)
     predicted = g.query(*sensed, method=method).at
-    cov = gaussian.validate_covariance(sensor_cov, dim=3, name="sensor cov")
+    cov = gaussian.validate_covariance(sensor_cov, dim=predicted.group.dof, name="sensor cov")
     trial = g.copy()
-    trial.add(sensed[0], sensed[1], AT(predicted.mean, cov), name=_fresh(trial, "proposed sensing"))
+    proposed = type(predicted)._trusted(predicted.mean, cov)
+    trial.add(sensed[0], sensed[1], proposed, name=_fresh(trial, "proposed sensing"))
     after = trial.query(*of_interest, method=method)
-    area = np.sqrt(
-        np.linalg.det(after.at.cov[:2, :2]) / max(np.linalg.det(before.at.cov[:2, :2]), 1e-300)
-    )
-    heading = float(after.at.sigmas[2] / before.at.sigmas[2]) if before.at.sigmas[2] > 0 else 1.0
+    k = 2 if isinstance(predicted, AT) else 3  # position block; the rotation block follows it
+    C0, C1 = before.at.cov, after.at.cov
+    area = np.sqrt(np.linalg.det(C1[:k, :k]) / max(np.linalg.det(C0[:k, :k]), 1e-300))
+    rot0, rot1 = np.trace(C0[k:, k:]), np.trace(C1[k:, k:])
+    heading = float(np.sqrt(rot1 / rot0)) if rot0 > 0 else 1.0
     return SensingForecast(before, after, float(area), heading)
 
 
@@ -128,7 +139,9 @@ class SensingDecision(NamedTuple):
     added: bool  #: whether the reading was added to the map
     name: str | None  #: its AT name if added
     reason: str  #: a sentence saying why
-    predicted: AT | None  #: the map's prediction of the relation before the reading (None: none)
+    predicted: (
+        AT | AT3 | None
+    )  #: the map's prediction of the relation before the reading (None: none)
     visible_probability: float | None  #: probability the object was in view (if a view was given)
     glitch: GlitchTest | None  #: the test of the reading against the prediction
 
@@ -137,7 +150,7 @@ def sense(
     g: RelationalMap,
     src: Frame,
     dst: Frame,
-    reading: AT,
+    reading: AT | AT3,
     *,
     name: str | None = None,
     probability: float = 0.99,
@@ -155,7 +168,7 @@ def sense(
     """
     gaussian.check_probability(min_visible, "min_visible")
     try:
-        predicted: AT | None = g.query(src, dst, method=method).at
+        predicted: AT | AT3 | None = g.query(src, dst, method=method).at
     except (DisconnectedError, UnknownFrameError):
         predicted = None  # a new frame, or frames not yet related: nothing to predict
     visible = None
@@ -169,6 +182,8 @@ def sense(
                 None,
                 None,
             )
+        if isinstance(predicted, AT3):
+            raise ParameterError("field-of-view and range checks are planar; this map is 3-D")
         from relmap.decisions import in_view
 
         view = in_view(
