@@ -21,6 +21,8 @@ Entry = FloatArray | float
 
 def stack_last(parts: Sequence[Entry], shape: tuple[int, ...]) -> FloatArray:
     """``(*shape, len(parts))`` array whose component i is ``parts[i]`` (broadcast)."""
+    if shape == ():  # one vector: its components are scalars
+        return np.array(parts, dtype=np.float64)
     out = np.empty((len(parts), *shape))
     for i, part in enumerate(parts):
         out[i] = part
@@ -29,6 +31,8 @@ def stack_last(parts: Sequence[Entry], shape: tuple[int, ...]) -> FloatArray:
 
 def matrix(rows: Sequence[Sequence[Entry]], shape: tuple[int, ...]) -> FloatArray:
     """``(*shape, r, c)`` array with entry ``[..., i, j] = rows[i][j]`` (broadcast)."""
+    if shape == ():  # one matrix: its entries are scalars
+        return np.array(rows, dtype=np.float64)
     out = np.empty((len(rows), len(rows[0]), *shape))
     for i, row in enumerate(rows):
         for j, value in enumerate(row):

@@ -23,9 +23,10 @@ import numpy as np
 
 from relmap import gaussian
 from relmap._layout import components_outermost, matrix
+from relmap.at3 import AT3, compound3, merge3, reverse3
 from relmap.errors import ParameterError, ShapeError
 from relmap.gaussian import DEFAULT_RTOL, Ellipse
-from relmap.lie import se2
+from relmap.lie import SE2, se2
 from relmap.typing import ArrayLike, FloatArray, SeedLike
 
 __all__ = ["AT", "compound", "compound_chain", "merge", "reverse"]
@@ -58,6 +59,7 @@ class AT:
     """
 
     __slots__ = ("_cov", "_mean")
+    group = SE2  #: the pose group (generic code reads it)
     _mean: FloatArray
     _cov: FloatArray
     __array_ufunc__ = None  # numpy defers to AT: ``a @ ndarray`` is a TypeError, not a silent cast
@@ -86,15 +88,18 @@ class AT:
         self._set(components_outermost(mean_arr, 1), components_outermost(cov_arr, 2), batch)
 
     def _set(self, mean: FloatArray, cov: FloatArray, batch: tuple[int, ...]) -> None:
-        # np.broadcast_to returns read-only views: the arrays cannot be modified through the AT.
-        object.__setattr__(self, "_mean", np.broadcast_to(mean, (*batch, 3)))
-        object.__setattr__(self, "_cov", np.broadcast_to(cov, (*batch, 3, 3)))
+        # Read-only views: the arrays cannot be modified through the AT.
+        object.__setattr__(self, "_mean", _read_only(mean, (*batch, 3)))
+        object.__setattr__(self, "_cov", _read_only(cov, (*batch, 3, 3)))
 
     @classmethod
     def _trusted(cls, mean: FloatArray, cov: FloatArray) -> AT:
         """Build from arrays relmap computed itself (already valid, θ wrapped): no checks."""
         out = object.__new__(cls)
-        out._set(mean, cov, np.broadcast_shapes(mean.shape[:-1], cov.shape[:-2]))
+        batch = mean.shape[:-1]
+        if cov.shape[:-2] != batch:
+            batch = np.broadcast_shapes(batch, cov.shape[:-2])
+        out._set(mean, cov, batch)
         return out
 
     def __setattr__(self, name: str, value: object) -> None:
@@ -293,8 +298,24 @@ class AT:
 Entries = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]
 
 
+def _read_only(arr: FloatArray, shape: tuple[int, ...]) -> FloatArray:
+    """A read-only view of ``arr`` broadcast to ``shape`` (a plain view when it has that shape:
+    np.broadcast_to costs microseconds, which matter for single ATs)."""
+    if arr.shape != shape:
+        return np.broadcast_to(arr, shape)
+    view = arr.view()
+    view.flags.writeable = False
+    return view
+
+
 def _entries(C: FloatArray) -> Entries:
-    return C[..., 0, 0], C[..., 0, 1], C[..., 0, 2], C[..., 1, 1], C[..., 1, 2], C[..., 2, 2]
+    if C.ndim == 2:  # one matrix: Python floats, far cheaper to combine than numpy scalars
+        (c00, c01, c02), (_, c11, c12), (_, _, c22) = C.tolist()
+        return c00, c01, c02, c11, c12, c22
+    return tuple(C[..., i, j] for i, j in _UPPER)  # type: ignore[return-value]
+
+
+_UPPER = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 
 
 def _rotate(e: Entries, c: FloatArray, s: FloatArray) -> Entries:
@@ -323,7 +344,8 @@ def _shear(e: Entries, dx: FloatArray, dy: FloatArray) -> Entries:
 def _sym(e: Entries) -> FloatArray:
     """The symmetric ``(..., 3, 3)`` matrix with the given distinct entries."""
     c00, c01, c02, c11, c12, c22 = e
-    shape = np.broadcast_shapes(*(np.shape(v) for v in e))
+    shapes = {getattr(v, "shape", ()) for v in e}
+    shape = shapes.pop() if len(shapes) == 1 else np.broadcast_shapes(*shapes)
     return matrix([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]], shape)
 
 
@@ -339,8 +361,11 @@ def compound(a: AT, b: AT, *, cross_cov: ArrayLike | None = None) -> AT:
 
     ``C = H C_a Hᵀ + K C_b Kᵀ`` with H, K of Eq. (3). The paper assumes a and b independent;
     for a dependent pair (§3.2) give ``cross_cov = E[δa δbᵀ]`` (``(..., 3, 3)``), which adds
-    ``H C_ab Kᵀ + K C_abᵀ Hᵀ``. Batch axes broadcast.
+    ``H C_ab Kᵀ + K C_abᵀ Hᵀ``. Batch axes broadcast. Two :class:`AT3` compound in 3-D
+    (:func:`relmap.at3.compound3`, 6×6 ``cross_cov``).
     """
+    if isinstance(a, AT3) or isinstance(b, AT3):
+        return compound3(a, b, cross_cov=cross_cov)  # type: ignore[arg-type,return-value]
     _check_types((a, b))
     mean, cov = _compound_arrays(a.mean, a.cov, b.mean, b.cov)
     if cross_cov is not None:
@@ -373,8 +398,10 @@ def reverse(a: AT, *, jacobian: bool = False) -> AT | tuple[AT, FloatArray]:
 
     ``C' = R C Rᵀ`` with R of Eq. (7). With ``jacobian=True`` also returns R (``(..., 3, 3)``);
     the cross-covariance of A with its own reversal is then ``C_A Rᵀ``, which
-    :func:`compound` accepts as ``cross_cov``.
+    :func:`compound` accepts as ``cross_cov``. An :class:`AT3` reverses in 3-D.
     """
+    if isinstance(a, AT3):
+        return reverse3(a, jacobian=jacobian)  # type: ignore[call-overload,no-any-return]
     _check_types((a,))
     inv = se2.inverse(a.mean)
     # R = H(x', y') · blkdiag(-R(θ)ᵀ, -1): the signs cancel in the sandwich.
@@ -396,9 +423,12 @@ def merge(*ats: AT, atol: float = 1e-9) -> AT:
     ``C₁ + C₂`` is singular the update uses a generalized inverse, provided the means agree,
     within ``atol`` (metres/radians), along the directions both know exactly; otherwise
     :class:`InconsistentMergeError` is raised. The inputs are assumed independent.
+    :class:`AT3` inputs merge in 3-D (:func:`relmap.at3.merge3`).
     """
     if not ats:
         raise ShapeError("merge needs at least one AT")
+    if isinstance(ats[0], AT3):
+        return merge3(*ats, atol=atol)  # type: ignore[arg-type,return-value]
     _check_types(ats)
     result = ats[0]
     for k, b in enumerate(ats[1:], start=1):

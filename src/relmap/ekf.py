@@ -18,15 +18,51 @@ runs) step together with no Python loop per filter.
 Covariance updates use the Joseph form ``(I - KH) Σ⁻ (I - KH)ᵀ + K R Kᵀ`` rather than Eq. 28's
 ``Σ⁻ - K S Kᵀ``: it is a sum of congruences, so it stays symmetric positive semi-definite under
 rounding, even after many updates or with a nearly exact prior.
+
+How :func:`correct_landmarks` computes (the results are those of the textbook procedure — all
+m×L innovations, greedy one-to-one pairing over them, a 2k×2k stacked update — to rounding;
+``tests/test_ekf_reference.py`` holds that procedure and compares):
+
+- Layout: readings are ``(m, B)`` arrays and landmarks ``(C, B)``, the B filters innermost and
+  contiguous; plane points are complex numbers (one product rotates and scales); 2×2 and 3×3
+  algebra is written out entry by entry. One filter keeps its state in Python floats, so a
+  single filter pays for few numpy calls.
+- Innovation covariances in closed form: with ``u`` the unit vector from the sensor to the
+  landmark (``u⊥`` turned by -90°), V the covariance of the sensor's position and g its
+  covariance with the heading (both from Σ⁻ and the sensor's offset on the robot),
+  ``S = [[uᵀVu, gᵀu - uᵀVu⊥/ρ], [·, u⊥ᵀVu⊥/ρ² - 2gᵀu⊥/ρ + Σ⁻θθ]] + R``.
+- Candidates: for many filters, only landmarks that may fall inside the gate of some reading
+  enter the reading×landmark matrix. A landmark is dropped when no reading's range and bearing
+  can come that close: ``d² ≥ v_r²/S_rr`` and ``d² ≥ v_φ²/S_φφ`` (Cauchy-Schwarz), with
+  ``S_rr``, ``S_φφ`` bounded through the largest eigenvalue of V and the readings' ranges and
+  bearings through their hull. With signatures, only landmarks whose signature was read; with
+  unique signatures and no signature read twice, each reading has its one landmark (no matrix).
+- Pairing (one to one, Mahalanobis): the greedy "cheapest pair first" run takes its pairs in
+  increasing d²; those inside the gate are exactly the greedy pairing of the pairs inside the
+  gate, so that runs first. When no two readings of a filter share their nearest landmark, it
+  is each reading's nearest; filters with a conflict run the greedy by rounds of pairs that are
+  the cheapest of their row and their column (which the greedy run takes too). Readings left
+  over (gated out, lost, unknown) are then paired among themselves with the landmarks left,
+  against all L landmarks, as the greedy run would have gone on.
+- Update: with R block diagonal, ``Hᵀ(HΣ⁻Hᵀ + R)⁻¹ = (I + AΣ⁻)⁻¹HᵀR⁻¹`` with now
+  ``A = HᵀR⁻¹H``, a 3×3 sum over the pairs, and ``b = HᵀR⁻¹v``: ``K v = Σ⁻ y`` with
+  ``(I + AΣ⁻) y = b`` (solved by the adjugate, refined once), ``K H = G A`` with
+  ``G = Σ⁻(I + AΣ⁻)⁻¹``, and the Joseph form ``(I - GA) Σ⁻ (I - GA)ᵀ + G A Gᵀ`` — the exact
+  Joseph form of the gain computed, so rounding in G enters only to second order. When
+  ``tr(AΣ⁻) > 10⁵`` (a reading far more precise than the prior: A then holds too few digits
+  of the prior's information) and for a sensor without noise (no R⁻¹), the 2k×2k solve.
 """
 
 from __future__ import annotations
 
-from typing import Literal, NamedTuple
+import functools
+import math
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 
 from relmap import gaussian
+from relmap._layout import matrix, stack_last
 from relmap.at import AT, compound, merge
 from relmap.errors import ParameterError, ShapeError
 from relmap.lie import se2
@@ -61,6 +97,17 @@ STATUS = {
     ABSENT: "no reading (padding)",
     LOST: "its landmark went to a closer reading",
 }
+
+_TWO_PI = 2.0 * np.pi
+# Reading×landmark matrices of more entries than this (over all filters) are restricted to
+# candidate landmarks first; below it the bookkeeping costs more than it saves.
+_CANDIDATES_ABOVE = 4096
+# Relative slack of the candidate bounds, far above rounding: a kept landmark costs little.
+_SLACK = 1.0 + 1e-6
+# Reading×landmark grids are computed in blocks of filters of about this many entries.
+_GRID_BLOCK = 40_000
+# Above this tr(A Σ⁻) the 3×3 update loses digits; the stacked 2n×2n solve takes over.
+_ILL_CONDITIONED = 1e5
 
 
 def predict(
@@ -146,129 +193,864 @@ def correct_landmarks(
         raise ShapeError(f"readings must have shape (..., m, 2); got {z.shape}")
     if lm.ndim != 2 or lm.shape[-1] != 2 or len(lm) == 0:
         raise ShapeError(f"landmarks must be a non-empty (L, 2) array; got {lm.shape}")
-    gaussian.check_finite(lm, "landmarks")
-    gaussian.check_probability(gate, "gate")
+    if not np.isfinite(lm).all():
+        gaussian.check_finite(lm, "landmarks")
+    if not (isinstance(gate, float) and 0.0 < gate < 1.0):
+        gaussian.check_probability(gate, "gate")
     if associate not in ("signatures", "mahalanobis", "euclidean"):
         raise ParameterError(
             f"associate must be signatures, mahalanobis or euclidean; got {associate!r}"
         )
     if pairing not in ("one_to_one", "per_landmark"):
         raise ParameterError(f"pairing must be one_to_one or per_landmark; got {pairing!r}")
-    batch = np.broadcast_shapes(state.batch_shape, z.shape[:-2])
-    m, L = z.shape[-2], len(lm)
-    z = np.broadcast_to(z, (*batch, m, 2))
-    present = (
-        np.ones((*batch, m), bool)
-        if valid is None
-        else np.broadcast_to(np.asarray(valid, bool), (*batch, m))
-    )
-    finite = np.isfinite(z).all(axis=-1)
-    usable = present & finite & (z[..., 0] > 0)
-    z = np.where(usable[..., None], z, np.array([1.0, 0.0]))  # placeholders, never used
-
-    # predicted readings of every landmark, and their innovation covariances S (…, L, 2, 2)
-    mean, cov = state.mean, state.cov
-    h, H, _ = sensor.predict(mean[..., None, :], lm, jacobians=True)
-    h = np.broadcast_to(h, (*batch, L, 2))
-    H = np.broadcast_to(H, (*batch, L, 2, 3))
-    R = sensor.noise(h[..., 0])
-    S = H @ cov[..., None, :, :] @ np.swapaxes(H, -1, -2) + R
-    Sinv = np.linalg.inv(S)
-    v = z[..., :, None, :] - h[..., None, :, :]  # (…, m, L, 2)
-    v[..., 1] = se2.wrap_angle(v[..., 1])
-    d2 = np.einsum("...mla,...lab,...mlb->...ml", v, Sinv, v)
-    cost = d2 if associate != "euclidean" else np.einsum("...a,...a->...", v, v)
-    allowed = np.broadcast_to(usable[..., None], cost.shape).copy()
+    lsig = None
     if signatures is not None or associate == "signatures":
         if signatures is None or landmark_signatures is None:
             raise ParameterError("signature association needs signatures and landmark_signatures")
-        sig = np.broadcast_to(np.asarray(signatures), (*batch, m))
         lsig = np.asarray(landmark_signatures)
-        if lsig.shape != (L,):
-            raise ShapeError(f"landmark_signatures must have shape ({L},); got {lsig.shape}")
-        allowed &= sig[..., :, None] == lsig
-    cost = np.where(allowed, cost, np.inf)
-
-    status = np.where(~present, ABSENT, np.where(~usable, INVALID, UNKNOWN)).astype(np.int64)
-    candidate = np.isfinite(cost).any(axis=-1) & usable  # some landmark of the map could match
-    gate2 = float(gaussian.confidence_k2(gate, 2))
-    if pairing == "per_landmark":
-        # Eq. 21: each landmark takes its nearest reading; a reading may serve several landmarks
-        best = np.argmin(cost, axis=-2)  # (…, L)
-        best_cost = np.take_along_axis(cost, best[..., None, :], axis=-2)[..., 0, :]
-        best_d2 = np.take_along_axis(d2, best[..., None, :], axis=-2)[..., 0, :]
-        use_l = np.isfinite(best_cost) & (best_d2 <= gate2)
-        gated_l = np.isfinite(best_cost) & ~use_l
-        chosen = best[..., None, :] == np.arange(m)[:, None]  # (…, m, L)
-        served, refused = chosen & use_l[..., None, :], chosen & gated_l[..., None, :]
-        used_r, gated_r = served.any(axis=-1), refused.any(axis=-1) & ~served.any(axis=-1)
-        landmark = np.where(used_r, served.argmax(-1), np.where(gated_r, refused.argmax(-1), -1))
-        status = np.where(used_r, USED, np.where(gated_r, GATED, np.where(candidate, LOST, status)))
-        zr = np.take_along_axis(z, best[..., None], axis=-2)  # (…, L, 2)
-        new = _joseph(state, zr, h, H, R, use_l)
-        pair_d2 = np.where(
-            landmark >= 0,
-            np.take_along_axis(d2, np.maximum(landmark, 0)[..., None], -1)[..., 0],
-            np.inf,
+        if lsig.shape != (len(lm),):
+            raise ShapeError(f"landmark_signatures must have shape ({len(lm)},); got {lsig.shape}")
+    batch = state.batch_shape
+    if z.shape[:-2] != batch:
+        batch = np.broadcast_shapes(batch, z.shape[:-2])
+    m = z.shape[-2]
+    if m == 0 or 0 in batch:
+        empty = np.zeros((*batch, m))
+        return LandmarkUpdate(
+            state, empty.astype(np.int64) - 1, empty + np.inf, empty.astype(np.int64) + ABSENT
         )
-        return LandmarkUpdate(new, landmark, pair_d2, status)
 
-    # one to one: the cheapest remaining pair first (a loop over readings, vectorized over filters)
-    landmark = np.full((*batch, m), -1, dtype=np.int64)
+    job = _Job(state, z, batch, valid, signatures, lsig, sensor, lm, _gate2(float(gate)))
+    if associate == "euclidean" or pairing == "per_landmark":
+        out = job.general(associate, pairing)
+    else:
+        out = (job.known() if lsig is not None else None) or job.nearest()
+    return job.finish(*out)
+
+
+# --------------------------------------------------------------------------- implementation
+@functools.lru_cache(maxsize=64)
+def _gate2(gate: float) -> float:
+    return float(gaussian.confidence_k2(gate, 2))
+
+
+def _wrap_near(a: FloatArray) -> FloatArray:
+    """Wrap angles in [-3π, 3π) to [-π, π), in place (a difference of two wrapped angles)."""
+    np.subtract(a, _TWO_PI, out=a, where=a >= np.pi)
+    np.add(a, _TWO_PI, out=a, where=a < -np.pi)
+    return a
+
+
+def _wrap_scalar(a: float) -> float:
+    return a if -np.pi <= a < np.pi else float(se2.wrap_angle(a))
+
+
+Value = Any  # a per-filter quantity: a float for one filter, an array (B,) or (C, B) for B
+
+
+class _Frame(NamedTuple):
+    """Per-filter quantities: Python numbers for one filter, (B,) arrays for B filters.
+
+    Points of the plane are complex numbers ``x + iy`` here: one complex product rotates and
+    scales, which halves the numpy calls of the geometry.
+    """
+
+    x: Value
+    y: Value
+    t: Value
+    p: tuple[Value, ...]  # Σ⁻ as (p00, p01, p02, p11, p12, p22)
+    ax: Value  # the sensor's offset on the robot, in world axes
+    ay: Value
+    sc: Value  # the sensor's position (complex) and heading
+    st: Value
+    # V = Eᵀ Σ⁻ E, the covariance of the sensor's position (a pose change δ moves the sensor
+    # by Eᵀδ, E = [[1, 0], [0, 1], [-ay, ax]]), and g = Eᵀ Σ⁻[:, 2], its covariance with θ:
+    h: Value  # tr(V)/2
+    cbar: Value  # (V00 - V11)/2 - i V01: uᵀVu = h + Re(c̄u²), uᵀVu⊥ = Im(c̄u²)
+    gbar: Value  # g0 - i g1: gᵀu = Re(ḡu), gᵀu⊥ = Im(ḡu)
+
+    @classmethod
+    def build(cls, mean: FloatArray, cov: FloatArray, mount: FloatArray, single: bool) -> _Frame:
+        x: Value
+        y: Value
+        t: Value
+        c: Value
+        s: Value
+        P: Value
+        if single:
+            x, y, t = mean.tolist()
+            P = cov.tolist()
+            c, s = math.cos(t), math.sin(t)
+        else:
+            x, y, t = mean[:, 0], mean[:, 1], mean[:, 2]
+            P = [[cov[:, i, j] for j in range(3)] for i in range(3)]
+            c, s = np.cos(t), np.sin(t)
+        p = (P[0][0], P[0][1], P[0][2], P[1][1], P[1][2], P[2][2])
+        p00, p01, p02, p11, p12, p22 = p
+        mx, my, mt = mount.tolist()
+        ax, ay = c * mx - s * my, s * mx + c * my
+        st = _wrap_scalar(t + mt) if single else se2.wrap_angle(t + mt)
+        v00 = p00 - 2 * ay * p02 + ay * ay * p22
+        v01 = p01 + ax * p02 - ay * p12 - ax * ay * p22
+        v11 = p11 + 2 * ax * p12 + ax * ax * p22
+        g0, g1 = p02 - ay * p22, p12 + ax * p22
+        sx, sy = x + ax, y + ay
+        return cls(
+            x, y, t, p, ax, ay, sx + 1j * sy, st, 0.5 * (v00 + v11),
+            0.5 * (v00 - v11) - 1j * v01, g0 - 1j * g1,
+        )  # fmt: skip
+
+    def take(self, idx: IntArray) -> _Frame:
+        """The filters ``idx`` of a batch."""
+        return _Frame(*(tuple(v[idx] for v in f) if i == 3 else f[idx] for i, f in enumerate(self)))
+
+
+class _Pred(NamedTuple):
+    """Predicted readings of landmarks, and what association and update need of them."""
+
+    r: Value  # predicted range ρ
+    ir: Value  # 1/ρ
+    u: Value  # unit vector from the sensor to the landmark (complex, world axes)
+    var_r: Value  # R = diag(var_r, var_b)
+    var_b: Value
+    k1: Value  # S⁻¹ factored: d² = ((v_r - k1 v_φ) c1)² + (v_φ c2)²
+    c1: Value
+    c2: Value
+
+    def pick(self, k: IntArray, cols: IntArray | None) -> _Pred:
+        """Entry ``k`` (n, …) along the landmark axis, per filter, of what the update uses."""
+        var_r, var_b = (v if isinstance(v, float) else _pick(v, k, cols) for v in self[3:5])
+        ir, u = _pick(self.ir, k, cols), _pick(self.u, k, cols)
+        return _Pred(None, ir, u, var_r, var_b, None, None, None)
+
+    def take(self, F: IntArray) -> _Pred:
+        """The filters F of a batch."""
+        return _Pred(*(v if v is None or isinstance(v, float) else v[:, F] for v in self))
+
+
+def _pick(v: np.ndarray, k: IntArray, cols: IntArray | None) -> np.ndarray:
+    """``v[k[j], j]`` per filter: v (C, …), k (n, …)."""
+    return v[k] if cols is None else v[k, cols]
+
+
+def _predict(f: _Frame, lc: FloatArray, sensor: RangeBearingSensor) -> _Pred:
+    """Readings predicted for landmarks ``lc`` (complex, (C, …)) and their innovation
+    covariances ``S = [[uᵀVu, gᵀu - uᵀVu⊥/ρ], [·, u⊥ᵀVu⊥/ρ² - 2gᵀu⊥/ρ + Σθθ]] + R``."""
+    d = lc - f.sc
+    r = np.abs(d)
+    if not r.all():
+        raise ParameterError("a landmark at the sensor's own position has no bearing")
+    ir = 1.0 / r
+    u = d * ir
+    cw = f.cbar * (u * u)
+    gu = f.gbar * u
+    var_r, var_b = sensor._variances(r)
+    uvu = f.h + cw.real  # uᵀVu; u⊥ᵀVu⊥ = tr V - uᵀVu
+    s00 = uvu + var_r
+    s01 = gu.real - cw.imag * ir
+    s11 = ((2 * f.h - uvu) * ir - 2 * gu.imag) * ir + (f.p[5] + var_b)
+    det = s00 * s11 - s01 * s01
+    return _Pred(r, ir, u, var_r, var_b, s01 / s11, np.sqrt(s11 / det), np.sqrt(1.0 / s11))
+
+
+def _innovations(p: _Pred, zr: FloatArray, ez: FloatArray) -> tuple[FloatArray, ...]:
+    """``(d², v_r, v_φ)`` (m, C, …) of readings (m, …) against predictions (C, …); ``ez`` is
+    ``exp(i(φ + θ_sensor))``, so that the bearing innovation ``angle(ez · ū)`` comes wrapped."""
+    vr = zr[:, None] - p.r
+    vb = np.angle(ez[:, None] * np.conj(p.u))
+    return _mahalanobis2(p, vr, vb), vr, vb
+
+
+def _grid_mahalanobis2(p: _Pred, bearing: FloatArray, zr: FloatArray, zb: FloatArray) -> FloatArray:
+    """d² (m, C, B) of readings (m, B) (bearings wrapped) against predictions (C, B) with
+    bearings ``bearing``, in blocks of filters small enough for their temporaries to stay in
+    cache (a large grid is bound by memory traffic)."""
+    m, C, B = len(zr), len(bearing), zr.shape[1]
+    d2 = np.empty((m, C, B))
+    step = max(1, _GRID_BLOCK // max(1, m * C))
+    for s in range(0, B, step):
+        b = slice(s, s + step)
+        vb = zb[:, None, b] - bearing[:, b]
+        _wrap_near(vb)
+        d = np.subtract(zr[:, None, b], p.r[:, b], out=d2[:, :, b])
+        t = p.k1[:, b] * vb
+        d -= t
+        d *= p.c1[:, b]
+        d *= d
+        np.multiply(vb, p.c2[:, b], out=t)
+        t *= t
+        d += t
+    return d2
+
+
+def _mahalanobis2(p: _Pred, vr: FloatArray, vb: FloatArray) -> FloatArray:
+    """``vᵀS⁻¹v`` from the factored S⁻¹ of the predictions."""
+    d2 = vr - p.k1 * vb
+    d2 *= p.c1
+    d2 *= d2
+    t = vb * p.c2
+    t *= t
+    d2 += t
+    return d2
+
+
+def _clashes(pair: IntArray, C: int) -> np.ndarray | np.bool_:
+    """Per filter: do two rows of ``pair`` (n, …) hold the same column (≥ 0, < C)?"""
+    if pair.ndim == 1:
+        k = [c for c in pair.tolist() if c >= 0]
+        return np.bool_(len(set(k)) < len(k))
+    j, b = np.nonzero(pair >= 0)
+    count = np.bincount(b * C + pair[j, b], minlength=C * pair.shape[1])
+    return (count.reshape(-1, C) > 1).any(axis=1)
+
+
+def _greedy(cost: FloatArray) -> IntArray:
+    """The greedy pairing — cheapest remaining pair first, ties to the lowest row then column —
+    of a cost grid (n, C, F) (inf: no pair): column per row, -1 if none; vectorized over F.
+
+    By rounds: a pair that is the cheapest of its row and of its column (same tie-break) is
+    one the greedy run takes, and taking it leaves the greedy run of the other rows and columns;
+    so each round takes all such pairs at once (the global cheapest is always one of them).
+    """
+    n, _, F = cost.shape
     c = cost.copy()
-    for _ in range(min(m, L)):
-        flat = c.reshape(*batch, m * L)
-        k = np.argmin(flat, axis=-1)
-        found = np.isfinite(np.take_along_axis(flat, k[..., None], axis=-1)[..., 0])
-        if not found.any():
-            break
-        ri, li = k // L, k % L
-        hit = found[..., None] & (np.arange(m) == ri[..., None])  # (…, m)
-        landmark = np.where(hit, li[..., None], landmark)
-        taken = (
-            hit[..., :, None] | (found[..., None] & (np.arange(L) == li[..., None]))[..., None, :]
+    pair = np.full((n, F), -1)
+    rows, cols = np.arange(n)[:, None], np.arange(F)
+    while True:
+        k = c.argmin(axis=1)  # (n, F): each row's cheapest column
+        take = np.isfinite(c[rows, k, cols]) & (c.argmin(axis=0)[k, cols] == rows)
+        if not take.any():
+            return pair
+        j, f = np.nonzero(take)
+        pair[j, f] = k[j, f]
+        c[j, :, f] = np.inf
+        c[:, k[j, f], f] = np.inf
+
+
+def _one_to_one(cost: FloatArray, sub: np.ndarray | None = None) -> IntArray:
+    """Greedy one-to-one pairing of a cost grid (n, C, …) (inf: no pair): column per row or -1.
+
+    Each row's nearest column, unless two rows of a filter want the same one: only those
+    filters run :func:`_greedy`. With ``sub`` (bool, like cost) only its entries count: for few
+    per row (pairs inside the gate), counting them finds the nearest without an argmin over
+    the whole grid, which is slow along a middle axis.
+    """
+    n, C = cost.shape[:2]
+    if C == 0:
+        return np.full((n, *cost.shape[2:]), -1)
+    if sub is None:
+        k = cost.argmin(axis=1)
+        pair = np.where(np.isfinite(cost.min(axis=1)), k, -1)
+    else:  # (n, C, B)
+        t = np.matmul(np.array([np.ones(C), np.arange(C)], np.float32), sub)  # exact
+        count, ksum = t[:, 0], t[:, 1]  # with one entry, ksum is its column
+        pair = np.where(count == 1, ksum, -1).astype(np.intp)
+        j, b = np.nonzero(count > 1)
+        if len(j):  # several inside the gate: an argmin over those rows only
+            pair[j, b] = np.where(sub[j, :, b], cost[j, :, b], np.inf).argmin(axis=1)
+    clash = _clashes(pair, C)
+    if clash.any():
+        if pair.ndim == 1:  # one filter: as a batch of one
+            return _greedy(cost[..., None])[:, 0]
+        F = np.flatnonzero(clash)
+        pair[:, F] = _greedy(
+            cost[..., F] if sub is None else np.where(sub[..., F], cost[..., F], np.inf)
         )
-        c = np.where(taken, np.inf, c)
-    paired = landmark >= 0
-    pair_d2 = np.take_along_axis(d2, np.maximum(landmark, 0)[..., None], axis=-1)[..., 0]
-    used = paired & (pair_d2 <= gate2)
-    gated = paired & ~used
-    status = np.where(used, USED, np.where(gated, GATED, np.where(candidate, LOST, status)))
-    nearest = np.where(np.isfinite(cost), d2, np.inf).min(axis=-1)
-    out_d2 = np.where(paired, pair_d2, nearest)
-    lk = np.maximum(landmark, 0)
-    hr = np.take_along_axis(h, lk[..., None], axis=-2)
-    Hr = np.take_along_axis(H, lk[..., None, None], axis=-3)
-    Rr = np.take_along_axis(R, lk[..., None, None], axis=-3)
-    new = _joseph(state, z, hr, Hr, Rr, used)
-    return LandmarkUpdate(new, np.where(paired, landmark, -1), out_d2, status)
+    return pair
 
 
-def _joseph(
-    state: AT, z: FloatArray, h: FloatArray, H: FloatArray, R: FloatArray, use: np.ndarray
-) -> AT:
-    """One stacked EKF update over k pairs (…, k): unused pairs get H = 0, v = 0 (no effect)."""
-    k = z.shape[-2]
-    if k == 0 or not np.any(use):
-        return state
-    v = z - h
-    v[..., 1] = se2.wrap_angle(v[..., 1])
-    v = np.where(use[..., None], v, 0.0)
-    Hm = np.where(use[..., None, None], H, 0.0)
-    Rm = np.where(use[..., None, None], R, np.eye(2))
-    batch = v.shape[:-2]
-    Hs = Hm.reshape(*batch, 2 * k, 3)
-    Rs = np.zeros((*batch, 2 * k, 2 * k))
-    for i in range(k):
-        Rs[..., 2 * i : 2 * i + 2, 2 * i : 2 * i + 2] = Rm[..., i, :, :]
-    P = np.broadcast_to(state.cov, (*batch, 3, 3))
-    PHt = P @ np.swapaxes(Hs, -1, -2)
-    S = Hs @ PHt + Rs  # Eq. 27's H Σ⁻ Hᵀ + R
-    K = np.swapaxes(np.linalg.solve(S, np.swapaxes(PHt, -1, -2)), -1, -2)  # Σ⁻ Hᵀ S⁻¹
-    mean = se2.plus(
-        np.broadcast_to(state.mean, (*batch, 3)),
-        np.einsum("...ij,...j->...i", K, v.reshape(*batch, 2 * k)),
-    )
-    I_KH = np.eye(3) - K @ Hs
-    cov = I_KH @ P @ np.swapaxes(I_KH, -1, -2) + K @ Rs @ np.swapaxes(K, -1, -2)
-    return AT._trusted(mean, 0.5 * (cov + np.swapaxes(cov, -1, -2)))
+def _at(
+    grid: np.ndarray, k: IntArray, cols: IntArray | None, rows: IntArray | None = None
+) -> np.ndarray:
+    """``grid[j, k[j], b]`` for every row j (and filter b)."""
+    if rows is None:
+        rows = np.arange(grid.shape[0])
+    return grid[rows, k] if cols is None else grid[rows[:, None], k, cols]
+
+
+class _Job:
+    """One call of :func:`correct_landmarks`, laid out for the computation: the batch flattened
+    to B filters (or a single one), readings as (m, B) arrays, landmarks as (C, B) arrays where
+    C counts all landmarks or each filter's candidates."""
+
+    batch: tuple[int, ...]
+    single: bool
+    B: int
+    m: int
+    L: int
+    cols: IntArray | None  # arange(B), None for a single filter
+    mean: FloatArray  # (B, 3) or (3,)
+    cov: FloatArray
+    f: _Frame
+    zr: FloatArray  # ranges (m, B), placeholders where unusable
+    zb: FloatArray  # φ (m, B), wrapped in a batch
+    usable: np.ndarray  # (m, B)
+    all_usable: bool
+    base: IntArray | int  # status of readings not paired: UNKNOWN, INVALID or ABSENT
+    sig: np.ndarray | None  # (m, B)
+    lsig: np.ndarray | None  # (L,)
+    lc: np.ndarray  # landmarks as complex numbers (L,)
+    sensor: RangeBearingSensor
+    gate2: float
+    state: AT
+
+    def __init__(
+        self,
+        state: AT,
+        z: FloatArray,
+        batch: tuple[int, ...],
+        valid: ArrayLike | None,
+        signatures: ArrayLike | None,
+        lsig: np.ndarray | None,
+        sensor: RangeBearingSensor,
+        lm: FloatArray,
+        gate2: float,
+    ) -> None:
+        m = z.shape[-2]
+        single = batch == ()
+        B = math.prod(batch)
+        mean, cov = state.mean, state.cov
+        if not single:
+            mean = np.broadcast_to(mean, (*batch, 3)).reshape(B, 3)
+            cov = np.broadcast_to(cov, (*batch, 3, 3)).reshape(B, 3, 3)
+            z = np.ascontiguousarray(np.broadcast_to(z, (*batch, m, 2)).reshape(B, m, 2).T).T
+        zr, zb = (z[:, 0], z[:, 1]) if single else (z[:, :, 0].T, z[:, :, 1].T)  # (m, B)
+
+        def readings_shaped(a: ArrayLike) -> np.ndarray:
+            a = np.asarray(a)
+            if a.shape != (*batch, m):
+                a = np.broadcast_to(a, (*batch, m))
+            return a if single else a.reshape(B, m).T
+
+        usable = np.isfinite(zb) & (zr > 0) & (zr < np.inf)
+        present = None if valid is None else readings_shaped(np.asarray(valid, bool))
+        if present is not None:
+            usable &= present
+        self.all_usable = all_usable = bool(usable.all())
+        self.base: IntArray | int = UNKNOWN  # status of the readings not paired
+        if not all_usable:  # placeholders, never used
+            zr, zb = np.where(usable, zr, 1.0), np.where(usable, zb, 0.0)
+            self.base = np.where(usable, UNKNOWN, INVALID)
+            if present is not None:
+                self.base[~present] = ABSENT
+        self.f = _Frame.build(mean, cov, sensor.mount, single)
+        if not single and not ((zb >= -np.pi) & (zb < np.pi)).all():
+            zb = se2.wrap_angle(zb)
+        self.zb = zb  # bearings of the readings (wrapped for a batch)
+        self.batch, self.single, self.B, self.m, self.L = batch, single, B, m, len(lm)
+        self.cols = None if single else np.arange(B)
+        self.mean, self.cov, self.zr, self.usable = mean, cov, zr, usable
+        self.sig = None if lsig is None else readings_shaped(signatures)  # type: ignore[arg-type]
+        self.lsig, self.sensor, self.gate2, self.state = lsig, sensor, gate2, state
+        self.lc = np.ascontiguousarray(lm).view(np.complex128)[:, 0]
+
+    @functools.cached_property
+    def ez(self) -> FloatArray:
+        """``exp(i(φ + θ_sensor))`` (m, B): ``angle(ez · ū)`` is a bearing innovation, wrapped."""
+        return np.exp(1j * (self.zb + self.f.st))
+
+    # ---------------------------------------------------------------- candidates
+    def _landmarks(self, cand: IntArray | None) -> FloatArray:
+        """Complex positions of all landmarks (L,) / (L, 1), or of the candidates (K, B)."""
+        if cand is not None:
+            return self.lc[cand]
+        return self.lc if self.single else self.lc[:, None]
+
+    def _columns(self, cand: IntArray | None) -> IntArray:
+        """The landmark of each column (C, B) — or (L,) for a single filter."""
+        if cand is not None:
+            return cand
+        idx = np.arange(self.L)
+        return idx if self.single else np.broadcast_to(idx[:, None], (self.L, self.B))
+
+    def _restrict(self, sub: np.ndarray, cand: IntArray | None, ok: np.ndarray | None) -> None:
+        """Keep (in place) the pairs (m, C, …) that may pair: usable readings, real
+        candidates, equal signatures."""
+        if not self.all_usable:
+            sub &= self.usable[:, None]
+        if ok is not None:
+            sub &= ok
+        if self.sig is not None:
+            lsig: np.ndarray = self.lsig  # type: ignore[assignment]
+            if cand is not None:
+                lsig = lsig[cand]
+            elif not self.single:
+                lsig = lsig[:, None]
+            sub &= self.sig[:, None] == lsig
+
+    def _compact(self, mask: np.ndarray) -> tuple[IntArray, np.ndarray]:
+        """Landmark mask (L, B) → the kept landmarks' rows (K, B), in order, padded with 0, and
+        which are real."""
+        by_filter = np.ascontiguousarray(mask.T)
+        count = by_filter.sum(axis=1)
+        bi, li = np.nonzero(by_filter)
+        at = (np.arange(len(bi)) - (np.cumsum(count) - count)[bi], bi)
+        cand = np.zeros((int(count.max()), self.B), np.intp)
+        ok = np.zeros(cand.shape, bool)
+        cand[at] = li
+        ok[at] = True
+        return cand, ok
+
+    def _signature_candidates(self) -> tuple[IntArray, np.ndarray] | None:
+        """Landmarks whose signature some usable reading of the filter carries (None unless
+        landmark signatures are unique)."""
+        lsig, sig = self.lsig, self.sig
+        assert lsig is not None and sig is not None
+        order = np.argsort(lsig, kind="stable")
+        ordered = lsig[order]
+        if len(ordered) > 1 and not (ordered[1:] != ordered[:-1]).all():
+            return None
+        pos = np.minimum(np.searchsorted(ordered, sig), self.L - 1)
+        found = (ordered[pos] == sig) & self.usable
+        mask = np.zeros((self.L, self.B), bool)
+        j, b = np.nonzero(found)
+        mask[order[pos[j, b]], b] = True
+        return self._compact(mask)
+
+    def _gate_candidates(self) -> tuple[IntArray, np.ndarray]:
+        """Landmarks that may lie inside the gate of some usable reading of the filter (see the
+        module notes): range and bearing of the landmark against the readings' hull, with
+        ``S_rr ≤ λ + σr²`` and ``S_φφ ≤ λ/ρ² + 2|g|/ρ + Σθθ + σφ²``, λ = h + |c̄| the top
+        eigenvalue of V.
+        """
+        f, u = self.f, self.usable
+        r_lo, r_hi = np.where(u, self.zr, np.inf).min(0), np.where(u, self.zr, -np.inf).max(0)
+        b_lo, b_hi = np.where(u, self.zb, np.inf).min(0), np.where(u, self.zb, -np.inf).max(0)
+        some = u.any(axis=0)
+        if not some.all():  # filters without usable readings: no candidates
+            r_lo, r_hi, b_lo, b_hi = (np.where(some, v, 0.0) for v in (r_lo, r_hi, b_lo, b_hi))
+        d = self.lc[:, None] - f.sc
+        r = np.abs(d)
+        if not r.all():
+            raise ParameterError("a landmark at the sensor's own position has no bearing")
+        var_r, var_b = self.sensor._variances(r)
+        k2 = self.gate2 * _SLACK
+        lam = k2 * (f.h + np.abs(f.cbar))
+        # distance of the range to [r_lo, r_hi], of the bearing to the arc [b_lo, b_hi]: to the
+        # centre, less the half width (the bearing's from the centre direction, wrapped)
+        gap = r - 0.5 * (r_lo + r_hi)
+        np.abs(gap, out=gap)
+        gap -= 0.5 * (r_hi - r_lo)
+        np.maximum(gap, 0.0, out=gap)
+        gap *= gap
+        keep = gap <= lam + k2 * var_r
+        d *= np.exp(-1j * (f.st + 0.5 * (b_lo + b_hi)))  # d turned to the centre direction
+        gap = np.angle(d)
+        np.abs(gap, out=gap)
+        gap -= 0.5 * (b_hi - b_lo)
+        np.maximum(gap, 0.0, out=gap)
+        gap *= gap
+        bound = np.divide(lam, r)
+        bound += 2 * k2 * np.abs(f.gbar)
+        bound /= r
+        bound += k2 * (f.p[5] + var_b)
+        keep &= gap <= bound
+        keep &= some
+        return self._compact(keep)
+
+    # ---------------------------------------------------------------- association
+    def known(self) -> tuple[IntArray, FloatArray, IntArray, AT] | None:
+        """Signatures that name one landmark each, no two readings of a filter alike: each
+        reading has one candidate, so no reading×landmark grid. None otherwise."""
+        lsig, sig = self.lsig, self.sig
+        assert lsig is not None and sig is not None
+        if self.L == 1 or (lsig[1:] > lsig[:-1]).all():  # sorted already (e.g. the row numbers)
+            lid = np.minimum(np.searchsorted(lsig, sig), self.L - 1)
+            found = lsig[lid] == sig
+        else:
+            order = np.argsort(lsig, kind="stable")
+            ordered = lsig[order]
+            if not (ordered[1:] != ordered[:-1]).all():
+                return None  # landmarks share signatures
+            pos = np.minimum(np.searchsorted(ordered, sig), self.L - 1)
+            found, lid = ordered[pos] == sig, order[pos]
+        if not self.all_usable:
+            found &= self.usable
+        if self.single:
+            ids = lid[found].tolist()
+            if len(set(ids)) < len(ids):
+                return None
+        elif _clashes(np.where(found, lid, -1), self.L).any():
+            return None
+        p = _predict(self.f, self.lc[lid], self.sensor)
+        vr = self.zr - p.r
+        vb = np.angle(self.ez * np.conj(p.u))
+        d2 = _mahalanobis2(p, vr, vb)
+        used = found & (d2 <= self.gate2)
+        landmark = np.where(found, lid, -1)
+        out_d2 = np.where(found, d2, np.inf)
+        status = np.where(used, USED, np.where(found, GATED, self.base))
+        return landmark, out_d2, status, self._update(p, vr, vb, used)
+
+    def nearest(self) -> tuple[IntArray, FloatArray, IntArray, AT]:
+        """One to one by Mahalanobis distance (signatures optional): pairs inside the gate first,
+        then the leftover readings (see the module notes)."""
+        if self.single:
+            return self._nearest_single()
+        cand: IntArray | None = None
+        ok: np.ndarray | None = None
+        complete = True  # do the columns hold every landmark a usable reading may pair with?
+        if self.m * self.L * self.B > _CANDIDATES_ABOVE:
+            found = None if self.sig is None else self._signature_candidates()
+            if found is None:
+                found, complete = self._gate_candidates(), False
+            cand, ok = found
+        p = _predict(self.f, self._landmarks(cand), self.sensor)
+        bearing = _wrap_near(np.angle(p.u) - self.f.st)  # predicted bearings (C, B)
+        d2 = _grid_mahalanobis2(p, bearing, self.zr, self.zb)
+        sub = d2 <= self.gate2
+        self._restrict(sub, cand, ok)
+        pair = _one_to_one(d2, sub)
+        used = pair >= 0
+        k = np.maximum(pair, 0)
+        status = np.where(used, USED, self.base)
+        if not used.any():  # perhaps no candidate at all
+            landmark, out_d2, new = np.full(pair.shape, -1), np.full(pair.shape, np.inf), self.state
+        else:
+            cols = self.cols
+            landmark = np.where(used, _pick(self._columns(cand), k, cols), -1)
+            out_d2 = np.where(used, _at(d2, k, cols), np.inf)
+            # the used pairs' innovations, as in the grid
+            vr = self.zr - _pick(p.r, k, cols)
+            vb = _wrap_near(self.zb - _pick(bearing, k, cols))
+            new = self._update(p.pick(k, cols), vr, vb, used)
+        rejected = self.usable & ~used
+        if rejected.any():
+            self._leftovers(rejected, used, landmark, out_d2, status, d2, cand, ok, complete)
+        return landmark, out_d2, status, new
+
+    def _nearest_single(self) -> tuple[IntArray, FloatArray, IntArray, AT]:
+        """:meth:`nearest` for one filter, in few numpy calls: a reading's nearest landmark is
+        inside the gate if any is, so one argmin over the grid pairs the readings."""
+        p = _predict(self.f, self.lc, self.sensor)
+        d2, vr, vb = _innovations(p, self.zr, self.ez)
+        cost = d2
+        if not self.all_usable or self.sig is not None:
+            allowed = np.ones(d2.shape, bool)
+            self._restrict(allowed, None, None)
+            cost = np.where(allowed, d2, np.inf)
+        k = cost.argmin(axis=1)
+        rows = np.arange(self.m)
+        best = cost[rows, k]
+        used = best <= self.gate2
+        if _clashes(np.where(used, k, -1), self.L):
+            pair = _one_to_one(np.where(cost <= self.gate2, cost, np.inf))
+            used = pair >= 0
+            k = np.maximum(pair, 0)
+            best = cost[rows, k]
+        landmark = np.where(used, k, -1)
+        out_d2 = np.where(used, best, np.inf)
+        status = np.where(used, USED, self.base)
+        rejected = ~used if self.all_usable else self.usable & ~used
+        if rejected.any():  # paired among themselves with the landmarks left, as in _leftovers
+            j = np.flatnonzero(rejected)
+            c = cost[j]
+            nearest = c.min(axis=1)
+            free = c.copy()
+            free[:, k[used]] = np.inf
+            pair = _one_to_one(free)
+            paired = pair >= 0
+            landmark[j] = pair
+            out_d2[j] = np.where(paired, c[np.arange(len(j)), np.maximum(pair, 0)], nearest)
+            status[j] = np.where(paired, GATED, np.where(np.isfinite(nearest), LOST, UNKNOWN))
+        new = self._update(p.pick(k, None), vr[rows, k], vb[rows, k], used)
+        return landmark, out_d2, status, new
+
+    def _leftovers(
+        self,
+        rejected: np.ndarray,
+        used: np.ndarray,
+        landmark: IntArray,
+        out_d2: FloatArray,
+        status: IntArray,
+        d2: FloatArray,
+        cand: IntArray | None,
+        ok: np.ndarray | None,
+        complete: bool,
+    ) -> None:
+        """Readings of a batch not used: paired one to one, as the greedy run goes on, with the
+        landmarks no used reading took (GATED), else LOST if some landmark could have matched,
+        else UNKNOWN; d² to the paired or nearest landmark. Fills the outputs in place.
+
+        The rejected readings form a flat list of columns (R), each against every landmark it
+        may pair with; only filters where two of them want the same landmark run the loop.
+        """
+        B, L = self.B, self.L
+        fb, j = np.nonzero(rejected.T)  # by filter, then reading
+        R = len(j)
+        F = np.flatnonzero(rejected.any(axis=0))
+        taken = np.zeros((L, len(F)), bool)  # landmarks of used readings, in those filters
+        uj, ub = np.nonzero(used[:, F])
+        taken[landmark[uj, F[ub]], ub] = True
+        pos = np.zeros(B, np.intp)
+        pos[F] = np.arange(len(F))
+        taken = taken[:, pos[fb]]  # (L, R)
+        if complete:  # rows of the reading×candidate grid
+            grid = d2[j, :, fb].T  # (C, R)
+            columns = (
+                np.broadcast_to(np.arange(L)[:, None], (L, R)) if cand is None else cand[:, fb]
+            )
+            allow = np.ones(grid.shape, bool) if ok is None else ok[:, fb]
+        else:  # those readings against every landmark, computed now
+            f = self.f.take(fb)
+            p = _predict(f, self.lc[:, None], self.sensor)  # (L, R)
+            vb = np.angle(np.exp(1j * (self.zb[j, fb] + f.st)) * np.conj(p.u))
+            grid = _mahalanobis2(p, self.zr[j, fb] - p.r, vb)
+            columns = np.broadcast_to(np.arange(L)[:, None], (L, R))
+            allow = np.ones(grid.shape, bool)
+        if self.sig is not None:
+            allow &= self.sig[j, fb] == self.lsig[columns]  # type: ignore[index]
+        cost = np.where(allow & ~taken[columns, np.arange(R)], grid, np.inf)
+        k = cost.argmin(axis=0)
+        rr = np.arange(R)
+        pair = np.where(np.isfinite(cost[k, rr]), k, -1)
+        # several of one filter wanting one landmark: those filters run the greedy loop
+        lid = columns[k, rr]
+        paired = pair >= 0
+        key = fb[paired] * L + lid[paired]
+        clash = np.zeros(B, bool)
+        clash[fb[paired][np.bincount(key, minlength=B * L)[key] > 1]] = True
+        if clash.any():
+            mine = np.flatnonzero(clash[fb])  # their rows, by filter then reading
+            rank = mine - np.searchsorted(fb, fb[mine])  # of a row within its filter
+            col = np.cumsum(clash) - 1  # the filter's place among them
+            at = (rank, col[fb[mine]])
+            padded = np.full((int(rank.max()) + 1, cost.shape[0], int(clash.sum())), np.inf)
+            padded[rank, :, at[1]] = cost[:, mine].T
+            pair[mine] = _greedy(padded)[at]
+            paired = pair >= 0
+        kk = np.maximum(pair, 0)
+        nearest = np.where(allow, grid, np.inf).min(axis=0, initial=np.inf)
+        landmark[j, fb] = np.where(paired, columns[kk, rr], -1)
+        out_d2[j, fb] = np.where(paired, grid[kk, rr], nearest)
+        status[j, fb] = np.where(paired, GATED, np.where(allow.any(axis=0), LOST, UNKNOWN))
+
+    def general(
+        self, associate: Association, pairing: Pairing
+    ) -> tuple[IntArray, FloatArray, IntArray, AT]:
+        """Euclidean association or the lecture's Eq. 21, on the full reading×landmark grid."""
+        p = _predict(self.f, self._landmarks(None), self.sensor)
+        d2, vr, vb = _innovations(p, self.zr, self.ez)
+        allowed = np.ones(d2.shape, bool)
+        self._restrict(allowed, None, None)
+        cost = np.where(allowed, vr * vr + vb * vb if associate == "euclidean" else d2, np.inf)
+        could = allowed.any(axis=1)
+        gate2, cols = self.gate2, self.cols
+        if pairing == "per_landmark":
+            # Eq. 21: each landmark takes its nearest reading; a reading may serve several
+            best = cost.argmin(axis=0)  # (L, …)
+            at_best = (
+                (best, np.arange(self.L))
+                if self.single
+                else (best, np.arange(self.L)[:, None], cols)
+            )
+            reach = np.isfinite(cost[at_best])
+            use_l = reach & (d2[at_best] <= gate2)
+            gated_l = reach & ~use_l
+            chosen = best == np.arange(self.m).reshape((-1,) + (1,) * best.ndim)  # (m, L, …)
+            served, refused = chosen & use_l, chosen & gated_l
+            used_r = served.any(axis=1)
+            gated_r = refused.any(axis=1) & ~used_r
+            landmark = np.where(
+                used_r, served.argmax(axis=1), np.where(gated_r, refused.argmax(axis=1), -1)
+            )
+            status = np.where(
+                used_r, USED, np.where(gated_r, GATED, np.where(could, LOST, self.base))
+            )
+            out_d2 = np.where(landmark >= 0, _at(d2, np.maximum(landmark, 0), cols), np.inf)
+            new = self._update(p, vr[at_best], vb[at_best], use_l)
+            return landmark, out_d2, status, new
+        pair = _one_to_one(cost)
+        paired = pair >= 0
+        k = np.maximum(pair, 0)
+        pair_d2 = _at(d2, k, cols)
+        used = paired & (pair_d2 <= gate2)
+        status = np.where(used, USED, np.where(paired, GATED, np.where(could, LOST, self.base)))
+        out_d2 = np.where(paired, pair_d2, np.where(allowed, d2, np.inf).min(axis=1))
+        new = self._update(p.pick(k, cols), _at(vr, k, cols), _at(vb, k, cols), used)
+        return np.where(paired, pair, -1), out_d2, status, new
+
+    # ---------------------------------------------------------------- update
+    def _update(self, p: _Pred, vr: FloatArray, vb: FloatArray, use: np.ndarray) -> AT:
+        """The stacked update (Eqs. 26-28, Joseph form) over the pairs (n, …) marked ``use``:
+        innovations ``(vr, vb)`` and their landmarks' predictions ``p`` (n, …).
+
+        3×3 algebra (see the module notes), except for ill-conditioned filters and a sensor
+        without noise: those take the 2n×2n solve.
+        """
+        if not use.any():
+            return self.state
+        if self.sensor.sigma_range == 0 or self.sensor.sigma_bearing == 0:
+            mean, cov = self._update_stacked(p, vr, vb, use, None)
+        else:
+            mean, cov, ill = self._update_3x3(p, vr, vb, use)
+            if ill if self.single else ill.any():
+                if self.single:
+                    mean, cov = self._update_stacked(p, vr, vb, use, None)
+                else:
+                    F = np.flatnonzero(ill)
+                    mean[F], cov[F] = self._update_stacked(p, vr, vb, use, F)
+        return AT._trusted(mean.reshape(*self.batch, 3), cov.reshape(*self.batch, 3, 3))
+
+    def _update_3x3(
+        self, p: _Pred, vr: FloatArray, vb: FloatArray, use: np.ndarray
+    ) -> tuple[FloatArray, FloatArray, Value]:
+        """Mean (B, 3), covariance (B, 3, 3) and which filters are ill-conditioned."""
+        f, single = self.f, self.single
+        w0 = use / p.var_r  # R⁻¹, zero for pairs not used
+        w1 = use / p.var_b
+        ir, u = p.ir, p.u
+        wq, wr, e0, e2 = w1 * ir * ir, w1 * ir, w0 * vr, w1 * vb
+        e1 = e2 * ir
+        # H₀ = -E u, H₁ = E u⊥/ρ - (0, 0, 1): A = HᵀR⁻¹H and b = HᵀR⁻¹v reduce to weighted
+        # sums over the pairs (u as a complex number, u⊥ = -iu), mapped through E per filter:
+        # Q = Σ w0 uuᵀ + wq u⊥u⊥ᵀ from Σ (w0 + wq) and Σ (w0 - wq) u², c = Σ wr u⊥,
+        # d = Σ e1 u⊥ - e0 u, then A = E Q Eᵀ - (E c) kᵀ - k (E c)ᵀ + Σ w1 kkᵀ, b = E d - k Σ e2.
+        if single:  # all nine sums in one product: weights (7, n) × features (1, u, u²)
+            X = np.ones((len(u), 3), complex)
+            X[:, 1] = u
+            np.multiply(u, u, out=X[:, 2])
+            sums = (np.array([w0, w1, wq, wr, e0, e1, e2]) @ X).tolist()
+            (s0, _, s0w), (s1, _, _), (sq, _, sqw), (_, s_u, _), (_, s0u, _), (_, s1u, _) = sums[:6]
+            s_a, n1, s2 = (s0 + sq).real, s1.real, sums[6][0].real
+            s_w, s_d = s0w - sqw, s0u + 1j * s1u
+        else:
+            s_a, n1, s2 = (w0 + wq).sum(axis=0), w1.sum(axis=0), e2.sum(axis=0)
+            s_w, s_u, s_d = (
+                (a * b).sum(axis=0) for a, b in ((w0 - wq, u * u), (wr, u), (e0 + 1j * e1, u))
+            )
+        q00, q11, q01 = 0.5 * (s_a + s_w.real), 0.5 * (s_a - s_w.real), 0.5 * s_w.imag
+        c0, c1, d0, d1 = s_u.imag, -s_u.real, -s_d.real, -s_d.imag
+        ax, ay = f.ax, f.ay
+        a02 = -ay * q00 + ax * q01 - c0
+        a12 = -ay * q01 + ax * q11 - c1
+        a22 = ay * ay * q00 - 2 * ax * ay * q01 + ax * ax * q11 - 2 * (ax * c1 - ay * c0) + n1
+        A = (q00, q01, a02, q01, q11, a12, a02, a12, a22)
+        bv = (d0, d1, ax * d1 - ay * d0 - s2)
+        p00, p01, p02, p11, p12, p22 = f.p
+        P = (p00, p01, p02, p01, p11, p12, p02, p12, p22)
+        AP = _mm(A, P)
+        M = _plus_eye(AP)  # I + A Σ⁻
+        W = _inv3(M)
+        G = _mm(P, W)  # Σ⁻ W
+        # K v = Σ⁻ y with M y = b, refined once (M is ill-conditioned after a precise reading)
+        y = _mv(W, bv)
+        y = _add(y, _mv(W, _sub(bv, _mv(M, y))))
+        dx = _mv(P, y)
+        # Joseph form with K H = G A formed from G: an exact Joseph form of the gain actually
+        # computed, so that rounding in W enters the covariance only to second order
+        GA = _mm(G, A)
+        J = _sub(_EYE, GA)  # I - K H
+        c00, c01, c02, c11, c12, c22 = _add(_abt(_mm(J, P), J), _abt(GA, G))
+        sym = [c00, c01, c02, c01, c11, c12, c02, c12, c22]
+        theta = f.t + dx[2]
+        trace = AP[0] + AP[4] + AP[8]
+        ill = not trace <= _ILL_CONDITIONED if single else ~(trace <= _ILL_CONDITIONED)
+        if single:
+            mean = np.array([f.x + dx[0], f.y + dx[1], _wrap_scalar(theta)])
+            return mean, np.array(sym).reshape(3, 3), ill
+        mean = stack_last([f.x + dx[0], f.y + dx[1], se2.wrap_angle(theta)], (self.B,))
+        cov = matrix([sym[0:3], sym[3:6], sym[6:9]], (self.B,))
+        return mean, cov, ill
+
+    def _update_stacked(
+        self, p: _Pred, vr: FloatArray, vb: FloatArray, use: np.ndarray, F: IntArray | None
+    ) -> tuple[FloatArray, FloatArray]:
+        """The textbook stacked update (a 2n×2n solve) of filters F (None: all)."""
+        f, mean, P = self.f, self.mean, self.cov
+        if F is not None:
+            p, f, mean, P = p.take(F), f.take(F), mean[F], P[F]
+            vr, vb, use = vr[:, F], vb[:, F], use[:, F]
+        ax, ay, ux, uy, ir = f.ax, f.ay, p.u.real, p.u.imag, p.ir
+        rows = (
+            (-ux, -uy, ux * ay - uy * ax),
+            (uy * ir, -ux * ir, -(uy * ay + ux * ax) * ir - 1.0),
+        )
+        n = use.shape[0]
+        lead = mean.shape[:-1]
+        H = np.empty((*lead, n, 2, 3))
+        for a in range(2):
+            for c in range(3):
+                H[..., a, c] = np.where(use, rows[a][c], 0.0).T
+        v = np.stack([np.where(use, vr, 0.0).T, np.where(use, vb, 0.0).T], axis=-1)
+        Rd = np.stack([np.where(use, p.var_r, 1.0).T, np.where(use, p.var_b, 1.0).T], axis=-1)
+        Hs = H.reshape(*lead, 2 * n, 3)
+        Rs = np.zeros((*lead, 2 * n, 2 * n))
+        i = np.arange(2 * n)
+        Rs[..., i, i] = Rd.reshape(*lead, 2 * n)
+        PHt = P @ np.swapaxes(Hs, -1, -2)
+        S = Hs @ PHt + Rs  # Eq. 27's H Σ⁻ Hᵀ + R
+        K = np.swapaxes(np.linalg.solve(S, np.swapaxes(PHt, -1, -2)), -1, -2)  # Σ⁻ Hᵀ S⁻¹
+        new_mean = se2.plus(mean, np.einsum("...ij,...j->...i", K, v.reshape(*lead, 2 * n)))
+        I_KH = np.eye(3) - K @ Hs
+        cov = I_KH @ P @ np.swapaxes(I_KH, -1, -2) + K @ Rs @ np.swapaxes(K, -1, -2)
+        return new_mean, 0.5 * (cov + np.swapaxes(cov, -1, -2))
+
+    # ---------------------------------------------------------------- results
+    def finish(
+        self, landmark: IntArray, out_d2: FloatArray, status: IntArray, new: AT
+    ) -> LandmarkUpdate:
+        """Back to the caller's layout: (…, m) arrays."""
+        if not self.single:
+            shape = (*self.batch, self.m)
+            landmark, out_d2, status = (
+                np.ascontiguousarray(a.T).reshape(shape) for a in (landmark, out_d2, status)
+            )
+        return LandmarkUpdate(new, landmark.astype(np.int64), out_d2, status.astype(np.int64))
+
+
+# ------------------------------------------------------------------ 3×3 algebra on entries
+Mat3 = tuple  # 9 entries, row-major: numbers or arrays of one shape
+
+
+def _mm(X: Mat3, Y: Mat3) -> Mat3:
+    x0, x1, x2, x3, x4, x5, x6, x7, x8 = X
+    y0, y1, y2, y3, y4, y5, y6, y7, y8 = Y
+    return (
+        x0 * y0 + x1 * y3 + x2 * y6, x0 * y1 + x1 * y4 + x2 * y7, x0 * y2 + x1 * y5 + x2 * y8,
+        x3 * y0 + x4 * y3 + x5 * y6, x3 * y1 + x4 * y4 + x5 * y7, x3 * y2 + x4 * y5 + x5 * y8,
+        x6 * y0 + x7 * y3 + x8 * y6, x6 * y1 + x7 * y4 + x8 * y7, x6 * y2 + x7 * y5 + x8 * y8,
+    )  # fmt: skip
+
+
+def _mv(X: Mat3, v: tuple) -> tuple:
+    x0, x1, x2, x3, x4, x5, x6, x7, x8 = X
+    v0, v1, v2 = v
+    return (x0 * v0 + x1 * v1 + x2 * v2, x3 * v0 + x4 * v1 + x5 * v2, x6 * v0 + x7 * v1 + x8 * v2)
+
+
+_EYE = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+
+
+def _abt(X: Mat3, Y: Mat3) -> tuple:
+    """The upper entries ``(00, 01, 02, 11, 12, 22)`` of ``X Yᵀ``, a symmetric matrix."""
+    x0, x1, x2, x3, x4, x5, x6, x7, x8 = X
+    y0, y1, y2, y3, y4, y5, y6, y7, y8 = Y
+    return (
+        x0 * y0 + x1 * y1 + x2 * y2, x0 * y3 + x1 * y4 + x2 * y5, x0 * y6 + x1 * y7 + x2 * y8,
+        x3 * y3 + x4 * y4 + x5 * y5, x3 * y6 + x4 * y7 + x5 * y8, x6 * y6 + x7 * y7 + x8 * y8,
+    )  # fmt: skip
+
+
+def _plus_eye(X: Mat3) -> Mat3:
+    return (X[0] + 1.0, X[1], X[2], X[3], X[4] + 1.0, X[5], X[6], X[7], X[8] + 1.0)
+
+
+def _add(a: tuple, b: tuple) -> tuple:
+    return tuple([x + y for x, y in zip(a, b, strict=True)])
+
+
+def _sub(a: tuple, b: tuple) -> tuple:
+    return tuple([x - y for x, y in zip(a, b, strict=True)])
+
+
+def _inv3(M: Mat3) -> Mat3:
+    """Inverse by the adjugate (used on ``I + AΣ``, whose determinant is at least 1)."""
+    a, b, c, d, e, f, g, h, i = M
+    A, B, C = e * i - f * h, f * g - d * i, d * h - e * g
+    r = 1.0 / (a * A + b * B + c * C)
+    return (
+        A * r, (c * h - b * i) * r, (b * f - c * e) * r,
+        B * r, (a * i - c * g) * r, (c * d - a * f) * r,
+        C * r, (b * g - a * h) * r, (a * e - b * d) * r,
+    )  # fmt: skip

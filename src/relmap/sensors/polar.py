@@ -161,13 +161,17 @@ class RangeBearingSensor:
         r = np.asarray(r, dtype=np.float64)
         if (r <= 0).any():
             raise ParameterError(f"range must be positive; got {r.min()}")
-        scale = {"constant": np.ones_like(r), "proportional": r, "quadratic": r * r}[
-            self.noise_model
-        ]
         R = np.zeros((*r.shape, 2, 2))
-        R[..., 0, 0] = (self.sigma_range * scale) ** 2
-        R[..., 1, 1] = (self.sigma_bearing * scale) ** 2
+        R[..., 0, 0], R[..., 1, 1] = self._variances(r)
         return R
+
+    def _variances(self, r: FloatArray) -> tuple[FloatArray | float, FloatArray | float]:
+        """``(σr², σφ²)``, the diagonal of :meth:`noise` at ranges r > 0 (unchecked): plain
+        floats for the constant model, arrays shaped like r otherwise."""
+        if self.noise_model == "constant":
+            return self.sigma_range**2, self.sigma_bearing**2
+        scale = r if self.noise_model == "proportional" else r * r
+        return (self.sigma_range * scale) ** 2, (self.sigma_bearing * scale) ** 2
 
     def in_view(self, z: ArrayLike) -> np.ndarray:
         """Whether readings ``(r, φ)`` (..., 2) lie in the field of view and range."""
