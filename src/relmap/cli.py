@@ -5,8 +5,12 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 from relmap.errors import RelmapError
+
+if TYPE_CHECKING:
+    from relmap.at3 import AT3
 
 
 def _demo(args: argparse.Namespace) -> int:
@@ -33,19 +37,21 @@ def _query(args: argparse.Namespace) -> int:
 
     import numpy as np
 
+    from relmap.at3 import AT3
     from relmap.io import load_map
 
     g = load_map(args.map)
     src, dst = _frame(g, args.src), _frame(g, args.dst)
     est = g.query(src, dst, method=args.method, on_irreducible=args.on_irreducible)
     at = est.at
+    spatial = isinstance(at, AT3)
     if args.json:
         out = {
             "from": src,
             "to": dst,
             "method": est.method,
             "expression": est.expression,
-            "mean": at.mean.tolist(),
+            "mean": (at.vector if spatial else at.mean).tolist(),
             "cov": at.cov.tolist(),
             "iterations": est.iterations,
             "dropped": list(est.dropped),
@@ -60,6 +66,9 @@ def _query(args: argparse.Namespace) -> int:
             print(f"    {name}: {meaning}")
     if est.dropped:
         print(f"  dropped (best deletion): {', '.join(est.dropped)}")
+    if spatial:
+        _print_at3(at, src)
+        return 0
     x, y, t = at.mean
     sx, sy, st = at.sigmas
     print(f"  mean   x = {x:.6g} m   y = {y:.6g} m   θ = {t:.6g} rad ({np.degrees(t):.4g}°)")
@@ -73,6 +82,31 @@ def _query(args: argparse.Namespace) -> int:
     for row in at.cov:
         print("   " + " ".join(f"{v: .6e}" for v in row))
     return 0
+
+
+def _print_at3(at: AT3, src: object) -> None:
+    """Text form of a 3-D result: translation, quaternion, Euler angles when defined, σ,
+    90% position ellipsoid, covariance."""
+    import numpy as np
+
+    from relmap.errors import ParameterError
+
+    x, y, z = at.translation
+    print(f"  translation  x = {x:.6g} m   y = {y:.6g} m   z = {z:.6g} m")
+    print("  rotation     q = [" + ", ".join(f"{v:.6g}" for v in at.quaternion) + "] (qx qy qz qw)")
+    try:
+        r, p, yaw = np.degrees(at.to_euler()[0][3:])
+        print(f"               roll {r:.4g}°, pitch {p:.4g}°, yaw {yaw:.4g}° (R = Rz Ry Rx)")
+    except ParameterError:
+        print("               at the Euler pole (pitch ±90°): no roll/yaw")
+    s = at.sigmas
+    print(f"  sigma        x = {s[0]:.4g} m   y = {s[1]:.4g} m   z = {s[2]:.4g} m")
+    print("               φx = {:.3g}°  φy = {:.3g}°  φz = {:.3g}°".format(*np.degrees(s[3:])))
+    axes, _ = at.ellipsoid(0.9)
+    print("  90% position ellipsoid: half-axes " + ", ".join(f"{a:.4g}" for a in axes[::-1]) + " m")
+    print(f"  covariance on (δx, δy, δz, δφx, δφy, δφz) in frame {src} (rotation on the left):")
+    for row in at.cov:
+        print("   " + " ".join(f"{v: .4e}" for v in row))
 
 
 def _solve(args: argparse.Namespace) -> int:
@@ -116,6 +150,69 @@ def _solve(args: argparse.Namespace) -> int:
     return 0
 
 
+def _localize(args: argparse.Namespace) -> int:
+    import json
+    from pathlib import Path
+
+    from relmap._progress import TerminalProgress
+    from relmap.errors import ParameterError
+    from relmap.localize import localize
+
+    if args.plot and not Path(args.plot).resolve().parent.is_dir():
+        raise ParameterError(f"cannot write the plot {args.plot}: its folder does not exist")
+    bar = TerminalProgress(f"localizing {args.dataset}")
+    bar.update("reading the logs, estimating the noise", force=True)
+    try:
+        run = localize(
+            args.dataset,
+            robot=args.robot,
+            associate=args.associate,
+            progress=lambda k, n: bar.update(f"reading time {k}/{n}"),
+        )
+    finally:
+        bar.close()
+    if args.plot:
+        from matplotlib.figure import Figure
+
+        from relmap.plot import localization, save_png
+
+        fig = Figure(figsize=(8, 7))
+        localization(fig.add_subplot(), run)
+        fig.tight_layout()
+        save_png(fig, args.plot)
+    if args.json:
+        print(json.dumps(run.summary()))
+        return 0
+    cal = run.calibration
+    who = "CMU Plaza (second half)" if run.dataset == "plaza" else f"MRCLAM robot {run.robot}"
+    span = run.t[-1] - run.t[0]
+    sensor = f"σ range {cal.sigma_range:.3g} m"
+    if cal.sigma_bearing is not None:
+        sensor += f", σ bearing {cal.sigma_bearing:.3g} rad"
+    if cal.range_scale != 1.0:
+        sensor += f", range scale {cal.range_scale:.4f}"
+    n = cal.odometry
+    print(f"{who}: {run.steps} filter times over {span:.1f} s, association {run.associate}")
+    print(
+        f"  noise from {cal.trained_on}: odometry k_s={n.k_s:.3g} m²/m, "
+        f"k_θ={n.k_theta:.3g} rad²/rad, k_θs={n.k_theta_s:.3g} rad²/m; {sensor}"
+    )
+    r = run.readings
+    print(
+        f"  readings: {r['used']} used, {run.score.rejected} rejected"
+        + (f", {r['ignored']} ignored (not landmarks)" if r["ignored"] else "")
+    )
+    print(f"  {'':16s}{'RMSE position':>15s}{'RMSE heading':>15s}{'coverage_90':>13s}{'ANEES':>9s}")
+    for name, s in (("EKF", run.score), ("dead reckoning", run.baseline)):
+        print(
+            f"  {name:16s}{s.rmse_position:13.3f} m{s.rmse_heading:11.3f} rad"
+            f"{s.coverage_90:13.2f}{s.anees:9.2f}"
+        )
+    if args.plot:
+        print(f"  plot written to {args.plot}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``relmap`` command."""
     from relmap import __version__
@@ -136,11 +233,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     query = sub.add_parser(
         "query",
-        help="the AT between two frames of a map (map JSON/YAML, g2o or TORO file)",
+        help="the AT between two frames of a map (map JSON/YAML, g2o 2-D/3-D or TORO file)",
         description="Estimate where frame TO is, seen from frame FROM, with its covariance.",
     )
     query.add_argument(
-        "map", metavar="MAP", help="map file (JSON/YAML) or 2-D pose graph (g2o, TORO)"
+        "map", metavar="MAP", help="map file (JSON/YAML) or pose graph (g2o 2-D/3-D, TORO)"
     )
     query.add_argument(
         "src", metavar="FROM", help="source frame (its name; vertex id for pose graphs)"
@@ -158,17 +255,40 @@ def build_parser() -> argparse.ArgumentParser:
 
     solve = sub.add_parser(
         "solve",
-        help="optimize a 2-D pose graph (g2o, TORO) from its initial guess",
+        help="optimize a pose graph (g2o 2-D/3-D, TORO) from its initial guess",
         description="Jointly optimize all poses of a pose graph; the anchor (the first FIX "
         "vertex, else the first vertex) stays put.",
     )
-    solve.add_argument("graph", metavar="GRAPH", help="g2o or TORO file")
+    solve.add_argument("graph", metavar="GRAPH", help="g2o (2-D or 3-D) or TORO file")
     solve.add_argument(
         "--out", metavar="FILE", help="write the graph back, vertices at the optimum"
     )
     solve.add_argument("--json", action="store_true", help="print a JSON summary")
     solve.add_argument("--max-iterations", type=int, default=100)
     solve.set_defaults(run=_solve)
+
+    loc = sub.add_parser(
+        "localize",
+        help="EKF localization with a known map on an MRCLAM or CMU Plaza folder",
+        description="Run an EKF (odometry + landmark readings, lecture Eqs. 13-28) over a "
+        "dataset folder (UTIAS MRCLAM or CMU Plaza, recognised by its files) and score it, and "
+        "dead reckoning, against the ground truth. Noise comes from data the run is not scored "
+        "on (MRCLAM: the next robot; Plaza: the first half, scored on the second).",
+    )
+    loc.add_argument("dataset", metavar="DATASET", help="MRCLAM or CMU Plaza dataset folder")
+    loc.add_argument("--robot", type=int, metavar="N", help="MRCLAM robot 1-5 (default 1)")
+    loc.add_argument(
+        "--associate",
+        choices=("signatures", "mahalanobis", "euclidean"),
+        default="signatures",
+        help="pair readings with landmarks by barcode/beacon id (default), or by the nearest "
+        "landmark (Mahalanobis or Euclidean distance)",
+    )
+    loc.add_argument("--json", action="store_true", help="print one JSON object")
+    loc.add_argument(
+        "--plot", metavar="FILE", help="write a PNG of truth, estimate and dead reckoning"
+    )
+    loc.set_defaults(run=_localize)
     return parser
 
 
