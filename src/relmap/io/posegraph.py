@@ -1,45 +1,101 @@
-"""2-D pose-graph files: g2o (``VERTEX_SE2``, ``EDGE_SE2``, ``FIX``), TORO (``VERTEX2``, ``EDGE2``).
+"""Pose-graph files, 2-D and 3-D: g2o (``VERTEX_SE2``/``EDGE_SE2``, ``VERTEX_SE3:QUAT``/
+``EDGE_SE3:QUAT``, ``FIX``) and TORO (``VERTEX2``/``EDGE2``; the legacy 3-D ``VERTEX3``/``EDGE3``
+of TORO, HOG-Man and iSAM, read only).
 
 Formats (one record a line, fields separated by white space; blank lines and lines whose first
 field starts with ``#`` are ignored; metres and radians)::
 
     VERTEX_SE2 id x y θ                                  g2o: initial guess of pose ``id``
     EDGE_SE2 i j dx dy dθ I11 I12 I13 I22 I23 I33        g2o: measurement z and information
+    VERTEX_SE3:QUAT id x y z qx qy qz qw                 g2o 3-D: quaternion scalar last
+    EDGE_SE3:QUAT i j x y z qx qy qz qw I11 I12 … I66    g2o 3-D: 21 information numbers
     FIX id [id ...]                                      g2o: vertices held fixed
     VERTEX2 id x y θ                                     TORO
     EDGE2 i j dx dy dθ Ixx Ixy Iyy Iθθ Ixθ Iyθ           TORO: note the information order
+    VERTEX3 id x y z roll pitch yaw                      TORO/iSAM 3-D (read only)
+    EDGE3 i j x y z roll pitch yaw I11 I12 … I66         TORO/iSAM 3-D (read only)
 
-The format is recognised from the file's content (the tag of its first record), never its name.
-An edge's ``(dx, dy, dθ)`` is the measured relative pose ``z`` of vertex j in the frame of
-vertex i (``z ≈ Tᵢ⁻¹ Tⱼ``); the six numbers after it are the upper triangle of the 3×3
-**information** matrix of the measurement error, given row by row in g2o and in TORO's own order.
+The format — g2o or TORO, 2-D or 3-D — is recognised from the file's content (the tag of its
+first record; a leading ``FIX`` leaves the dimension to the first vertex or edge), never its name.
+A record of the other dimension in the same file is an error naming its line. An edge's numbers
+start with the measured relative pose ``z`` of vertex j in the frame of vertex i
+(``z ≈ Tᵢ⁻¹ Tⱼ``); then come the upper triangle of its **information** matrix, row by row (TORO
+2-D: in its own order). Each file's information matrices are kept exactly as written
+(:attr:`PoseGraph.information`), so writing a graph back reproduces its edges' numbers; relmap's
+covariance of each measurement (:attr:`PoseGraph.measurements`) is converted from them as follows.
 
-**Covariance convention.** g2o's (and GTSAM's) error ``z⁻¹ (Tᵢ⁻¹ Tⱼ)`` lives in the body frame of
+**2-D** (g2o and TORO). g2o's (and GTSAM's) error ``z⁻¹ (Tᵢ⁻¹ Tⱼ)`` lives in the body frame of
 the measurement z (a right perturbation ``z ∘ Exp(ξ)``), so ``Σ_body = I⁻¹``; TORO's information
 is read the same way. relmap's covariance is in the parent frame i (Smith & Cheeseman's chart):
-``Σ = M Σ_body Mᵀ`` with ``M = blkdiag(R(θ_z), 1)`` (:meth:`relmap.AT.from_body`). The file's
-information matrices are also kept as written (:attr:`PoseGraph.information`), so writing a graph
-back reproduces its edges' numbers exactly.
+``Σ = M Σ_body Mᵀ`` with ``M = blkdiag(R(θ_z), 1)`` (:meth:`relmap.AT.from_body`). Angles are
+wrapped to [-π, π) on reading (vertex headings and measured dθ alike); an angle written outside
+that range (some files have dθ ≈ ±3π/2) is therefore written back wrapped, an equal rotation.
 
-Angles are wrapped to [-π, π) on reading (vertex headings and measured dθ alike); an angle
-written outside that range (some files have dθ ≈ ±3π/2) is therefore written back wrapped, an
-equal rotation. Malformed input raises :class:`relmap.errors.FileFormatError` naming the file and
-the 1-based line.
+**3-D g2o.** Quaternions are ``(qx, qy, qz, qw)``; one whose norm differs from 1 by more than
+``1e-3`` (:data:`QUATERNION_ATOL`; zero included) is an error: files write 6-7 significant digits
+(norms within 1e-6 of 1 in every file of the shared data) and even 4 digits stay within 1e-3,
+while anything further is not meant as a unit quaternion. Rotations are computed from the
+quaternions normalized. g2o's error of an edge is ``e = (t_Δ, q_Δ,vec)``: the translation and the
+vector part of the (``qw ≥ 0``) quaternion of ``Δ = z⁻¹ (Tᵢ⁻¹ Tⱼ)``, and the file's ``I`` is its
+information, translation block first. Write ``Tᵢ⁻¹ Tⱼ = z Exp(ξ)`` with a body twist
+``ξ = (ρ, ω)`` (:func:`relmap.lie.se3.exp`, translation first): ``Δ = Exp(ξ)``, whose quaternion
+is ``(sin(|ω|/2) ω/|ω|, cos(|ω|/2))``, so ``q_Δ,vec = ω/2 + O(|ω|³)`` and ``t_Δ = ρ + O(|ω||ρ|)``:
+``e ≈ D ξ`` with ``D = diag(1, 1, 1, ½, ½, ½)`` (``∂q_vec/∂ω = ½ I`` at the identity). Hence the
+body covariance is ``Σ_ξ = S I⁻¹ S`` with ``S = D⁻¹ = diag(1, 1, 1, 2, 2, 2)`` — on a rotation
+vector the information is a quarter of the file's rotation block and half its cross block. Then
+body to relmap's chart: ``z Exp(ρ, ω) = (t_z + R_z J_l(ω) ρ, Exp(R_z ω) R_z)``, so to first order
+``δt = R_z ρ`` and ``δφ = R_z ω`` (exactly, for the rotation). Altogether
+
+    ``Σ = K I⁻¹ Kᵀ``,  ``K = blkdiag(R_z, 2 R_z)``,
+
+which is :meth:`relmap.AT3.from_body` (GTSAM's rotation-first body covariance,
+:func:`relmap.lie.se3.body_to_chart`) of ``P S I⁻¹ S Pᵀ``, P swapping the two blocks. (GTSAM's
+``readG2o`` swaps the blocks but does not rescale: its rotation variances are a quarter of the
+true ones.) :func:`file_information` is the inverse conversion, for writing graphs built in
+relmap.
+
+**Exact round trips.** A rotation matrix computed from a quaternion does not give that quaternion
+back bit for bit (nor does repeating matrix → quaternion → matrix settle), so a 3-D g2o graph
+keeps the quaternions as written (:attr:`PoseGraph.vertex_quaternions`,
+:attr:`PoseGraph.edge_quaternions`, sign flipped to ``qw ≥ 0``), and :func:`write_graph` writes
+each one back wherever it still gives the pose's rotation bit for bit (else the rotation's own
+quaternion): reading, writing and reading again gives identical arrays.
+
+**Legacy 3-D** (``EDGE3``/``VERTEX3``, TORO, HOG-Man and iSAM; read only). ``R = Rz(yaw) Ry(pitch)
+Rx(roll)`` (:func:`relmap.lie.so3.from_euler`). The 21 numbers are taken as the information of
+the error of the pose parameters ``(x, y, z, roll, pitch, yaw)`` of z — the translation in frame
+i, the Euler angles as written — which is iSAM's error (predicted minus measured parameter
+vectors) and the chart g2o's own conversion of ``EDGE3`` files (``EdgeSE3Euler``) assumes; the
+shared ``sphere2500_groundtruth.txt`` against ``sphere2500.g2o`` agrees (the noise whitens in
+that chart). relmap's covariance is then :meth:`relmap.AT3.from_euler`'s:
+``Σ = J I⁻¹ Jᵀ``, ``J = blkdiag(I₃, E(roll, pitch, yaw))`` with E the Euler-rate matrix (rank 2
+at pitch = ±90°: such a covariance cannot describe every rotation error, and stays singular).
+A file with ``EDGE3`` lines and no ``VERTEX3`` line at all (iSAM's own files create vertices
+from edges) gets the vertices its edges name, in ascending id order, placed by composing the
+measurements along a breadth-first spanning tree from the smallest id of each connected part
+(at the identity): for a noise-free file such as ``sphere2500_groundtruth.txt`` these are the
+true poses in the frame of vertex 0. The format is not written: its information is tied to the
+Euler angles as written (their branch, their period, the pole), which a rotation matrix does
+not keep. **Trap:** files that came from iSAM (``sphere2500``, city10000, Manhattan) hold
+square-root information (1/σ) labelled information; the reader takes them as the format says.
+
+Malformed input raises :class:`relmap.errors.FileFormatError` naming the file and the 1-based line.
 """
 
 from __future__ import annotations
 
 import os
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Literal, NamedTuple
+from typing import Literal, NamedTuple, TypeVar
 
 import numpy as np
 import numpy.typing as npt
 
 from relmap import gaussian
 from relmap.at import AT
+from relmap.at3 import AT3
 from relmap.errors import (
     FileFormatError,
     ParameterError,
@@ -49,66 +105,115 @@ from relmap.errors import (
 )
 from relmap.gaussian import DEFAULT_RTOL
 from relmap.io.atomic import write_text_atomic
-from relmap.lie import se2
+from relmap.lie import SE3, Group, se2, se3, so3
 from relmap.typing import ArrayLike, FloatArray, IntArray
 
-__all__ = ["PoseGraph", "read_graph", "write_graph"]
+__all__ = ["QUATERNION_ATOL", "PoseGraph", "file_information", "read_graph", "write_graph"]
 
 GraphFormat = Literal["g2o", "toro"]
 
+#: Largest accepted ``| |q| - 1 |`` of a quaternion read from a file (see the module docstring).
+QUATERNION_ATOL = 1e-3
+
 
 class _Spec(NamedTuple):
+    format: GraphFormat
+    dim: int  # 2 or 3
     vertex: str
     edge: str
     fix: str | None
+    pose_size: int  # numbers of a vertex's pose
+    measurement_size: int  # numbers of an edge's measurement, before its information
     info_order: tuple[tuple[int, int], ...]  # (row, col) of each information number in the file
+    vertex_fields: str
+    edge_fields: str
+
+    @property
+    def dof(self) -> int:
+        return 3 if self.dim == 2 else 6
 
 
-_SPECS: dict[str, _Spec] = {
-    "g2o": _Spec("VERTEX_SE2", "EDGE_SE2", "FIX", ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))),
-    "toro": _Spec("VERTEX2", "EDGE2", None, ((0, 0), (0, 1), (1, 1), (2, 2), (0, 2), (1, 2))),
+_UPPER6 = tuple((r, c) for r in range(6) for c in range(r, 6))
+_SPECS: dict[tuple[str, int], _Spec] = {
+    ("g2o", 2): _Spec(
+        "g2o", 2, "VERTEX_SE2", "EDGE_SE2", "FIX", 3, 3,
+        ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)),
+        "id x y θ", "i j dx dy dθ and 6 information numbers",
+    ),
+    ("toro", 2): _Spec(
+        "toro", 2, "VERTEX2", "EDGE2", None, 3, 3,
+        ((0, 0), (0, 1), (1, 1), (2, 2), (0, 2), (1, 2)),
+        "id x y θ", "i j dx dy dθ and 6 information numbers",
+    ),
+    ("g2o", 3): _Spec(
+        "g2o", 3, "VERTEX_SE3:QUAT", "EDGE_SE3:QUAT", "FIX", 7, 7, _UPPER6,
+        "id x y z qx qy qz qw", "i j x y z qx qy qz qw and 21 information numbers",
+    ),
+    ("toro", 3): _Spec(
+        "toro", 3, "VERTEX3", "EDGE3", None, 6, 6, _UPPER6,
+        "id x y z roll pitch yaw", "i j x y z roll pitch yaw and 21 information numbers",
+    ),
+}  # fmt: skip
+#: Each tag's format and dimension (None: either dimension).
+_KIND_OF_TAG: dict[str, tuple[GraphFormat, int | None]] = {
+    "VERTEX_SE2": ("g2o", 2),
+    "EDGE_SE2": ("g2o", 2),
+    "FIX": ("g2o", None),
+    "VERTEX_SE3:QUAT": ("g2o", 3),
+    "EDGE_SE3:QUAT": ("g2o", 3),
+    "VERTEX2": ("toro", 2),
+    "EDGE2": ("toro", 2),
+    "VERTEX3": ("toro", 3),
+    "EDGE3": ("toro", 3),
 }
-_FORMAT_OF_TAG: dict[str, GraphFormat] = {
-    "VERTEX_SE2": "g2o",
-    "EDGE_SE2": "g2o",
-    "FIX": "g2o",
-    "VERTEX2": "toro",
-    "EDGE2": "toro",
-}
-_VERTEX_FIELDS = "id x y θ"
-_EDGE_FIELDS = "i j dx dy dθ and 6 information numbers"
-# Structured rows for numpy's C text parser: integer ids, then float64 values.
-_VERTEX_DTYPE = np.dtype([("ids", np.int64, (1,)), ("values", np.float64, (3,))])
-_EDGE_DTYPE = np.dtype([("ids", np.int64, (2,)), ("values", np.float64, (9,))])
 _INT = re.compile(r"[+-]?[0-9]+")
 # An information matrix is singular when the smallest eigenvalue of its correlation matrix is at
 # most this: relmap's rank decision elsewhere (rtol·n, :func:`relmap.gaussian.generalized_inverse`).
 _SINGULAR = 3 * DEFAULT_RTOL
+# Rotation matrices handed to write_graph must be orthonormal to this (as relmap.AT3's input).
+_ROTATION_ATOL = 1e-6
 
 
 class PoseGraph(NamedTuple):
-    """A 2-D pose graph as read from a g2o or TORO file (immutable: arrays are read-only).
+    """A 2-D or 3-D pose graph as read from a g2o or TORO file (immutable: arrays are read-only).
 
     Vertices are rows ``0..n-1`` in file order; edges refer to vertices by **id**, not row
-    (:meth:`index_of`, :meth:`edge_indices` map ids to rows).
+    (:meth:`index_of`, :meth:`edge_indices` map ids to rows). :attr:`group` tells the dimension.
     """
 
-    #: ``"g2o"`` or ``"toro"``: the file's format, used again by :func:`write_graph`.
+    #: ``"g2o"`` or ``"toro"``: the file's format, used again by :func:`write_graph` (with
+    #: :attr:`group`: ``"toro"`` in 3-D is the legacy ``EDGE3`` format).
     format: GraphFormat
     #: ``(n,)`` int64 vertex ids, in file order.
     vertex_ids: IntArray
-    #: ``(n, 3)`` float64 initial guess ``(x, y, θ)`` of each vertex in the world frame, θ wrapped.
+    #: Initial guess of each vertex in the world frame: ``(n, 3)`` float64 ``(x, y, θ)`` (θ
+    #: wrapped) for 2-D graphs, ``(n, 4, 4)`` float64 homogeneous matrices for 3-D graphs.
     poses: FloatArray
     #: ``(m,)`` int64 id of each edge's vertex i (the measurement's parent frame).
     edge_from: IntArray
     #: ``(m,)`` int64 id of each edge's vertex j.
     edge_to: IntArray
-    #: Batch ``(m,)`` AT: mean = measured pose of j in frame i, covariance in frame i (relmap's).
-    measurements: AT
-    #: ``(m, 3, 3)`` float64 information matrices exactly as written (body frame of z, file order).
+    #: Batch ``(m,)`` :class:`relmap.AT` (2-D) or :class:`relmap.AT3` (3-D): mean = measured pose
+    #: of j in frame i, covariance in relmap's chart in frame i (converted, see the module).
+    measurements: AT | AT3
+    #: ``(m, 3, 3)`` or ``(m, 6, 6)`` float64 information matrices exactly as written, in the
+    #: file's own chart (2-D and g2o 3-D: g2o's error in the body frame of z, translation first;
+    #: legacy 3-D: the ``(x, y, z, roll, pitch, yaw)`` parameters).
     information: FloatArray
     #: ``(k,)`` int64 ids given by ``FIX`` lines, in file order (always empty for TORO).
     fixed: IntArray
+    #: g2o 3-D only (else None): ``(n, 4)`` vertex quaternions ``(qx, qy, qz, qw)`` as written,
+    #: sign flipped to ``qw ≥ 0`` (not normalized); :attr:`poses` is computed from them, and
+    #: :func:`write_graph` writes them back wherever they still give the pose's rotation exactly.
+    vertex_quaternions: FloatArray | None = None
+    #: g2o 3-D only (else None): ``(m, 4)`` measurement quaternions, as :attr:`vertex_quaternions`.
+    edge_quaternions: FloatArray | None = None
+
+    @property
+    def group(self) -> Group:
+        """The pose group: :data:`relmap.lie.SE2` for 2-D graphs, :data:`relmap.lie.SE3` for 3-D."""
+        group: Group = self.measurements.group
+        return group
 
     def index_of(self, ids: ArrayLike) -> IntArray:
         """Row indices (into :attr:`vertex_ids` and :attr:`poses`) of vertex ``ids``, same shape.
@@ -144,7 +249,7 @@ class _Records(NamedTuple):
     rests: list[str]  # the text after the tag
 
 
-def _group(path: Path, text: str) -> tuple[GraphFormat, dict[str, _Records]]:
+def _group(path: Path, text: str) -> tuple[_Spec, dict[str, _Records]]:
     """Records grouped by tag, and the format named by the first record's tag."""
     groups: dict[str, _Records] = {}
     for number, head in enumerate([ln.split(None, 1) for ln in text.split("\n")], 1):
@@ -156,33 +261,49 @@ def _group(path: Path, text: str) -> tuple[GraphFormat, dict[str, _Records]]:
         group.lines.append(number)
         group.rests.append(head[1] if len(head) > 1 else "")
     if not groups:
-        raise FileFormatError(path, "no records: expected a g2o or TORO 2-D pose graph")
-    first_tag = min(groups, key=lambda tag: groups[tag].lines[0])
-    fmt = _FORMAT_OF_TAG.get(first_tag)
-    known = [t for t, f in _FORMAT_OF_TAG.items() if fmt is None or f == fmt]
-    unknown = [tag for tag in groups if tag not in known]
-    if unknown:
-        tag = min(unknown, key=lambda t: groups[t].lines[0])
-        where = f"in a {fmt} file " if fmt else ""
+        raise FileFormatError(path, "no records: expected a g2o or TORO pose graph")
+    first = sorted(groups, key=lambda tag: groups[tag].lines[0])
+    kind = _KIND_OF_TAG.get(first[0])
+    if kind is None:
         raise FileFormatError(
             path,
-            f"unknown record tag {tag!r} {where}(expected {', '.join(known)})",
-            line=groups[tag].lines[0],
+            f"unknown record tag {first[0]!r} (expected {', '.join(_KIND_OF_TAG)})",
+            line=groups[first[0]].lines[0],
         )
-    assert fmt is not None  # an unknown first tag was reported above
-    return fmt, groups
+    fmt = kind[0]
+    # The dimension: that of the first record of this format that has one (2-D if none does).
+    sized = [(t, k[1]) for t in first if (k := _KIND_OF_TAG.get(t)) and k[0] == fmt and k[1]]
+    dim = sized[0][1] if sized else 2
+    spec = _SPECS[(fmt, dim)]
+    known = [t for t in (spec.vertex, spec.edge, spec.fix) if t is not None]
+    unknown = [tag for tag in first if tag not in known]
+    if unknown:
+        tag = unknown[0]
+        other = _KIND_OF_TAG.get(tag)
+        if other is not None and other[0] == fmt:
+            message = (
+                f"mixed 2-D and 3-D records: {tag} is {other[1]}-D, but the file's first "
+                f"{dim}-D record ({sized[0][0]}, line {groups[sized[0][0]].lines[0]}) makes it a "
+                f"{dim}-D {fmt} pose graph"
+            )
+        else:
+            what = f"3-D {fmt}" if dim == 3 else fmt
+            message = f"unknown record tag {tag!r} in a {what} file (expected {', '.join(known)})"
+        raise FileFormatError(path, message, line=groups[tag].lines[0])
+    return spec, groups
 
 
 def _parse(
-    path: Path, tag: str, records: _Records, dtype: np.dtype, fields: str
+    path: Path, tag: str, records: _Records, n_ids: int, n_values: int, fields: str
 ) -> tuple[IntArray, FloatArray]:
     """``(ids (k, n_ids), values (k, n_values))`` of one tag's records, with numpy's C parser.
 
     On any failure the records are parsed again one by one, to report the offending line.
     """
-    n_ids, n_values = dtype["ids"].shape[0], dtype["values"].shape[0]
     if not records.rests:
         return np.empty((0, n_ids), dtype=np.int64), np.empty((0, n_values))
+    # Structured rows for numpy's C text parser: integer ids, then float64 values.
+    dtype = np.dtype([("ids", np.int64, (n_ids,)), ("values", np.float64, (n_values,))])
     try:
         rows = np.loadtxt(records.rests, dtype=dtype, comments=None, ndmin=1)
         if rows.shape == (len(records.rests),):
@@ -227,63 +348,147 @@ def _fail_at(path: Path, bad: ArrayLike, lines: Sequence[int], message: str) -> 
         raise FileFormatError(path, message, line=lines[int(flagged[0])])
 
 
-def _assemble(values: FloatArray, order: tuple[tuple[int, int], ...]) -> FloatArray:
-    """Symmetric ``(m, 3, 3)`` matrices from ``(m, 6)`` upper-triangle entries in ``order``."""
-    out = np.empty((len(values), 3, 3))
+def _assemble(values: FloatArray, order: tuple[tuple[int, int], ...], dof: int) -> FloatArray:
+    """Symmetric ``(m, dof, dof)`` matrices from upper-triangle entries ``(m, k)`` in ``order``."""
+    out = np.empty((len(values), dof, dof))
     for k, (r, c) in enumerate(order):
         out[:, r, c] = out[:, c, r] = values[:, k]
     return out
 
 
-def _body_covariance(path: Path, tag: str, info: FloatArray, lines: Sequence[int]) -> FloatArray:
-    """``I⁻¹`` for every edge, after checking each information matrix is positive definite.
+class _Inverse(NamedTuple):
+    inverse: FloatArray  # (m, n, n), meaningful where ``bad`` is False
+    bad: int | None  # the first matrix that is not positive definite
+    reason: str  # why it is not
 
-    The test is on the correlation matrix ``D^-1/2 I D^-1/2`` (unit-free, as in
+
+def _inverse_pd(mats: FloatArray) -> _Inverse:
+    """Inverses of symmetric positive definite matrices ``(m, n, n)``, or the first that is not.
+
+    The test is on the correlation matrix ``D^-1/2 A D^-1/2`` (unit-free, as in
     :mod:`relmap.gaussian`): its smallest eigenvalue must exceed ``3·DEFAULT_RTOL``.
     """
-    diag = np.diagonal(info, axis1=-2, axis2=-1)
-    _fail_at(
-        path,
-        (diag <= 0.0).any(axis=-1),
-        lines,
-        f"{tag} information matrix is not positive definite: a diagonal entry is not positive",
-    )
+    n = mats.shape[-1]
+    diag = np.diagonal(mats, axis1=-2, axis2=-1)
+    nonpositive = np.flatnonzero((diag <= 0.0).any(axis=-1))
+    if nonpositive.size:
+        return _Inverse(mats, int(nonpositive[0]), "a diagonal entry is not positive")
     s = np.sqrt(diag)
-    corr = info / (s[:, :, None] * s[:, None, :])
+    corr = mats / (s[:, :, None] * s[:, None, :])
     try:
-        np.linalg.cholesky(corr - _SINGULAR * np.eye(3))
+        np.linalg.cholesky(corr - _SINGULAR * np.eye(n))
     except np.linalg.LinAlgError:
         lowest = np.linalg.eigvalsh(corr)[:, 0]
-        bad = lowest <= _SINGULAR
-        if bad.any():
-            k = int(np.flatnonzero(bad)[0])
+        bad = np.flatnonzero(lowest <= _SINGULAR)
+        if bad.size:
+            k = int(bad[0])
             kind = "indefinite" if lowest[k] < -_SINGULAR else "singular"
-            raise FileFormatError(
-                path,
-                f"{tag} information matrix is not positive definite ({kind}): the smallest "
-                f"eigenvalue of its correlation matrix is {lowest[k]:.3g} (must exceed "
-                f"{_SINGULAR:g})",
-                line=lines[k],
-            ) from None
-    cov = np.linalg.inv(corr) / (s[:, :, None] * s[:, None, :])
-    return 0.5 * (cov + np.swapaxes(cov, -1, -2))
+            return _Inverse(
+                mats,
+                k,
+                f"({kind}): the smallest eigenvalue of its correlation matrix is "
+                f"{lowest[k]:.3g} (must exceed {_SINGULAR:g})",
+            )
+    inv = np.linalg.inv(corr) / (s[:, :, None] * s[:, None, :])
+    return _Inverse(0.5 * (inv + np.swapaxes(inv, -1, -2)), None, "")
 
 
-def _measurements(
-    path: Path, tag: str, z: FloatArray, cov_body: FloatArray, lines: Sequence[int]
-) -> AT:
+def _file_covariance(path: Path, tag: str, info: FloatArray, lines: Sequence[int]) -> FloatArray:
+    """``I⁻¹`` for every edge (in the file's chart), after checking each ``I`` is positive
+    definite."""
+    result = _inverse_pd(info)
+    if result.bad is not None:
+        sep = ": " if result.reason.startswith("a ") else " "
+        raise FileFormatError(
+            path,
+            f"{tag} information matrix is not positive definite{sep}{result.reason}",
+            line=lines[result.bad],
+        )
+    return result.inverse
+
+
+_T = TypeVar("_T")
+
+
+def _validated(
+    path: Path, tag: str, lines: Sequence[int], build: Callable[[slice | int], _T]
+) -> _T:
+    """``build(all rows)``; if relmap rejects it, the line of the first row it rejects."""
     try:
-        return AT.from_body(z, cov_body)
+        return build(slice(None))
     except RelmapError:
         pass
     for k, line in enumerate(lines):  # only on failure: find the edge to blame
         try:
-            AT.from_body(z[k], cov_body[k])
+            build(k)
         except RelmapError as exc:
             raise FileFormatError(
                 path, f"{tag} information matrix cannot be inverted accurately: {exc}", line=line
             ) from None
     raise FileFormatError(path, f"{tag} measurements do not form valid ATs")  # pragma: no cover
+
+
+def _quaternions(path: Path, tag: str, q: FloatArray, lines: Sequence[int]) -> FloatArray:
+    """The quaternions ``(k, 4)`` as written, checked to be unit within
+    :data:`QUATERNION_ATOL`, sign flipped so that ``qw ≥ 0``."""
+    norm = np.linalg.norm(q, axis=-1)
+    bad = np.flatnonzero(np.abs(norm - 1.0) > QUATERNION_ATOL)
+    if bad.size:
+        k = int(bad[0])
+        raise FileFormatError(
+            path,
+            f"{tag} quaternion (qx, qy, qz, qw) has norm {norm[k]:.6g}, not 1 (tolerance "
+            f"{QUATERNION_ATOL:g}): not a rotation",
+            line=lines[k],
+        )
+    return np.where(q[:, 3:] < 0.0, -q, q)
+
+
+def _rotations(q: FloatArray) -> FloatArray:
+    """Rotation matrices of the (checked) quaternions, normalized: one function for reading and
+    for :func:`write_graph`'s test that a kept quaternion still gives a rotation exactly."""
+    return so3.from_quaternion(q, atol=np.inf)
+
+
+def _g2o3_chart(R: FloatArray) -> FloatArray:
+    """``K = blkdiag(R, 2R)`` (..., 6, 6): ``Σ = K I⁻¹ Kᵀ`` maps g2o's 3-D error covariance
+    (translation, quaternion vector part; body frame of z) to relmap's chart (module docstring)."""
+    K = np.zeros((*R.shape[:-2], 6, 6))
+    K[..., :3, :3] = R
+    K[..., 3:, 3:] = 2.0 * R
+    return K
+
+
+def _sandwich(K: FloatArray, C: FloatArray) -> FloatArray:
+    out = K @ C @ np.swapaxes(K, -1, -2)
+    return 0.5 * (out + np.swapaxes(out, -1, -2))
+
+
+def _compose_tree(n: int, a: IntArray, b: IntArray, Z: FloatArray) -> FloatArray:
+    """Poses ``(n, 4, 4)`` of vertices ``0..n-1`` from edges ``a → b`` with relative poses Z:
+    breadth first from the lowest unplaced vertex (at the identity) of each connected part,
+    one vectorized step per level of the tree."""
+    poses = np.empty((n, 4, 4))
+    seen = np.zeros(n, dtype=bool)
+    Zinv = se3.inverse(Z)
+    while not seen.all():
+        root = int(np.argmin(seen))
+        poses[root] = np.eye(4)
+        seen[root] = True
+        frontier = np.zeros(n, dtype=bool)
+        frontier[root] = True
+        while frontier.any():
+            forward = frontier[a] & ~seen[b]
+            backward = frontier[b] & ~seen[a]
+            child = np.concatenate([b[forward], a[backward]])
+            parent = np.concatenate([a[forward], b[backward]])
+            step = np.concatenate([Z[forward], Zinv[backward]])
+            child, first = np.unique(child, return_index=True)
+            poses[child] = poses[parent[first]] @ step[first]
+            seen[child] = True
+            frontier = np.zeros(n, dtype=bool)
+            frontier[child] = True
+    return poses
 
 
 def _frozen(arr: np.ndarray) -> np.ndarray:
@@ -293,15 +498,20 @@ def _frozen(arr: np.ndarray) -> np.ndarray:
 
 
 def read_graph(path: str | os.PathLike[str]) -> PoseGraph:
-    """Read a 2-D pose graph in g2o or TORO format (recognised from the first record's tag).
+    """Read a 2-D or 3-D pose graph in g2o or TORO format (recognised from the first record's
+    tag).
 
-    Returns a :class:`PoseGraph`: vertex poses ``(x, y, θ)`` in the world frame, and for every
-    edge i → j the measured pose of j in frame i with relmap's covariance (frame i; the file's
-    body-frame information converted by ``Σ = M I⁻¹ Mᵀ``, ``M = blkdiag(R(θ_z), 1)``). Angles are
-    wrapped to [-π, π). Raises :class:`relmap.errors.FileFormatError` (file and line) for an
-    unknown tag, a wrong number of fields, a non-number or non-integer id, a non-finite number,
-    a duplicate vertex id, an edge or FIX naming a vertex with no vertex line, or an information
-    matrix that is not symmetric positive definite.
+    Returns a :class:`PoseGraph`: vertex poses in the world frame (``(x, y, θ)`` in 2-D,
+    homogeneous matrices in 3-D), and for every edge i → j the measured pose of j in frame i
+    with relmap's covariance (frame i; the file's information converted as the module docstring
+    derives: ``Σ = M I⁻¹ Mᵀ``, ``M = blkdiag(R(θ_z), 1)`` in 2-D; ``Σ = K I⁻¹ Kᵀ``,
+    ``K = blkdiag(R_z, 2 R_z)`` for g2o 3-D; Euler rates for ``EDGE3``). 2-D angles are wrapped to
+    [-π, π). Raises :class:`relmap.errors.FileFormatError` (file and line) for an unknown tag,
+    2-D and 3-D records mixed, a wrong number of fields, a non-number or non-integer id, a
+    non-finite number, a quaternion that is not unit (:data:`QUATERNION_ATOL`), a duplicate
+    vertex id, an edge or FIX naming a vertex with no vertex line (``EDGE3`` files without any
+    ``VERTEX3`` line excepted, see the module docstring), or an information matrix that is not
+    symmetric positive definite.
     """
     p = Path(path)
     try:
@@ -310,15 +520,15 @@ def read_graph(path: str | os.PathLike[str]) -> PoseGraph:
         raise FileFormatError(p, f"cannot read: {exc.strerror}") from None
     except UnicodeDecodeError as exc:
         raise FileFormatError(p, f"not a text file (UTF-8): {exc.reason}") from None
-    fmt, groups = _group(p, text)
-    spec = _SPECS[fmt]
+    spec, groups = _group(p, text)
     empty = _Records([], [])
 
     vtx = groups.get(spec.vertex, empty)
-    vertex_ids, poses = _parse(p, spec.vertex, vtx, _VERTEX_DTYPE, _VERTEX_FIELDS)
+    vertex_ids, poses = _parse(p, spec.vertex, vtx, 1, spec.pose_size, spec.vertex_fields)
     vertex_ids = vertex_ids[:, 0]
     edg = groups.get(spec.edge, empty)
-    edge_ids, edge_values = _parse(p, spec.edge, edg, _EDGE_DTYPE, _EDGE_FIELDS)
+    n_edge_values = spec.measurement_size + len(spec.info_order)
+    edge_ids, edge_values = _parse(p, spec.edge, edg, 2, n_edge_values, spec.edge_fields)
     fixed_list: list[int] = []
     fixed_lines: list[int] = []
     for line, rest in zip(*groups.get(spec.fix or "", empty), strict=True):
@@ -335,6 +545,11 @@ def read_graph(path: str | os.PathLike[str]) -> PoseGraph:
     ):
         bad = ~np.isfinite(values).all(axis=1)
         _fail_at(p, bad, lines, f"non-finite number in a {tag} line (values must be finite)")
+
+    # iSAM's EDGE3 files have no vertex lines: the edges name the vertices.
+    implied = spec.edge == "EDGE3" and not vtx.lines and bool(edg.lines)
+    if implied:
+        vertex_ids = np.unique(edge_ids)
 
     # Duplicate ids: report the earliest line that repeats an id seen before.
     order = np.argsort(vertex_ids, kind="stable")
@@ -368,15 +583,47 @@ def read_graph(path: str | os.PathLike[str]) -> PoseGraph:
         k = int(np.flatnonzero(~ok)[0])
         raise FileFormatError(p, f"FIX vertex {fixed[k]} has no {spec.vertex} line", fixed_lines[k])
 
-    information = _assemble(edge_values[:, 3:], spec.info_order)
-    cov_body = _body_covariance(p, spec.edge, information, edg.lines)
-    z = edge_values[:, :3].copy()
-    z[:, 2] = se2.wrap_angle(z[:, 2])  # wrap before M(θ) is built: re-reading gives equal bits
-    measurements = _measurements(p, spec.edge, z, cov_body, edg.lines)
-    poses = poses.copy()
-    poses[:, 2] = se2.wrap_angle(poses[:, 2])
+    information = _assemble(edge_values[:, spec.measurement_size :], spec.info_order, spec.dof)
+    cov_file = _file_covariance(p, spec.edge, information, edg.lines)
+    z = edge_values[:, : spec.measurement_size].copy()
+    measurements: AT | AT3
+    vertex_quaternions = edge_quaternions = None
+    if spec.dim == 2:
+        z[:, 2] = se2.wrap_angle(z[:, 2])  # wrap before M(θ) is built: re-reading gives equal bits
+        measurements = _validated(
+            p, spec.edge, edg.lines, lambda k: AT.from_body(z[k], cov_file[k])
+        )
+        poses = poses.copy()
+        poses[:, 2] = se2.wrap_angle(poses[:, 2])
+    elif spec.format == "g2o":
+        vertex_quaternions = _quaternions(p, spec.vertex, poses[:, 3:], vtx.lines)
+        edge_quaternions = _quaternions(p, spec.edge, z[:, 3:], edg.lines)
+        Rz = _rotations(edge_quaternions)
+        Z = se3.from_parts(z[:, :3], Rz)
+        cov = _sandwich(_g2o3_chart(Rz), cov_file)
+        measurements = _validated(
+            p,
+            spec.edge,
+            edg.lines,
+            lambda k: AT3._trusted(
+                Z[k], gaussian.validate_covariance(cov[k], dim=6, name="covariance")
+            ),
+        )
+        poses = se3.from_parts(poses[:, :3], _rotations(vertex_quaternions))
+    else:  # EDGE3 / VERTEX3: the information is on (x, y, z, roll, pitch, yaw)
+        measurements = _validated(
+            p, spec.edge, edg.lines, lambda k: AT3.from_euler(z[k], cov_file[k])
+        )
+        if implied:
+            i, j = (
+                np.searchsorted(vertex_ids, edge_ids[:, 0]),
+                np.searchsorted(vertex_ids, edge_ids[:, 1]),
+            )
+            poses = _compose_tree(len(vertex_ids), i, j, np.asarray(measurements.mean))
+        else:
+            poses = se3.from_parts(poses[:, :3], so3.from_euler(poses[:, 3:]))
     return PoseGraph(
-        format=fmt,
+        format=spec.format,
         vertex_ids=_frozen(vertex_ids),
         poses=_frozen(poses),
         edge_from=_frozen(edge_ids[:, 0]),
@@ -384,37 +631,80 @@ def read_graph(path: str | os.PathLike[str]) -> PoseGraph:
         measurements=measurements,
         information=_frozen(information),
         fixed=_frozen(fixed),
+        vertex_quaternions=None if vertex_quaternions is None else _frozen(vertex_quaternions),
+        edge_quaternions=None if edge_quaternions is None else _frozen(edge_quaternions),
     )
 
 
 # ----------------------------------------------------------------------------------- writing
+def _check_rotations(R: FloatArray, name: str) -> None:
+    """Rotation matrices ``(n, 3, 3)`` orthonormal to ``_ROTATION_ATOL`` with det +1."""
+    if not len(R):
+        return
+    err = np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max(axis=(-2, -1))
+    det = np.linalg.det(R)
+    bad = np.flatnonzero((err > _ROTATION_ATOL) | (det <= 0.0))
+    if bad.size:
+        k = int(bad[0])
+        raise ParameterError(
+            f"{name}[{k}] has no rotation matrix in its upper-left 3×3: |RᵀR - I| = "
+            f"{err[k]:.3g}, det = {det[k]:.6g} (tolerance {_ROTATION_ATOL:g})"
+        )
+
+
+def _written_quaternions(R: FloatArray, kept: ArrayLike | None) -> FloatArray:
+    """Quaternions to write for rotations R ``(k, 3, 3)``: the ones kept from the file where they
+    still give R bit for bit, else R's own (``qw ≥ 0``)."""
+    q = so3.to_quaternion(R) if len(R) else np.empty((0, 4))
+    if kept is None or np.shape(kept) != q.shape or not len(R):
+        return q
+    kept = np.asarray(kept, dtype=np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        same = np.isfinite(kept).all(axis=1) & (_rotations(kept) == R).all(axis=(1, 2))
+    return np.where(same[:, None], kept, q)
+
+
 def write_graph(
     path: str | os.PathLike[str], graph: PoseGraph, poses: ArrayLike | None = None
 ) -> None:
-    """Write ``graph`` in its own format (``graph.format``), atomically.
+    """Write ``graph`` in its own format (``graph.format`` and ``graph.group``), atomically.
 
-    Vertices are written at ``poses`` (``(n, 3)``, ``(x, y, θ)`` in the world frame, one row per
-    vertex in :attr:`PoseGraph.vertex_ids` order; default ``graph.poses``), then the g2o ``FIX``
-    lines, then the edges: each measurement mean and the information matrix exactly as stored,
-    in the format's field order. Numbers are written with full precision (``repr``), so reading
-    the file back gives the same arrays bit for bit. Nothing is written if anything is invalid.
+    Vertices are written at ``poses`` (one per vertex in :attr:`PoseGraph.vertex_ids` order, in
+    the world frame: ``(n, 3)`` ``(x, y, θ)`` for 2-D graphs, ``(n, 4, 4)`` homogeneous matrices
+    for 3-D ones; default ``graph.poses``), then the g2o ``FIX`` lines, then the edges: each
+    measurement mean and the information matrix exactly as stored, in the format's field order.
+    3-D rotations are written as quaternions ``qx qy qz qw`` with ``qw ≥ 0``: the ones the graph
+    kept from its file where they still give the rotation exactly, else the rotation's own.
+    Numbers are written with full precision (``repr``), so reading the file back gives the same
+    arrays bit for bit. The legacy 3-D ``EDGE3`` format is not written (:class:`ParameterError`;
+    see the module docstring). Nothing is written if anything is invalid.
     """
-    spec = _SPECS.get(graph.format)
+    group = getattr(graph.measurements, "group", None)
+    dim = 3 if group is SE3 else 2
+    spec = _SPECS.get((graph.format, dim))
     if spec is None:
         raise ParameterError(f"unknown pose-graph format {graph.format!r} (expected g2o or toro)")
+    if spec.edge == "EDGE3":
+        raise ParameterError(
+            "the legacy 3-D EDGE3/VERTEX3 format is read only: its information is tied to the "
+            "Euler angles as written, which a rotation matrix does not keep; write 3-D graphs "
+            "as g2o (format='g2o', with file_information(measurements) as information)"
+        )
     ids = np.asarray(graph.vertex_ids)
     n = len(ids)
-    xyt = np.asarray(graph.poses if poses is None else poses, dtype=np.float64)
-    if xyt.shape != (n, 3):
+    pose_arr = np.asarray(graph.poses if poses is None else poses, dtype=np.float64)
+    want_pose = (n, 3) if dim == 2 else (n, 4, 4)
+    if pose_arr.shape != want_pose:
+        what = "one (x, y, θ) row" if dim == 2 else "one homogeneous matrix"
         raise ShapeError(
-            f"poses must have shape ({n}, 3), one (x, y, θ) row per vertex; got {xyt.shape}"
+            f"poses must have shape {want_pose}, {what} per vertex; got {pose_arr.shape}"
         )
-    gaussian.check_finite(xyt, "poses")
+    gaussian.check_finite(pose_arr, "poses")
     m = len(graph.edge_from)
     shapes = {
         "edge_to": (np.shape(graph.edge_to), (m,)),
         "measurements": (graph.measurements.batch_shape, (m,)),
-        "information": (np.shape(graph.information), (m, 3, 3)),
+        "information": (np.shape(graph.information), (m, spec.dof, spec.dof)),
     }
     for name, (got, want) in shapes.items():
         if got != want:
@@ -424,12 +714,20 @@ def write_graph(
         raise ParameterError(f"{graph.format} files cannot hold fixed vertices; graph.fixed is set")
 
     rows, cols = np.array(spec.info_order).T
-    edge_values = np.concatenate(
-        [graph.measurements.mean, np.asarray(graph.information)[:, rows, cols]], axis=1
-    )
+    info = np.asarray(graph.information, dtype=np.float64)[:, rows, cols]
+    mean = np.asarray(graph.measurements.mean, dtype=np.float64)
+    if dim == 2:
+        vertex_values = pose_arr
+        edge_values = np.concatenate([mean, info], axis=1)
+    else:
+        _check_rotations(pose_arr[:, :3, :3], "poses")
+        vq = _written_quaternions(pose_arr[:, :3, :3], graph.vertex_quaternions)
+        eq = _written_quaternions(mean[:, :3, :3], graph.edge_quaternions)
+        vertex_values = np.concatenate([pose_arr[:, :3, 3], vq], axis=1)
+        edge_values = np.concatenate([mean[:, :3, 3], eq, info], axis=1)
     out = [
-        f"{spec.vertex} {i} {x!r} {y!r} {t!r}"
-        for i, (x, y, t) in zip(ids.tolist(), xyt.tolist(), strict=True)
+        f"{spec.vertex} {i} " + " ".join(map(repr, v))
+        for i, v in zip(ids.tolist(), vertex_values.tolist(), strict=True)
     ]
     out += [f"{spec.fix} {i}" for i in fixed.tolist()]
     out += [
@@ -442,3 +740,46 @@ def write_graph(
         )
     ]
     write_text_atomic(path, "\n".join(out) + "\n" if out else "")
+
+
+def file_information(measurements: AT | AT3, format: GraphFormat = "g2o") -> FloatArray:
+    """The information matrices a file holds for ``measurements`` (batch ``(m,)``, or one):
+    the inverse of :func:`read_graph`'s conversion, for writing graphs built in relmap.
+
+    2-D (g2o and TORO alike): ``(M⁻¹ Σ M⁻ᵀ)⁻¹``, ``(..., 3, 3)``. 3-D g2o:
+    ``(K⁻¹ Σ K⁻ᵀ)⁻¹`` with ``K = blkdiag(R_z, 2 R_z)``, ``(..., 6, 6)`` (translation block first,
+    rotation on the quaternion's vector part). A covariance that is not positive definite has no
+    information matrix: :class:`ParameterError` names the first. The legacy 3-D ``EDGE3`` format
+    is read only (:class:`ParameterError`).
+    """
+    if isinstance(measurements, AT):
+        cov_file = measurements.to_body()
+    elif isinstance(measurements, AT3):
+        if format != "g2o":
+            raise ParameterError(
+                f"3-D information can be written for format 'g2o' only; got {format!r} (the "
+                "legacy EDGE3 format is read only)"
+            )
+        R = np.asarray(measurements.rotation)
+        Kinv = np.zeros((*R.shape[:-2], 6, 6))
+        Kinv[..., :3, :3] = np.swapaxes(R, -1, -2)
+        Kinv[..., 3:, 3:] = 0.5 * np.swapaxes(R, -1, -2)
+        cov_file = _sandwich(Kinv, np.asarray(measurements.cov))
+    else:
+        raise TypeError(f"expected an AT or AT3, got {type(measurements).__name__}")
+    if format not in ("g2o", "toro"):
+        raise ParameterError(f"unknown pose-graph format {format!r} (expected g2o or toro)")
+    batch = cov_file.shape[:-2]
+    n = cov_file.shape[-1]
+    flat = cov_file.reshape(-1, n, n)
+    if not len(flat):
+        return np.empty((*batch, n, n))
+    result = _inverse_pd(flat)
+    if result.bad is not None:
+        where = np.unravel_index(result.bad, batch) if batch else ()
+        sep = ": " if result.reason.startswith("a ") else " "
+        raise ParameterError(
+            f"measurement{list(map(int, where)) if batch else ''} has no information matrix: "
+            f"its covariance is not positive definite{sep}{result.reason}"
+        )
+    return result.inverse.reshape(*batch, n, n)
