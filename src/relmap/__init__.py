@@ -11,7 +11,7 @@ In 3-D (:class:`AT3`) the mean is a translation and a rotation and the covarianc
 ``(δx, δy, δz, δφx, δφy, δφz)``: translation in the parent frame, rotation applied on the left.
 """
 
-from relmap import decisions, errors, gaussian, lie, montecarlo, propagate
+from relmap import decisions, errors, gaussian, lie, moments, montecarlo, propagate
 from relmap.at import AT, compound, compound_chain, merge, reverse
 from relmap.at3 import AT3
 from relmap.gaussian import Ellipse
@@ -33,6 +33,7 @@ __all__ = [
     "gaussian",
     "lie",
     "merge",
+    "moments",
     "montecarlo",
     "propagate",
     "reverse",

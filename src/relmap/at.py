@@ -22,11 +22,13 @@ from typing import Literal, overload
 import numpy as np
 
 from relmap import gaussian
+from relmap import moments as _moments
 from relmap._layout import components_outermost, matrix
 from relmap.at3 import AT3, compound3, merge3, reverse3
 from relmap.errors import ParameterError, ShapeError
 from relmap.gaussian import DEFAULT_RTOL, Ellipse
 from relmap.lie import SE2, se2
+from relmap.moments import MomentsMethod
 from relmap.typing import ArrayLike, FloatArray, SeedLike
 
 __all__ = ["AT", "compound", "compound_chain", "merge", "reverse"]
@@ -356,14 +358,26 @@ def _check_types(ats: Sequence[object]) -> None:
 
 
 # ------------------------------------------------------------------------ operations
-def compound(a: AT, b: AT, *, cross_cov: ArrayLike | None = None) -> AT:
+def compound(
+    a: AT,
+    b: AT,
+    *,
+    cross_cov: ArrayLike | None = None,
+    moments: MomentsMethod = "first_order",
+) -> AT:
     """Compound ``a ⊕ b``: b's frame given relative to a's, expressed in a's parent (Eqs. 1-4).
 
     ``C = H C_a Hᵀ + K C_b Kᵀ`` with H, K of Eq. (3). The paper assumes a and b independent;
     for a dependent pair (§3.2) give ``cross_cov = E[δa δbᵀ]`` (``(..., 3, 3)``), which adds
     ``H C_ab Kᵀ + K C_abᵀ Hᵀ``. Batch axes broadcast. Two :class:`AT3` compound in 3-D
     (:func:`relmap.at3.compound3`, 6×6 ``cross_cov``).
+
+    ``moments`` (SE(2) only): ``"first_order"`` (default) is Eqs. (1)-(4); ``"exact"`` the
+    exact mean and covariance for Gaussian a, b (:func:`relmap.moments.compound_moments`);
+    ``"unscented"`` the unscented transform (:func:`relmap.moments.unscented_compound`).
     """
+    if moments != "first_order":
+        return _compound_beyond_first_order(a, b, cross_cov, moments)
     if isinstance(a, AT3) or isinstance(b, AT3):
         return compound3(a, b, cross_cov=cross_cov)  # type: ignore[arg-type,return-value]
     _check_types((a, b))
@@ -376,6 +390,20 @@ def compound(a: AT, b: AT, *, cross_cov: ArrayLike | None = None) -> AT:
         _, H, K = se2.compose(a.mean, b.mean, jacobians=True)
         HXK = H @ X @ np.swapaxes(K, -1, -2)
         cov = cov + HXK + np.swapaxes(HXK, -1, -2)
+    return AT._trusted(mean, cov)
+
+
+def _compound_beyond_first_order(a: AT, b: AT, cross_cov: ArrayLike | None, method: str) -> AT:
+    _moments.check_method(method)
+    if isinstance(a, AT3) or isinstance(b, AT3):
+        raise ParameterError(f"moments={method!r} is available for SE(2) ATs only")
+    _check_types((a, b))
+    X = None
+    if cross_cov is not None:
+        X = np.asarray(cross_cov, dtype=np.float64)
+        gaussian.check_finite(X, "cross_cov")
+    f = _moments.compound_moments if method == "exact" else _moments.unscented_compound
+    mean, cov = f(a.mean, a.cov, b.mean, b.cov, cross_cov=X)
     return AT._trusted(mean, cov)
 
 
@@ -451,7 +479,7 @@ def _merge_pair(a: AT, b: AT, atol: float, position: int) -> AT:
     return AT._trusted(mean, cov)
 
 
-def compound_chain(steps: AT, *, axis: int = -1) -> AT:
+def compound_chain(steps: AT, *, axis: int = -1, moments: MomentsMethod = "first_order") -> AT:
     """Every prefix of the chain ``A₁ ⊕ A₂ ⊕ … ⊕ Aₙ`` laid along batch ``axis`` of ``steps``.
 
     Returns an AT of the same batch shape whose element k along ``axis`` is
@@ -464,12 +492,22 @@ def compound_chain(steps: AT, *, axis: int = -1) -> AT:
     results, then fill in the even prefixes, each level one vectorized compound. It costs about
     two batched compounds in all (O(n) work, log₂ n levels) and every covariance is a sum of
     congruences of PSD matrices, so it stays PSD to rounding as in sequential compounding.
+
+    ``moments="exact"`` gives instead the exact mean and covariance of every prefix for
+    Gaussian steps (:func:`relmap.moments.chain_moments`, O(n log n));
+    ``moments="unscented"`` the unscented transform one step at a time, as repeated
+    ``compound(..., moments="unscented")`` (:func:`relmap.moments.unscented_chain`, a loop
+    over the steps).
     """
     _check_types((steps,))
     if steps.ndim == 0:
         raise ShapeError("compound_chain needs an AT with at least one batch axis (the chain)")
     if not -steps.ndim <= axis < steps.ndim:
         raise ShapeError(f"axis {axis} is out of range for batch shape {steps.batch_shape}")
+    if moments != "first_order":
+        _moments.check_method(moments)
+        f = _moments.chain_moments if moments == "exact" else _moments.unscented_chain
+        return AT._trusted(*f(steps.mean, steps.cov, axis=axis))
     axis %= steps.ndim  # the same index in mean (..., 3) and cov (..., 3, 3)
     mean, cov = _scan(np.moveaxis(steps.mean, axis, 0), np.moveaxis(steps.cov, axis, 0))
     return AT._trusted(np.moveaxis(mean, 0, axis), np.moveaxis(cov, 0, axis))
