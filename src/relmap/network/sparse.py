@@ -96,6 +96,7 @@ class SymmetricPattern:
         node = np.repeat(np.arange(nodes), b)
         pattern = cls.__new__(cls)
         pattern._setup(b * nodes, indices, indptr, position, node)
+        pattern.block = b
         return pattern
 
     def _setup(
@@ -124,6 +125,8 @@ class SymmetricPattern:
             [[0], np.cumsum(np.bincount(cols[self._upper], minlength=size))]
         ).astype(np.int32)
         self._perm: IntArray | None = None
+        self.block: int | None = None  #: parameters per node when nodes are uniform blocks
+        self._supernodal: _Supernodal | None = None
 
     def assemble(self, values: FloatArray) -> FloatArray:
         """CSC data from the contributions' values (in the order the pattern was built)."""
@@ -151,6 +154,13 @@ class SymmetricPattern:
         return _CSC(
             data[self._upper], self._upper_indices, self._upper_indptr, (self.size, self.size)
         )
+
+    @property
+    def supernodal(self) -> _Supernodal:
+        """The symbolic analysis for the supernodal Cholesky, computed once."""
+        if self._supernodal is None:
+            self._supernodal = _Supernodal(self)
+        return self._supernodal
 
     @property
     def permutation(self) -> IntArray:
@@ -188,27 +198,44 @@ def node_ordering(node: IntArray, rows: IntArray, cols: IntArray) -> IntArray:
 class SymmetricFactor:
     """Factorization of a symmetric positive-definite matrix with a fixed pattern.
 
-    ``backend`` is ``"qdldl"``, ``"superlu"`` or ``"auto"`` (qdldl when installed).
+    ``backend`` is ``"supernodal"``, ``"qdldl"``, ``"superlu"`` or ``"auto"``: the supernodal
+    Cholesky for patterns of uniform node blocks of 6 or more (3-D pose graphs in the standard
+    layout), else qdldl when installed, else SuperLU. Measured per factorization on sphere2500
+    (15k parameters, 1.3M entries in the factor): supernodal 0.085 s, SuperLU 0.15 s, qdldl
+    0.34 s; on planar graphs (3×3 blocks, thin fronts) qdldl wins: city10000 0.075 s against
+    0.115 s supernodal. A matrix the supernodal Cholesky finds not positive definite is factorized
+    by SuperLU instead (LDLᵀ-like, no failure on a semi-definite Gauss-Newton matrix).
     """
 
     def __init__(self, pattern: SymmetricPattern, backend: str = "auto") -> None:
         self.pattern = pattern
         if backend == "auto":
-            try:
-                import qdldl  # noqa: F401
+            if pattern.block is not None and pattern.block >= 6:
+                backend = "supernodal"
+            else:
+                try:
+                    import qdldl  # noqa: F401
 
-                backend = "qdldl"
-            except ImportError:
-                backend = "superlu"
-        if backend not in ("qdldl", "superlu"):
+                    backend = "qdldl"
+                except ImportError:
+                    backend = "superlu"
+        if backend not in ("supernodal", "qdldl", "superlu"):
             raise ValueError(f"unknown sparse backend {backend!r}")
         self.backend = backend
+        self._active = backend  # the backend that holds the current factorization
         self._qdldl = None
         self._lu = None
 
     def factorize(self, data: FloatArray) -> None:
         """Factorize the matrix with the given CSC data (the pattern's)."""
-        if self.backend == "qdldl":
+        self._active = self.backend
+        if self.backend == "supernodal":
+            try:
+                self.pattern.supernodal.factorize(data)
+                return
+            except np.linalg.LinAlgError:
+                self._active = "superlu"
+        if self._active == "qdldl":
             import qdldl
 
             upper = self.pattern.upper(data)
@@ -221,7 +248,9 @@ class SymmetricFactor:
 
     def solve(self, b: FloatArray) -> FloatArray:
         """``A⁻¹ b`` for a vector ``(size,)`` or a matrix of columns ``(size, k)``."""
-        if self.backend == "qdldl":
+        if self._active == "supernodal":
+            return self.pattern.supernodal.solve(b)
+        if self._active == "qdldl":
             assert self._qdldl is not None, "factorize first"
             if b.ndim == 1:
                 return np.asarray(self._qdldl.solve(b))
@@ -356,3 +385,321 @@ def _etree_depth(colptr: IntArray, rowidx: IntArray, n: int) -> IntArray:
             return depth
         depth = depth + more
         anc = np.where(anc != np.arange(n), anc[anc], anc)
+
+
+def _node_graph(pattern: SymmetricPattern) -> tuple[IntArray, IntArray, IntArray, int]:
+    """Node index of every parameter, and the node pairs (a < b) that meet in the matrix."""
+    labels, node_index = np.unique(pattern.node, return_inverse=True)
+    k = len(labels)
+    cols = np.repeat(np.arange(pattern.size), np.diff(pattern.indptr))
+    a, b = node_index[pattern.indices], node_index[cols]
+    off = a < b
+    pairs = np.unique(a[off].astype(np.int64) * k + b[off])
+    return node_index, pairs // k, pairs % k, k
+
+
+def _minimum_degree(k: int, a: IntArray, b: IntArray) -> IntArray:
+    """Multiple minimum degree ordering of a graph of k nodes (new → old), by SuperLU."""
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import splu
+
+    G = sp.csc_matrix(
+        (np.full(2 * len(a), -1.0), (np.concatenate([a, b]), np.concatenate([b, a]))),
+        shape=(k, k),
+    )
+    G.sum_duplicates()
+    G.data[:] = -1.0
+    G.setdiag(np.asarray(abs(G).sum(axis=0)).ravel() + 1.0)  # diagonally dominant: no pivoting
+    lu = splu(G, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+    return np.argsort(lu.perm_c)  # perm_c[i] = new position of node i
+
+
+class _Supernodal:
+    """Multifrontal supernodal Cholesky ``A = L Lᵀ`` on the node (frame) structure.
+
+    The symbolic analysis runs once per pattern: a minimum-degree ordering of the node graph,
+    its elimination tree in postorder, supernodes (chains of nodes whose columns share one row
+    structure, up to a few explicit zeros), and for each the map of its frontal matrix. A
+    numerical factorization is then dense LAPACK/BLAS work on the fronts: Cholesky of the
+    pivot block, the block below it, and the Schur complement added into the parent's front
+    (only lower triangles are read). The leaves of the supernodal tree (most of the supernodes,
+    small and of a few shapes) are done all at once per shape with batched NumPy; the rest one
+    by one, where the fronts are large enough for BLAS to carry the cost.
+    """
+
+    def __init__(self, pattern: SymmetricPattern, relax: int = 16) -> None:
+        node_index, a, b, k = _node_graph(pattern)
+        order = _minimum_degree(k, a, b) if len(a) else np.arange(k)
+        rank = np.empty(k, dtype=np.int64)
+        rank[order] = np.arange(k)
+        parent, children = _elimination_tree(k, rank[a], rank[b])
+        post = _postorder(parent, children)  # new → rank-ordered node
+        relabel = np.empty(k, dtype=np.int64)
+        relabel[post] = np.arange(k)
+        ra, rb = relabel[rank[a]], relabel[rank[b]]
+        lo, hi = np.minimum(ra, rb), np.maximum(ra, rb)
+        parent = np.where(parent[post] >= 0, relabel[np.maximum(parent[post], 0)], -1)
+        struct = _structures(k, lo, hi, parent)
+        count = np.array([len(s) for s in struct], dtype=np.int64)
+        start = _supernodes(parent, count, relax)  # first node of each supernode, then k
+        # scalar layout: nodes in the new order, each node's parameters consecutive
+        node_of_new = order[post]
+        sizes = np.bincount(node_index, minlength=k)
+        by_node = np.argsort(node_index, kind="stable")
+        first = np.concatenate([[0], np.cumsum(sizes)])
+        new_sizes = sizes[node_of_new]
+        offset = np.concatenate([[0], np.cumsum(new_sizes)])
+        perm = np.concatenate([by_node[first[v] : first[v + 1]] for v in node_of_new])
+        self.size = pattern.size
+        self.perm = perm.astype(np.int64)
+        inv = np.empty_like(self.perm)
+        inv[self.perm] = np.arange(len(perm))
+        S = len(start) - 1
+        sn_of_node = np.repeat(np.arange(S), np.diff(start))
+        col0, col1 = offset[start[:-1]], offset[start[1:]]
+        fronts: list[IntArray] = []
+        for s in range(S):
+            below = sorted(struct[start[s + 1] - 1])
+            rows = [np.arange(offset[v], offset[v + 1]) for v in below]
+            fronts.append(np.concatenate([np.arange(col0[s], col1[s]), *rows]).astype(np.int64))
+        width = (col1 - col0).astype(np.int64)
+        front_len = np.array([len(f) for f in fronts], dtype=np.int64)
+        sparent = np.full(S, -1, dtype=np.int64)
+        for s in range(S):
+            p = parent[start[s + 1] - 1]
+            if p >= 0:
+                sparent[s] = sn_of_node[p]
+        # the child's rows in its parent's front: lower-triangle entries (flat, child / parent)
+        # (C-flat source, Fortran-flat source, C-flat destination)
+        maps: list[tuple[IntArray, IntArray, IntArray] | None] = []
+        tril: dict[int, tuple[IntArray, IntArray]] = {}
+        for s in range(S):
+            p = sparent[s]
+            if p < 0:
+                maps.append(None)
+                continue
+            loc = np.searchsorted(fronts[p], fronts[s][width[s] :])
+            r = len(loc)
+            if r not in tril:
+                tril[r] = np.tril_indices(r)
+            ia, ib = tril[r]
+            maps.append((ia * r + ib, ib * r + ia, loc[ia] * front_len[p] + loc[ib]))
+        # the lower triangle of A, entry by entry, into the fronts (C-flat positions)
+        cols = np.repeat(np.arange(pattern.size), np.diff(pattern.indptr))
+        r_new, c_new = inv[pattern.indices], inv[cols]
+        lower = np.flatnonzero(r_new >= c_new)
+        r_new, c_new = r_new[lower], c_new[lower]
+        sn = np.repeat(sn_of_node, new_sizes)[c_new]
+        front_start = np.concatenate([[0], np.cumsum(front_len)])
+        big = np.int64(pattern.size + 1)
+        keys = np.concatenate([s * big + f for s, f in enumerate(fronts)])
+        local_r = np.searchsorted(keys, sn * big + r_new) - front_start[sn]
+        flat = local_r * front_len[sn] + (c_new - col0[sn])
+        by_sn = np.argsort(sn, kind="stable")
+        a_src, a_dst = lower[by_sn], flat[by_sn]
+        a_ptr = np.searchsorted(sn[by_sn], np.arange(S + 1))
+        # leaves of the supernodal tree, batched by shape (width, front size)
+        has_child = np.zeros(S, bool)
+        has_child[sparent[sparent >= 0]] = True
+        leaves = np.flatnonzero(~has_child)
+        self.inner = np.flatnonzero(has_child)
+        shapes: dict[tuple[int, int], list[int]] = {}
+        for s in leaves.tolist():
+            shapes.setdefault((int(width[s]), int(front_len[s])), []).append(s)
+        self.groups = []
+        u_offset = 0
+        leaf_u: dict[int, list[tuple[IntArray, IntArray]]] = {}  # parent → (V index, dst)
+        for (w, m), ids in shapes.items():
+            r = m - w
+            dst = np.concatenate(
+                [g * m * m + a_dst[a_ptr[s] : a_ptr[s + 1]] for g, s in enumerate(ids)]
+            )
+            src = np.concatenate([a_src[a_ptr[s] : a_ptr[s + 1]] for s in ids])
+            idx = np.array([fronts[s] for s in ids])  # (g, m) scalar indices of the fronts
+            self.groups.append((w, m, dst, src, idx[:, :w], idx[:, w:]))
+            for g, s in enumerate(ids):
+                if maps[s] is not None:
+                    u_src, _, dst_p = maps[s]  # type: ignore[misc]
+                    leaf_u.setdefault(int(sparent[s]), []).append(
+                        (pattern.nnz + u_offset + g * r * r + u_src, dst_p)
+                    )
+            u_offset += len(ids) * r * r
+        # inner fronts start from A's entries and the leaves' Schur complements (one bincount)
+        src_parts, dst_parts = [], []
+        for s in self.inner.tolist():
+            src_parts.append(a_src[a_ptr[s] : a_ptr[s + 1]])
+            dst_parts.append(a_dst[a_ptr[s] : a_ptr[s + 1]])
+            for u_src, dst_p in leaf_u.get(s, ()):
+                src_parts.append(u_src)
+                dst_parts.append(dst_p)
+        self.inner_src = np.concatenate(src_parts) if src_parts else np.zeros(0, np.int64)
+        self.inner_dst = np.concatenate(dst_parts) if dst_parts else np.zeros(0, np.int64)
+        self.inner_ptr = self._pointers(leaf_u, a_ptr)
+        self.width, self.front_len, self.sparent = width, front_len, sparent
+        self.col0, self.col1 = col0, col1
+        self.rows = [f[width[s] :] for s, f in enumerate(fronts)]
+        self.maps = maps
+        self.nnz_L = int((width * (width + 1) // 2 + width * (front_len - width)).sum())
+        self._leaf: list[tuple[FloatArray, FloatArray]] = []
+        self._inner: dict[int, tuple[FloatArray, FloatArray]] = {}
+
+    def _pointers(self, leaf_u: dict, a_ptr: IntArray) -> IntArray:  # type: ignore[type-arg]
+        lengths = [
+            int(a_ptr[s + 1] - a_ptr[s]) + sum(len(u) for u, _ in leaf_u.get(s, ()))
+            for s in self.inner.tolist()
+        ]
+        return np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
+
+    def factorize(self, data: FloatArray) -> None:
+        """Numerical factorization; raises :class:`numpy.linalg.LinAlgError` if not SPD."""
+        from scipy.linalg.blas import dsyrk
+        from scipy.linalg.lapack import dpotrf, dtrtri
+
+        data = np.asarray(data, dtype=np.float64)
+        leaf, parts = [], [data]
+        for w, m, dst, src, _, _ in self.groups:
+            F = np.zeros(len(dst) and (dst[-1] // (m * m) + 1) * m * m)
+            F[dst] = data[src]
+            F = F.reshape(-1, m, m)
+            L = np.linalg.cholesky(F[:, :w, :w])
+            Linv = np.linalg.inv(L)
+            L21 = F[:, w:, :w] @ np.swapaxes(Linv, -1, -2)
+            leaf.append((Linv, L21))
+            parts.append((F[:, w:, w:] - L21 @ np.swapaxes(L21, -1, -2)).reshape(-1))
+        values = np.concatenate(parts)[self.inner_src]
+        pending: dict[int, list[tuple[FloatArray, IntArray, IntArray]]] = {}
+        inner = {}
+        ptr = self.inner_ptr
+        for t, s in enumerate(self.inner.tolist()):
+            m, w = int(self.front_len[s]), int(self.width[s])
+            F = np.bincount(
+                self.inner_dst[ptr[t] : ptr[t + 1]], values[ptr[t] : ptr[t + 1]], minlength=m * m
+            ).reshape(m, m)
+            flat = F.reshape(-1)
+            for U, u_src, dst in pending.pop(s, ()):
+                flat[dst] += U.reshape(-1)[u_src]
+            c, info = dpotrf(F[:w, :w], lower=1, clean=1)
+            if info != 0:
+                raise np.linalg.LinAlgError("the matrix is not positive definite")
+            Linv, _ = dtrtri(c, lower=1)
+            L21 = F[w:, :w] @ Linv.T
+            inner[s] = (Linv, L21)
+            p = int(self.sparent[s])
+            if p >= 0:  # the Schur complement's lower triangle (Fortran order, from BLAS)
+                _, u_src, dst = self.maps[s]  # type: ignore[misc]
+                U = dsyrk(-1.0, L21, beta=1.0, c=F[w:, w:], lower=1)
+                pending.setdefault(p, []).append((U.T, u_src, dst))
+        self._leaf, self._inner = leaf, inner
+
+    def solve(self, b: FloatArray) -> FloatArray:
+        """``A⁻¹ b`` for ``b`` (size,) or (size, k)."""
+        vector = b.ndim == 1
+        y = np.array(b, dtype=np.float64)[self.perm]
+        if vector:
+            y = y[:, None]
+        for (_, _, _, _, cols, rows), (Linv, L21) in zip(self.groups, self._leaf, strict=True):
+            ys = Linv @ y[cols]  # (g, w, q)
+            y[cols] = ys
+            below = (L21 @ ys).reshape(-1, y.shape[1])
+            for q in range(y.shape[1]):
+                y[:, q] -= np.bincount(rows.reshape(-1), below[:, q], minlength=len(y))
+        col0, col1, rows_of = self.col0, self.col1, self.rows
+        order = self.inner.tolist()
+        for s in order:  # L y = b
+            Linv, L21 = self._inner[s]
+            ys = Linv @ y[col0[s] : col1[s]]
+            y[col0[s] : col1[s]] = ys
+            if len(L21):
+                y[rows_of[s]] -= L21 @ ys
+        for s in reversed(order):  # Lᵀ x = y
+            Linv, L21 = self._inner[s]
+            rhs = y[col0[s] : col1[s]]
+            if len(L21):
+                rhs = rhs - L21.T @ y[rows_of[s]]
+            y[col0[s] : col1[s]] = Linv.T @ rhs
+        for (_, _, _, _, cols, rows), (Linv, L21) in zip(self.groups, self._leaf, strict=True):
+            rhs = y[cols] - np.swapaxes(L21, -1, -2) @ y[rows]
+            y[cols] = np.swapaxes(Linv, -1, -2) @ rhs
+        out = np.empty_like(y)
+        out[self.perm] = y
+        return out[:, 0] if vector else out
+
+
+def _elimination_tree(k: int, a: IntArray, b: IntArray) -> tuple[IntArray, list[list[int]]]:
+    """Parent of every node in the elimination tree of the graph with edges (a, b), by Liu's
+    algorithm with path compression, and the children lists."""
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    order = np.lexsort((lo, hi))
+    lo, hi = lo[order].tolist(), hi[order].tolist()
+    parent = [-1] * k
+    anc = [-1] * k
+    for r, c in zip(lo, hi, strict=True):  # for each column c, its rows r < c
+        while r != -1 and r < c:
+            nxt = anc[r]
+            anc[r] = c
+            if nxt == -1:
+                parent[r] = c
+            r = nxt
+    children: list[list[int]] = [[] for _ in range(k)]
+    for v, p in enumerate(parent):
+        if p >= 0:
+            children[p].append(v)
+    return np.array(parent, dtype=np.int64), children
+
+
+def _postorder(parent: IntArray, children: list[list[int]]) -> IntArray:
+    """A postorder of the forest (children before parents, each subtree contiguous)."""
+    out: list[int] = []
+    roots = [v for v in range(len(parent)) if parent[v] < 0]
+    for root in roots:
+        stack = [(root, 0)]
+        while stack:
+            v, i = stack.pop()
+            if i < len(children[v]):
+                stack.append((v, i + 1))
+                stack.append((children[v][i], 0))
+            else:
+                out.append(v)
+    return np.array(out, dtype=np.int64)
+
+
+def _structures(k: int, lo: IntArray, hi: IntArray, parent: IntArray) -> list[set[int]]:
+    """Row structure (nodes below the diagonal) of every column of the Cholesky factor."""
+    above: list[list[int]] = [[] for _ in range(k)]
+    for r, c in zip(lo.tolist(), hi.tolist(), strict=True):
+        above[r].append(c)
+    struct: list[set[int]] = [set() for _ in range(k)]
+    par = parent.tolist()
+    for v in range(k):
+        s = struct[v]
+        s.update(above[v])
+        s.discard(v)
+        p = par[v]
+        if p >= 0:
+            struct[p] |= s
+    return struct
+
+
+def _supernodes(parent: IntArray, count: IntArray, relax: int, fill: float = 0.25) -> IntArray:
+    """First node of every supernode (and the total): a chain v-1 → v of the postordered tree
+    is merged when the structures nest exactly (a fundamental supernode), or when the supernode
+    stays within ``relax`` nodes and at most a fraction ``fill`` of its stored blocks are
+    explicit zeros (a relaxed supernode: fewer, wider dense kernels)."""
+    k = len(parent)
+    starts = [0]
+    sum_count = int(count[0]) if k else 0
+    cnt = count.tolist()
+    par = parent.tolist()
+    for v in range(1, k):
+        if par[v - 1] == v:
+            w = v - starts[-1] + 1  # width if v joins
+            s = sum_count + cnt[v]
+            stored = w * (w - 1) // 2 + w * cnt[v]
+            zeros = stored - s
+            if zeros == 0 or (w <= relax and zeros <= fill * (stored + w)):
+                sum_count = s
+                continue
+        starts.append(v)
+        sum_count = cnt[v]
+    starts.append(k)
+    return np.array(starts, dtype=np.int64)
