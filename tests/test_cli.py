@@ -18,8 +18,8 @@ def _run(*args: str) -> subprocess.CompletedProcess[str]:
     )
 
 
-def test_demo_prints_the_library_results():
-    out = _run("demo")
+def test_demo_prints_the_library_results(tmp_path):
+    out = _run("demo", "--out", str(tmp_path / "report"), "--samples", "2000")
     assert out.returncode == 0, out.stderr
     text = out.stdout
     result = fig1()
@@ -36,6 +36,8 @@ def test_demo_prints_the_library_results():
     merged = [float(v) for v in rows["G ⊗ Sᴿ"].group(3).split()]
     np.testing.assert_allclose(merged[:2], result.merged.mean[:2], atol=5e-4)
     assert "Monte Carlo check of G" in text
+    assert (tmp_path / "report" / "index.html").is_file()
+    assert f"Report written to {tmp_path / 'report' / 'index.html'}" in text
 
 
 def test_demo_merge_shrinks_uncertainty_and_monte_carlo_agrees():

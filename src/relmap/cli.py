@@ -14,9 +14,88 @@ if TYPE_CHECKING:
 
 
 def _demo(args: argparse.Namespace) -> int:
-    from relmap.demo import fig1, print_fig1
+    from pathlib import Path
 
-    print_fig1(fig1(seed=args.seed))
+    from relmap._progress import TerminalProgress
+    from relmap.demo import print_demo, run, write_report
+    from relmap.errors import ParameterError
+
+    if args.samples < 100:
+        raise ParameterError(f"--samples must be at least 100; got {args.samples}")
+    if args.data is not None and not Path(args.data, "landmarks", "mrclam6").is_dir():
+        raise ParameterError(f"--data {args.data}: no landmarks/mrclam6 folder in it")
+    bar = TerminalProgress("relmap demo")
+    try:
+        demo = run(
+            seed=args.seed,
+            samples=args.samples,
+            data=args.data,
+            progress=lambda text: bar.update(text, force=True),
+        )
+        index = write_report(demo, args.out, progress=lambda text: bar.update(text, force=True))
+    finally:
+        bar.close()
+    print_demo(demo)
+    print(f"\nReport written to {index}")
+    return 0
+
+
+def _validate(args: argparse.Namespace) -> int:
+    import json
+
+    import numpy as np
+
+    from relmap._progress import TerminalProgress
+    from relmap.io import load_map
+    from relmap.validate import validate_query
+
+    g = load_map(args.map)
+    src, dst = _frame(g, args.src), _frame(g, args.dst)
+    bar = TerminalProgress(f"validating {args.src} → {args.dst}")
+    try:
+        v = validate_query(
+            g,
+            src,
+            dst,
+            method=args.method,
+            n=args.n,
+            seed=args.seed,
+            progress=lambda k, n: bar.update(f"sample {k}/{n}"),
+        )
+    finally:
+        bar.close()
+    s = v.summary()
+    if args.json:
+        print(json.dumps(s))
+        return 0
+    a = v.agreement
+    dof = s["dof"]
+    print(
+        f"Monte Carlo check of frame {dst} seen from frame {src} ({v.estimate.method}; "
+        f"{s['n']:,} sampled maps, seed {args.seed}, {s['seconds']:.2f} s)"
+    )
+    if v.estimate.expression:
+        print(f"  expression: {v.estimate.expression}")
+    print(f"  sampled ATs: {', '.join(v.names)}")
+    names = ["x", "y", "θ"] if dof == 3 else ["x", "y", "z", "φx", "φy", "φz"]
+    pred = np.sqrt(np.diag(np.asarray(s["predicted"]["cov"])))
+    emp = np.sqrt(np.diag(np.asarray(s["empirical"]["cov"])))
+    print(f"  {'':4s}{'mean error':>14s}{'(σ units)':>11s}{'σ predicted':>14s}{'σ sampled':>12s}")
+    for k, nm in enumerate(names):
+        print(
+            f"  {nm:4s}{a.mean_error[k]:14.4g}{a.mean_error_sigmas[k]:11.3f}"
+            f"{pred[k]:14.4g}{emp[k]:12.4g}"
+        )
+    print(
+        f"  covariance relative error {s['cov_rel_error']:.2%} "
+        f"(sampling error ±{s['cov_rel_standard_error']:.2%})"
+    )
+    print(f"  NEES {s['nees']:.3f} (expected {s['nees_expected']} if the covariance is right)")
+    print(f"  {s['coverage']:.1%} of the samples inside the {s['probability']:.0%} ellipsoid")
+    print(
+        f"  Mardia skewness {s['mardia_skewness']:.4f}, excess kurtosis "
+        f"{s['mardia_excess_kurtosis']:.4f} (0 and 0 for a Gaussian)"
+    )
     return 0
 
 
@@ -112,12 +191,28 @@ def _print_at3(at: AT3, src: object) -> None:
 def _solve(args: argparse.Namespace) -> int:
     import json
     import time
+    from pathlib import Path
 
     from relmap._progress import TerminalProgress
+    from relmap.errors import ParameterError
     from relmap.io import read_graph, solve_graph, write_graph
+    from relmap.io.posegraph import file_information
+    from relmap.lie import SE3
 
+    if args.out and not Path(args.out).resolve().parent.is_dir():
+        raise ParameterError(f"cannot write {args.out}: its folder does not exist")
     t0 = time.perf_counter()
     graph = read_graph(args.graph)
+    out_graph = graph
+    if args.out and graph.format == "toro" and graph.group is SE3:
+        # The legacy EDGE3 format is read only: write 3-D g2o, the information converted (checked
+        # before solving, so a covariance with no information matrix fails fast).
+        out_graph = graph._replace(
+            format="g2o",
+            information=file_information(graph.measurements),
+            vertex_quaternions=None,
+            edge_quaternions=None,
+        )
     bar = TerminalProgress(f"solving {args.graph}")
     try:
         sol = solve_graph(
@@ -128,7 +223,7 @@ def _solve(args: argparse.Namespace) -> int:
     finally:
         bar.close()
     if args.out:
-        write_graph(args.out, graph, poses=sol.poses)
+        write_graph(args.out, out_graph, poses=sol.poses)  # atomically; 3-D: (n, 4, 4) poses
     seconds = time.perf_counter() - t0
     summary = {
         "poses": len(graph.vertex_ids),
@@ -224,12 +319,51 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"relmap {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     demo = sub.add_parser(
-        "demo", help="run the paper's Fig. 1 example end to end and print the numbers"
+        "demo",
+        help="reproduce the paper: print the key numbers, write an HTML report with figures",
+        description="Fig. 1, the Wheatstone bridge (Figs. 3-4), Fig. 5 and §6.3, decisions "
+        "ahead of time, and the lecture's examples: numbers printed, and DIR/index.html written "
+        "with its figures beside it.",
     )
     demo.add_argument(
-        "--seed", type=int, default=0, help="seed of the Monte Carlo check (default 0)"
+        "--seed", type=int, default=0, help="seed of the Monte Carlo checks (default 0)"
+    )
+    demo.add_argument(
+        "--out",
+        metavar="DIR",
+        default="relmap-report",
+        help="folder of the report (default relmap-report/ in the current folder)",
+    )
+    demo.add_argument(
+        "--data",
+        metavar="DIR",
+        help="the shared data folder (e.g. ../shared/data): adds EKF localization on MRCLAM",
+    )
+    demo.add_argument(
+        "--samples",
+        type=int,
+        default=100_000,
+        metavar="N",
+        help="Monte Carlo samples of Fig. 1 and §6.3 (default 100000)",
     )
     demo.set_defaults(run=_demo)
+
+    val = sub.add_parser(
+        "validate",
+        help="Monte Carlo check of a query on a map file",
+        description="Sample every AT that the query FROM → TO depends on, re-estimate on each "
+        "sampled map by the query's method, and compare predicted and empirical mean and "
+        "covariance (relative errors), NEES and Mardia's Gaussianity statistics. The reduction "
+        "is evaluated on all samples at once; the optimal method solves each sample in turn.",
+    )
+    val.add_argument("map", metavar="MAP", help="map file (JSON/YAML) or pose graph")
+    val.add_argument("src", metavar="FROM", help="source frame")
+    val.add_argument("dst", metavar="TO", help="destination frame")
+    val.add_argument("-n", type=int, default=10_000, help="number of samples (default 10000)")
+    val.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    val.add_argument("--method", choices=("auto", "reduce", "optimal"), default="auto")
+    val.add_argument("--json", action="store_true", help="print one JSON object")
+    val.set_defaults(run=_validate)
 
     query = sub.add_parser(
         "query",
@@ -261,7 +395,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     solve.add_argument("graph", metavar="GRAPH", help="g2o (2-D or 3-D) or TORO file")
     solve.add_argument(
-        "--out", metavar="FILE", help="write the graph back, vertices at the optimum"
+        "--out",
+        metavar="FILE",
+        help="write the graph back, vertices at the optimum (legacy EDGE3 graphs as 3-D g2o)",
     )
     solve.add_argument("--json", action="store_true", help="print a JSON summary")
     solve.add_argument("--max-iterations", type=int, default=100)

@@ -1,4 +1,5 @@
-"""Plotting with matplotlib: confidence ellipses of ATs, trajectories, localization runs.
+"""Plotting with matplotlib: confidence ellipses of ATs, relational maps, Monte Carlo clouds,
+trajectories, 3-D ellipsoid projections, localization runs.
 
 matplotlib is imported inside the functions, never by ``import relmap``. Every drawing
 function takes a matplotlib ``Axes`` and returns it, so calls chain and compose with the
@@ -21,12 +22,26 @@ from relmap.errors import ParameterError, ShapeError
 from relmap.gaussian import Ellipse
 
 if TYPE_CHECKING:  # pragma: no cover
+    from collections.abc import Hashable
+
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
+    from relmap.at3 import AT3
     from relmap.localize import Localization
+    from relmap.montecarlo import SampleSet
+    from relmap.network.graph import RelationalMap
 
-__all__ = ["ellipse", "localization", "save_png", "trajectory"]
+__all__ = [
+    "ellipse",
+    "ellipsoid",
+    "figure",
+    "localization",
+    "monte_carlo",
+    "relational_map",
+    "save_png",
+    "trajectory",
+]
 
 
 def ellipse(
@@ -79,12 +94,15 @@ def trajectory(
     every: int | None = None,
     probability: float = 0.9,
     label: str | None = None,
+    tick: float | None = 0.0,
     **style: Any,
 ) -> Axes:
     """Draw a path through ``poses`` (``(N, 2+)`` array of x, y[, θ], or an AT batch's means),
     and, when ``ats`` (an AT batch of the same length) is given, the ``probability`` ellipses
     of every ``every``-th of them (default: about ten along the path, first and last included)
-    in the path's colour. ``style`` goes to ``Axes.plot``.
+    in the path's colour, solid and thinner than the path; ``tick`` is the heading tick of
+    :func:`ellipse` (default none: the path shows the heading). ``style`` goes to
+    ``Axes.plot``.
     """
     xy = np.asarray(poses.mean if isinstance(poses, AT) else poses, dtype=np.float64)
     if xy.ndim != 2 or xy.shape[1] < 2 or not len(xy):
@@ -102,7 +120,7 @@ def trajectory(
         else:
             idx = np.arange(0, len(xy), int(every))
         width = 0.6 * float(line.get_linewidth())
-        ellipse(ax, ats[idx], probability, color=line.get_color(), linewidth=width)
+        ellipse(ax, ats[idx], probability, tick=tick, color=line.get_color(), linewidth=width)
     return ax
 
 
@@ -134,6 +152,160 @@ def localization(ax: Axes, run: Localization, *, ellipses: int = 8) -> Axes:
     ax.set_ylabel("y [m]")
     ax.set_aspect("equal", adjustable="datalim")
     ax.legend(loc="best", fontsize="small")
+    return ax
+
+
+def figure(*, figsize: tuple[float, float] = (6.4, 4.8), ncols: int = 1) -> tuple[Figure, Any]:
+    """A new figure without pyplot (Agg canvas: no display, no global state) and its axes
+    (one ``Axes``, or an array of ``ncols`` side by side)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=figsize)
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(1, ncols, squeeze=True)
+    return fig, axes
+
+
+def _metres(ax: Axes, x: str = "x", y: str = "y") -> None:
+    ax.set_xlabel(f"{x} [m]")
+    ax.set_ylabel(f"{y} [m]")
+    ax.set_aspect("equal", adjustable="datalim")
+
+
+def relational_map(
+    ax: Axes,
+    g: RelationalMap,
+    reference: Hashable,
+    probability: float = 0.9,
+    *,
+    method: str = "auto",
+    ellipses: bool = True,
+    labels: bool = True,
+    color: str = "C0",
+) -> Axes:
+    """Draw a relational map relative to the frame ``reference``: every frame connected to it
+    at its estimated position (``g.query(reference, frame, method=method)``), each AT as an
+    arrow from its source frame to its destination frame labelled with its name, and each
+    frame's ``probability`` ellipse relative to ``reference`` (Appendix A). The reference frame
+    is drawn as a square, with no ellipse (it is known exactly relative to itself). Equal
+    aspect ratio, axes in metres (in ``reference``'s frame)."""
+    from relmap.errors import DisconnectedError
+
+    pose: dict[Hashable, AT] = {}
+    for f in g.frames:
+        try:
+            pose[f] = g.query(reference, f, method=method).at  # type: ignore[assignment]
+        except DisconnectedError:
+            continue
+    if not pose or not isinstance(pose[reference], AT):
+        raise ParameterError("relational_map draws planar maps (AT), relative to a map frame")
+    xy = {f: at.mean[:2] for f, at in pose.items()}
+    for e in g.edges():
+        if e.src not in xy or e.dst not in xy:
+            continue
+        a, b = xy[e.src], xy[e.dst]
+        ax.annotate(
+            "",
+            xy=b,
+            xytext=a,
+            arrowprops={
+                "arrowstyle": "-|>",
+                "color": "0.45",
+                "lw": 1.0,
+                "shrinkA": 4,
+                "shrinkB": 4,
+            },
+        )
+        if labels:
+            mid = (a + b) / 2
+            ax.annotate(
+                e.name,
+                mid,
+                color="0.25",
+                fontsize="small",
+                ha="center",
+                va="center",
+                bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.8},
+            )
+    others = [f for f in pose if f != reference]
+    if ellipses and others:
+        ellipse(ax, AT.stack([pose[f] for f in others]), probability, color=color)
+    ax.plot(*np.array([xy[f] for f in others]).T, "o", color=color, markersize=4)
+    ax.plot(*xy[reference], "s", color="k", markersize=6)
+    if labels:
+        for f, p in xy.items():
+            ax.annotate(
+                str(f), p, xytext=(5, 5), textcoords="offset points", fontsize="medium", zorder=5
+            )
+    _metres(ax, f"x in {reference}", f"y in {reference}")
+    return ax
+
+
+def monte_carlo(
+    ax: Axes,
+    samples: SampleSet,
+    predicted: AT | None = None,
+    probability: float = 0.9,
+    *,
+    max_points: int = 5000,
+    seed: int = 0,
+    color: str = "C3",
+) -> Axes:
+    """A Monte Carlo cloud (the paper's Fig. 5): at most ``max_points`` of the samples'
+    positions (a random subset), the ``probability`` ellipse of ``predicted`` (the first-order
+    estimate, solid) and of the samples' own mean and covariance (dashed). Equal aspect ratio,
+    axes in metres, a legend."""
+    pts = np.asarray(samples.samples, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ShapeError(f"monte_carlo draws planar samples (n, 3); got {pts.shape}")
+    if len(pts) > max_points:
+        pts = pts[np.random.default_rng(seed).choice(len(pts), max_points, replace=False)]
+    ax.plot(
+        pts[:, 0],
+        pts[:, 1],
+        ".",
+        color="0.35",
+        markersize=1.5,
+        alpha=0.5,
+        label=f"Monte Carlo ({len(pts):,} of {samples.n:,} samples)",
+        rasterized=True,
+    )
+    empirical = samples.as_at()
+    assert isinstance(empirical, AT)
+    ellipse(ax, empirical, probability, tick=0, color="C2", linestyle="--", linewidth=1.5)
+    ax.plot([], [], color="C2", linestyle="--", label=f"{probability:.0%} ellipse of the samples")
+    if predicted is not None:
+        ellipse(ax, predicted, probability, tick=0, color=color, linewidth=1.8)
+        ax.plot([], [], color=color, label=f"{probability:.0%} ellipse, first order")
+    _metres(ax)
+    ax.legend(loc="best", fontsize="small", markerscale=6)
+    return ax
+
+
+def ellipsoid(
+    ax: Axes, at: AT3, probability: float = 0.9, *, plane: str = "xy", **style: Any
+) -> Axes:
+    """The shadow of an AT3's ``probability`` position ellipsoid (Appendix A, N = 3) on the
+    ``plane`` ``"xy"``, ``"xz"`` or ``"yz"`` of the parent frame: the ellipse of the 2-D
+    marginal scaled by the 3-D radius k (χ²₃), so it touches the ellipsoid's outline. A batch
+    draws all of them. Axes labelled in metres, equal aspect ratio."""
+    from relmap import gaussian
+
+    axes = {"xy": (0, 1), "xz": (0, 2), "yz": (1, 2)}
+    if plane not in axes:
+        raise ParameterError(f"plane must be 'xy', 'xz' or 'yz'; got {plane!r}")
+    i, j = axes[plane]
+    idx = np.array([i, j])
+    mean = np.asarray(at.translation)[..., idx]
+    cov = np.asarray(at.cov)[..., idx[:, None], idx[None, :]]
+    e = gaussian.ellipse(mean, cov, probability)
+    scale = float(np.sqrt(gaussian.confidence_k2(probability, 3))) / e.k
+    shadow = e._replace(semi_major=e.semi_major * scale, semi_minor=e.semi_minor * scale)
+    style.setdefault("color", "C0")
+    ellipse(ax, shadow, **style)
+    ax.plot(*np.reshape(mean, (-1, 2)).T, "+", color=style["color"])
+    _metres(ax, plane[0], plane[1])
     return ax
 
 
