@@ -61,6 +61,7 @@ def _validate(args: argparse.Namespace) -> int:
             n=args.n,
             seed=args.seed,
             progress=lambda k, n: bar.update(f"sample {k}/{n}"),
+            moments=args.moments,
         )
     finally:
         bar.close()
@@ -90,6 +91,13 @@ def _validate(args: argparse.Namespace) -> int:
         f"  covariance relative error {s['cov_rel_error']:.2%} "
         f"(sampling error ±{s['cov_rel_standard_error']:.2%})"
     )
+    lin = s["predicted_linearization"]
+    if lin is not None:
+        print(
+            f"  first order vs exact moments (predicted, no sampling): covariance "
+            f"{lin['cov_rel_error']:.2%} off, mean {lin['mean_error_sigmas']:.3g}σ off"
+            + ("" if s["moments"] == "first_order" else f" (this query: {s['moments']})")
+        )
     print(f"  NEES {s['nees']:.3f} (expected {s['nees_expected']} if the covariance is right)")
     print(f"  {s['coverage']:.1%} of the samples inside the {s['probability']:.0%} ellipsoid")
     print(
@@ -362,6 +370,12 @@ def build_parser() -> argparse.ArgumentParser:
     val.add_argument("-n", type=int, default=10_000, help="number of samples (default 10000)")
     val.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     val.add_argument("--method", choices=("auto", "reduce", "optimal"), default="auto")
+    val.add_argument(
+        "--moments",
+        choices=("first_order", "exact", "unscented"),
+        default="first_order",
+        help="how the reduction compounds (SE(2) maps; default first_order)",
+    )
     val.add_argument("--json", action="store_true", help="print one JSON object")
     val.set_defaults(run=_validate)
 

@@ -10,7 +10,7 @@ import numpy as np
 
 from relmap.errors import FileFormatError
 from relmap.io.mapfile import ATRecord, read_records, write_records
-from relmap.io.posegraph import PoseGraph, read_graph
+from relmap.io.posegraph import _KIND_OF_TAG, PoseGraph, read_graph
 from relmap.network.graph import RelationalMap
 
 if TYPE_CHECKING:
@@ -18,7 +18,9 @@ if TYPE_CHECKING:
 
 __all__ = ["load_map", "save_map", "solve_graph"]
 
-_GRAPH_TAGS = ("VERTEX_SE2", "EDGE_SE2", "FIX", "VERTEX2", "EDGE2")
+# Every tag read_graph knows (2-D and 3-D, g2o and TORO, legacy EDGE3): its first record's tag
+# tells a pose graph from a map file.
+_GRAPH_TAGS = frozenset(_KIND_OF_TAG)
 
 
 def _is_pose_graph(path: Path) -> bool:
@@ -34,8 +36,9 @@ def _is_pose_graph(path: Path) -> bool:
 
 
 def load_map(path: str | os.PathLike[str]) -> RelationalMap:
-    """A map from a map file (JSON or YAML) or a 2-D pose graph (g2o, TORO), told apart by
-    content. Pose-graph vertex ids become integer frames, and their poses the initial guess."""
+    """A map from a map file (JSON or YAML) or a pose graph (g2o 2-D/3-D, TORO, legacy
+    ``EDGE3``), told apart by content. Pose-graph vertex ids become integer frames, their poses
+    the initial guess; a 3-D graph gives a map of :class:`relmap.AT3`."""
     p = Path(path)
     if not p.is_file():
         raise FileFormatError(p, "no such file")

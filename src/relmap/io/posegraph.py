@@ -441,7 +441,7 @@ def _quaternions(path: Path, tag: str, q: FloatArray, lines: Sequence[int]) -> F
             f"{QUATERNION_ATOL:g}): not a rotation",
             line=lines[k],
         )
-    return np.where(q[:, 3:] < 0.0, -q, q)
+    return np.where(q[:, 3:] < 0.0, -q, q) + 0.0  # + 0.0: no -0.0 (written as "-0.0")
 
 
 def _rotations(q: FloatArray) -> FloatArray:
