@@ -13,9 +13,16 @@
    compounds the B chains one step at a time (L batched calls of width B); GTSAM loops over all.
 4. One pair per call (no batch): relmap's fixed overhead against GTSAM's.
 
+A memory-bandwidth floor is printed with the pairs: one numpy pass that reads exactly the bytes
+a compound reads (two poses, two covariances) and writes the bytes it writes (a pose, a
+covariance), ``Ta + Tb`` and ``Ca + Cb`` on contiguous entry-major arrays. No implementation that
+reads its inputs from memory once can beat it.
+
 Before timing, GTSAM's results on a subsample are converted back to relmap's chart
-(``AT3.from_body``) and compared; the largest differences are printed. Times are medians of
-interleaved repeats (min in brackets).
+(``AT3.from_body``) and compared; the largest differences are printed. Contenders are timed in
+the same rounds, interleaved, so that a slow spell of the (shared, noisy) machine hits all alike;
+relmap, being fast, runs several times per round. Times are medians (min in brackets); the
+ratios are of medians from the same rounds.
 Run: ``python benchmarks/bench_se3.py [--n 100000] [--chains 1000 --length 100]``.
 """
 
@@ -25,7 +32,7 @@ import argparse
 import os
 import statistics
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # small dense blocks: threads only cost
 
@@ -34,16 +41,21 @@ import numpy as np
 
 import relmap as rm
 
+Timing = tuple[float, float]
 
-def timings(*fns: Callable[[], object], repeat: int) -> list[tuple[float, float]]:
+
+def timings(*fns: Callable[[], object], repeat: int, inner: Sequence[int] = ()) -> list[Timing]:
     """(median, min) wall time (s) of each function over ``repeat`` rounds, calls interleaved so
-    that a slow spell of this noisy machine hits all contenders alike."""
+    that a slow spell of this noisy machine hits all contenders alike; ``inner[i]`` runs of
+    function i per round (default 1), each one recorded."""
+    counts = list(inner) + [1] * (len(fns) - len(inner))
     times: list[list[float]] = [[] for _ in fns]
     for _ in range(repeat):
-        for fn, record in zip(fns, times, strict=True):
-            t0 = time.perf_counter()
-            fn()
-            record.append(time.perf_counter() - t0)
+        for fn, count, record in zip(fns, counts, times, strict=True):
+            for _ in range(count):
+                t0 = time.perf_counter()
+                fn()
+                record.append(time.perf_counter() - t0)
     return [(statistics.median(t), min(t)) for t in times]
 
 
@@ -142,7 +154,7 @@ def main() -> None:
     )
     parser.add_argument("--length", type=int, default=100, help="steps per chain (default 100)")
     parser.add_argument("--check", type=int, default=2000, help="subsample checked against GTSAM")
-    parser.add_argument("--repeat", type=int, default=15, help="repeats of the relmap timings")
+    parser.add_argument("--repeat", type=int, default=15, help="runs of each relmap timing")
     parser.add_argument("--gtsam-repeat", type=int, default=3, help="repeats of the GTSAM timings")
     args = parser.parse_args()
     n, m = args.n, min(args.check, args.n)
@@ -155,24 +167,44 @@ def main() -> None:
     print(f"compound {n:,} SE(3) pairs with covariance")
     gp, gc = gtsam_compose(pa[:m], Sa[:m], pb[:m], Sb[:m])
     agreement(f"(first {m:,} pairs)", a[:m] @ b[:m], back_to_relmap(gp, gc))
-    (t_rel,) = timings(lambda: a @ b, repeat=args.repeat)
-    t_gc, t_gj = timings(
+    inner = max(1, args.repeat // args.gtsam_repeat)  # relmap runs per round
+    # the floor's operands: contiguous (4, 4, n) and (6, 6, n), whatever relmap's storage
+    Ta, Tb, Ca, Cb = (
+        np.ascontiguousarray(np.moveaxis(x, 0, -1)) for x in (a.mean, b.mean, a.cov, b.cov)
+    )
+    To, Co = np.empty_like(Ta), np.empty_like(Ca)
+
+    def floor() -> None:
+        np.add(Ta, Tb, out=To)
+        np.add(Ca, Cb, out=Co)
+
+    t_rel, t_floor, t_gc, t_gj = timings(
+        lambda: a @ b,
+        floor,
         lambda: gtsam_compose(pa, Sa, pb, Sb),
         lambda: gtsam_compose(pa, Sa, pb, Sb, cov=False),
         repeat=args.gtsam_repeat,
+        inner=(inner, inner),
     )
     row("relmap  a @ b (batched)", t_rel, n, "pair")
+    row("memory floor (read + write once)", t_floor, n, "pair")
     row("GTSAM compose(H1, H2) + H Σ Hᵀ", t_gc, n, "pair")
     row("GTSAM compose(H1, H2) only", t_gj, n, "pair")
     print(f"  relmap vs GTSAM with covariance: {t_gc[0] / t_rel[0]:6.1f}x faster   (target >= 50x)")
     print(f"  relmap vs GTSAM Jacobians only:  {t_gj[0] / t_rel[0]:6.1f}x faster")
+    print(f"  relmap / memory floor:           {t_rel[0] / t_floor[0]:6.1f}x the time")
+    nbytes = (2 * 16 + 2 * 36 + 16 + 36) * 8
+    print(
+        f"  ({nbytes} bytes per pair moved: {nbytes / t_floor[0] * n / 1e9:.1f} GB/s at the floor)"
+    )
 
     # --- 2. reversal
     print(f"\nreverse {n:,} SE(3) poses with covariance")
     gp, gc = gtsam_inverse(pa[:m], Sa[:m])
     agreement(f"(first {m:,} poses)", a[:m].reverse(), back_to_relmap(gp, gc))
-    (t_rrev,) = timings(a.reverse, repeat=args.repeat)
-    (t_grev,) = timings(lambda: gtsam_inverse(pa, Sa), repeat=args.gtsam_repeat)
+    t_rrev, t_grev = timings(
+        a.reverse, lambda: gtsam_inverse(pa, Sa), repeat=args.gtsam_repeat, inner=(inner,)
+    )
     row("relmap  a.reverse() (batched)", t_rrev, n, "pose")
     row("GTSAM inverse(H) + H Σ Hᵀ", t_grev, n, "pose")
     print(f"  relmap vs GTSAM: {t_grev[0] / t_rrev[0]:6.1f}x faster")
@@ -191,8 +223,12 @@ def main() -> None:
     ours_all = rm.AT3.stack(ours, axis=1)  # (k, L), chain-major like GTSAM's
     print(f"\n{B:,} chains of {L} SE(3) steps ({B * L:,} compounds), every prefix kept")
     agreement(f"(first {k} chains)", ours_all, theirs)
-    (t_rch,) = timings(lambda: relmap_chains(steps), repeat=args.repeat)
-    (t_gch,) = timings(lambda: gtsam_chains(g_steps, g_covs), repeat=args.gtsam_repeat)
+    t_rch, t_gch = timings(
+        lambda: relmap_chains(steps),
+        lambda: gtsam_chains(g_steps, g_covs),
+        repeat=args.gtsam_repeat,
+        inner=(inner,),
+    )
     row(f"relmap  {L} batched a @ b of {B}", t_rch, B * L, "step")
     row("GTSAM loop", t_gch, B * L, "step")
     print(f"  relmap vs GTSAM: {t_gch[0] / t_rch[0]:6.1f}x faster")

@@ -298,3 +298,79 @@ def test_section7_poles_blow_up_euler_covariance_but_not_relmaps():
     euler_mc = np.cov(so3.to_euler(mc.samples[:, :3, :3]).T)
     rel = np.linalg.norm(euler_pred[3:, 3:] - euler_mc) / np.linalg.norm(euler_mc)
     assert rel > 0.25  # measured 0.36: Euler-form first-order propagation is far off near the pole
+
+
+# ------------------------------------------------------- fast paths (single, batched, chunked)
+def _reference_compound(a: rm.AT3, b: rm.AT3, X: np.ndarray | None = None):
+    """The textbook form: full 6×6 Jacobians from se3.compose and batched matmul."""
+    T, Ja, Jb = se3.compose(a.mean, b.mean, jacobians=True)
+    C = Ja @ a.cov @ np.swapaxes(Ja, -1, -2) + Jb @ b.cov @ np.swapaxes(Jb, -1, -2)
+    if X is not None:
+        K = Ja @ X @ np.swapaxes(Jb, -1, -2)
+        C = C + K + np.swapaxes(K, -1, -2)
+    return T, C
+
+
+def _reference_reverse(a: rm.AT3):
+    T, J = se3.inverse(a.mean, jacobians=True)
+    return T, J @ a.cov @ np.swapaxes(J, -1, -2)
+
+
+def _close(at: rm.AT3, T: np.ndarray, C: np.ndarray) -> None:
+    assert at.mean.shape == T.shape and at.cov.shape == C.shape
+    np.testing.assert_allclose(at.mean, T, rtol=0, atol=1e-12 * max(1.0, np.abs(T).max()))
+    np.testing.assert_allclose(at.cov, C, rtol=0, atol=1e-12 * np.abs(C).max())
+    assert np.array_equal(at.cov, np.swapaxes(at.cov, -1, -2))  # exactly symmetric
+
+
+def _shaped(at: rm.AT3, shape: tuple[int, ...]) -> rm.AT3:
+    return rm.AT3(
+        at.translation.reshape(*shape, 3),
+        at.rotation.reshape(*shape, 3, 3),
+        at.cov.reshape(*shape, 6, 6),
+    )
+
+
+@pytest.mark.parametrize(
+    ("shape_a", "shape_b"),
+    [((), ()), ((1,), ()), ((), (1,)), ((3, 1, 2), (1, 4, 2)), ((3, 1, 2), ()), ((5,), (5,))],
+)
+def test_compound_and_reverse_fast_paths_match_the_textbook_form(shape_a, shape_b):
+    a = _shaped(random_at3s(11, int(np.prod(shape_a))), shape_a)
+    b = _shaped(random_at3s(12, int(np.prod(shape_b))), shape_b)
+    _close(a @ b, *_reference_compound(a, b))
+    X = rng(13).normal(scale=0.01, size=(*np.broadcast_shapes(shape_a, shape_b), 6, 6))
+    _close(rm.compound(a, b, cross_cov=X), *_reference_compound(a, b, X))
+    _close(a.reverse(), *_reference_reverse(a))
+
+
+def test_single_pair_equals_its_batch_of_one_and_chunks_do_not_matter(monkeypatch):
+    from relmap import at3
+
+    a, b = random_at3s(21, 1000), random_at3s(22, 1000)
+    X = rng(23).normal(scale=0.01, size=(1000, 6, 6))
+    whole, crossed, rev = a @ b, rm.compound(a, b, cross_cov=X), a.reverse()
+    for i in (0, 517, 999):  # one pair per call (the no-batch path) against the batch
+        _close(a[i] @ b[i], whole.mean[i], whole.cov[i])
+        _close(rm.compound(a[i], b[i], cross_cov=X[i]), crossed.mean[i], crossed.cov[i])
+        _close(a[i].reverse(), rev.mean[i], rev.cov[i])
+    monkeypatch.setattr(at3, "_CHUNK", 64)  # many chunks and a ragged last one
+    _close(a @ b, whole.mean, whole.cov)
+    _close(rm.compound(a, b, cross_cov=X), crossed.mean, crossed.cov)
+    _close(a.reverse(), rev.mean, rev.cov)
+
+
+def test_fast_paths_accept_other_layouts_and_return_read_only_arrays():
+    a = random_at3s(31, 7)
+    # arrays in numpy's default layout, as other code may hand to _trusted
+    plain = rm.AT3._trusted(np.ascontiguousarray(a.mean), np.ascontiguousarray(a.cov))
+    _close(plain @ plain, *_reference_compound(a, a))
+    _close(plain.reverse(), *_reference_reverse(a))
+    for out in (a @ a, a[0] @ a[1], a.reverse(), a[0].reverse()):
+        assert not out.mean.flags.writeable and not out.cov.flags.writeable
+    empty = a[:0]
+    assert (empty @ empty).batch_shape == (0,) and empty.reverse().batch_shape == (0,)
+    with pytest.raises(ShapeError):
+        a @ random_at3s(32, 3)
+    with pytest.raises(ShapeError):
+        rm.compound(a, a, cross_cov=np.zeros((3, 6, 6)))

@@ -95,15 +95,18 @@ def log(R: ArrayLike) -> FloatArray:
     out = w / (2 * A[..., None])
     if np.any(near_pi):
         # near π, sin θ vanishes: R's symmetric part is I + (1 - cos θ)(n nᵀ - I), so n nᵀ is
-        # known; take the column with the largest diagonal, and the axis's sign from w
-        S = 0.5 * (R + np.swapaxes(R, -1, -2))
-        nn = (S - cos[..., None, None] * np.eye(3)) / np.maximum(1 - cos, 1e-300)[..., None, None]
+        # known; take the column with the largest diagonal, and the axis's sign from w. Only
+        # the rotations near π go through this (elsewhere 1 - cos θ may be 0).
+        out = np.array(out, copy=True)
+        Rp, cp, wp, tp = R[near_pi], cos[near_pi], w[near_pi], theta[near_pi]
+        S = 0.5 * (Rp + np.swapaxes(Rp, -1, -2))
+        nn = (S - cp[:, None, None] * np.eye(3)) / (1 - cp)[:, None, None]
         diag = np.diagonal(nn, axis1=-2, axis2=-1)
         k = np.argmax(diag, axis=-1)
-        col = np.take_along_axis(nn, k[..., None, None], axis=-1)[..., 0]
-        n = col / np.sqrt(np.maximum(np.take_along_axis(diag, k[..., None], -1), 1e-300))
-        sign = np.where(np.einsum("...i,...i->...", n, w) < 0, -1.0, 1.0)
-        out = np.where(near_pi[..., None], (sign * theta)[..., None] * n, out)
+        col = np.take_along_axis(nn, k[:, None, None], axis=-1)[..., 0]
+        n = col / np.sqrt(np.take_along_axis(diag, k[:, None], -1))
+        sign = np.where(np.einsum("...i,...i->...", n, wp) < 0, -1.0, 1.0)
+        out[near_pi] = (sign * tp)[:, None] * n
     return out
 
 
