@@ -53,8 +53,10 @@ __all__ = [
     "chain_moments",
     "compound_moments",
     "linearization_error",
+    "reverse_moments",
     "unscented_chain",
     "unscented_compound",
+    "unscented_reverse",
 ]
 
 #: How ``compound`` / ``compound_chain`` compute the result's moments.
@@ -300,6 +302,22 @@ def _pair(mu: FloatArray, S: FloatArray) -> tuple[FloatArray, FloatArray]:
     return _assemble(M, mu[..., 2] + mu[..., 5], np.real(P), Q, R, var_theta)
 
 
+# ------------------------------------------------------------------------ exact reversal
+_REV_A = np.diag([0.0, 0.0, -1.0])  # Aᴿ = (0, 0, -θ) ⊕ (-x, -y, 0): a dependent pair
+_REV_B = np.diag([-1.0, -1.0, 0.0])
+
+
+def reverse_moments(mean: ArrayLike, cov: ArrayLike) -> Moments:
+    """Exact mean and covariance of the reversal ``Aᴿ`` of a Gaussian A (Eqs. 5-7 to all
+    orders): ``Aᴿ = (0, 0, -θ) ⊕ (-x, -y, 0)``, a dependent pair whose 6×6 joint covariance is
+    linear in A's, so :func:`compound_moments` gives it exactly. Batched like it."""
+    m, C = _poses(mean, cov, "a")
+    CbT = C @ _REV_B.T
+    return compound_moments(
+        m @ _REV_A.T, _REV_A @ C @ _REV_A.T, m @ _REV_B.T, _REV_B @ CbT, cross_cov=_REV_A @ CbT
+    )
+
+
 # ---------------------------------------------------------------------------- unscented
 def unscented_compound(
     mean_a: ArrayLike,
@@ -337,6 +355,13 @@ def unscented_compound(
         S[..., :3, 3:] = X
         S[..., 3:, :3] = np.swapaxes(X, -1, -2)
     return unscented(_compose6, mu, S, chart_in=EUCLIDEAN, chart_out=SE2)
+
+
+def unscented_reverse(mean: ArrayLike, cov: ArrayLike) -> Moments:
+    """``Aᴿ`` by the unscented transform of ``se2.inverse`` (the 3-D input, 7 sigma points at
+    ±√3 σ, ``α = 1, β = 2, κ = 0``), averaged in the SE(2) chart."""
+    m, C = _poses(mean, cov, "a")
+    return unscented(se2.inverse, m, C, chart_in=EUCLIDEAN, chart_out=SE2)
 
 
 def _compose6(x: FloatArray) -> FloatArray:

@@ -20,6 +20,19 @@ The comparison (:class:`relmap.montecarlo.Agreement`): mean error, relative Frob
 of the covariance with its sampling error, NEES (the estimate's rank when it is right),
 coverage of the ``probability`` ellipsoid, Mardia's skewness and excess kurtosis (0 and 0 for a
 Gaussian).
+
+For SE(2) maps queried by the reduction, the *predicted* error of the first-order answer is
+reported beside the sampled one (:class:`relmap.network.query.LinearizationCheck`: first-order
+versus exact-moments reduction, no sampling). For a first-order query of a chain it predicts
+the sampled covariance error; it does not see non-Gaussianity (Mardia's skewness does) nor the
+approximation of merges and Delta-Y.
+
+With ``moments="exact"`` or ``"unscented"`` (SE(2), reduction) only the *prediction* uses
+those moments: each sampled map is still reduced with Eqs. (1)-(10), because compounding the
+sampled ATs themselves is the true nonlinear function whose distribution the moments describe
+(an exact-moments re-estimate would average each sampled map over its own noise once more).
+Merges on sampled maps use first-order gains; the exact-moments prediction fuses with gains
+from its own covariances, which is the same estimator to first order in the gains.
 """
 
 from __future__ import annotations
@@ -38,7 +51,7 @@ from relmap.typing import SeedLike
 
 if TYPE_CHECKING:
     from relmap.network.graph import RelationalMap
-    from relmap.network.query import Estimate
+    from relmap.network.query import Estimate, LinearizationCheck
 
 __all__ = ["Validation", "validate_query"]
 
@@ -55,6 +68,8 @@ class Validation(NamedTuple):
     names: tuple[str, ...]  #: the ATs sampled (those that can influence the answer)
     seed: SeedLike
     seconds: float
+    #: predicted error of the first-order reduction (SE(2), reduce); None otherwise
+    linearization: LinearizationCheck | None = None
 
     def summary(self) -> dict[str, Any]:
         """A JSON-ready dictionary: predicted and empirical moments and the statistics."""
@@ -86,6 +101,11 @@ class Validation(NamedTuple):
             "coverage": float(a.coverage),
             "mardia_skewness": float(a.skewness),
             "mardia_excess_kurtosis": float(a.excess_kurtosis),
+            "moments": est.moments,
+            # first-order vs exact-moments reduction, predicted without sampling (or None)
+            "predicted_linearization": (
+                None if self.linearization is None else self.linearization.as_dict()
+            ),
             "dof": 6 if spatial else 3,
             "seconds": self.seconds,
         }
@@ -112,14 +132,18 @@ def validate_query(
     seed: SeedLike = 0,
     probability: float = 0.9,
     progress: Progress | None = None,
+    moments: str = "first_order",
 ) -> Validation:
     """Monte Carlo check of ``g.query(src, dst, method=method)`` with ``n`` sampled maps.
 
     Every AT on the way between the two frames is drawn independently from its Gaussian (one
     generator seeded by ``seed``, ATs in map order); the query is re-estimated on each draw by
     the method it used (see the module docstring). ``progress(k, n)`` is called while the
-    optimal method works through the samples. Maps with dependent ATs (joint groups) are not
-    supported yet (:class:`relmap.errors.ParameterError`).
+    optimal method works through the samples. ``moments`` (SE(2), reduction) is how the
+    query's prediction is computed (module docstring). When the reduction answers an SE(2) query,
+    ``Validation.linearization`` holds the predicted error of its first-order version. Maps
+    with dependent ATs (joint groups) are not supported yet
+    (:class:`relmap.errors.ParameterError`).
     """
     if int(n) != n or n < 2:
         raise ParameterError(f"n must be an integer ≥ 2; got {n}")
@@ -129,7 +153,12 @@ def validate_query(
     if src == dst:
         raise ParameterError("FROM and TO are the same frame: nothing to validate")
     t0 = time.perf_counter()
-    est = g.query(src, dst, method=method)
+    est = g.query(src, dst, method=method, moments=moments)
+    check = None
+    if est.method == "reduce" and isinstance(est.at, AT):
+        from relmap.network.query import linearization_check
+
+        check = linearization_check(g, src, dst)
     names = relevant_names(g, src, dst)
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
     edges = [g.edge(name) for name in names]
@@ -157,4 +186,5 @@ def validate_query(
                 progress(k + 1, n)
     samples = montecarlo.SampleSet.of(out, kind.group)
     agreement = samples.compare(est.at, probability)
-    return Validation(est, samples, agreement, names, seed, time.perf_counter() - t0)
+    seconds = time.perf_counter() - t0
+    return Validation(est, samples, agreement, names, seed, seconds, check)

@@ -417,11 +417,33 @@ class RelationalMap:
         return forecast_sensing(self, sensed, sensor_cov, of_interest, method=method)
 
     # ------------------------------------------------------------------- query
-    def query(self, src: Frame, dst: Frame, method: str = "auto", **options: object) -> Estimate:
-        """The AT of frame ``dst`` seen from frame ``src`` (:func:`relmap.network.query.query`)."""
+    def query(
+        self,
+        src: Frame,
+        dst: Frame,
+        method: str = "auto",
+        *,
+        moments: str = "first_order",
+        diagnose: bool = False,
+        **options: object,
+    ) -> Estimate:
+        """The AT of frame ``dst`` seen from frame ``src`` (:func:`relmap.network.query.query`).
+
+        ``moments`` (``"first_order"``, ``"exact"``, ``"unscented"``; SE(2), reduction) sets
+        how the reduction compounds; ``diagnose=True`` adds the predicted error of the
+        first-order answer as ``Estimate.linearization``.
+        """
         from relmap.network.query import query
 
-        return query(self, src, dst, method=method, **options)  # type: ignore[arg-type]
+        return query(
+            self,
+            src,
+            dst,
+            method=method,
+            moments=moments,
+            diagnose=diagnose,
+            **options,  # type: ignore[arg-type]
+        )
 
 
 def _make_at(kind: type[AT] | type[AT3], mean: ArrayLike, cov: FloatArray) -> AT | AT3:

@@ -12,6 +12,14 @@ Methods:
 
 Only the 2-connected blocks on the way between the two frames are used (see
 :mod:`relmap.network.blocks`); consecutive blocks share one frame, and their ATs compound.
+
+**Beyond first order** (SE(2) maps, ``method="reduce"``): ``moments="exact"`` or
+``"unscented"`` makes every compounding (serial chains, and the three inside Delta-Y) and
+reversal of the reduction use exact or unscented moments (:mod:`relmap.moments`); merges stay
+the Gaussian update of Eqs. (8)-(10) of the moment-matched inputs (see
+:mod:`relmap.network.reduce`). ``diagnose=True`` adds :class:`LinearizationCheck` to the
+estimate: how far the first-order reduction is from the exact-moments one, predicted without
+sampling.
 """
 
 from __future__ import annotations
@@ -24,16 +32,50 @@ import numpy as np
 from relmap.at import AT, compound, reverse
 from relmap.at3 import AT3
 from relmap.errors import ParameterError
+from relmap.lie import se2
+from relmap.moments import check_method
 from relmap.network.blocks import blocks_between
-from relmap.network.reduce import reduce_network
+from relmap.network.reduce import Reduction, reduce_network
 
 if TYPE_CHECKING:
     from relmap.network.graph import RelationalMap
 
-__all__ = ["METHODS", "Estimate", "query"]
+__all__ = ["METHODS", "Estimate", "LinearizationCheck", "linearization_check", "query"]
 
 Frame = Hashable
 METHODS = ("auto", "reduce", "optimal")
+
+
+class LinearizationCheck(NamedTuple):
+    """How far the first-order reduction is from the reduction with exact compounding moments:
+    the predicted error of the first-order answer, computed without sampling.
+
+    Both reductions evaluate the same expression; they differ in every compounding and
+    reversal (Eqs. 1-7 versus :func:`relmap.moments.chain_moments` /
+    :func:`relmap.moments.reverse_moments`). For a chain this is exactly
+    :func:`relmap.moments.linearization_error` of its last prefix, and predicts the relative
+    covariance error that Monte Carlo (``relmap validate``) measures. What it does not
+    capture: how far from Gaussian the true distribution is (the crescent of Fig. 5; read
+    Mardia's skewness from a sample); the error of the merge step itself (merging moment-matched
+    Gaussians is not the exact posterior, and both reductions merge alike); and Delta-Y's own
+    approximation when there is angular error. Where merges follow compounding, a large value
+    says that the branches are far from Gaussian and the answer depends on how they are
+    summarized; it is then a warning, not the error of the first-order answer, which can be
+    the better of the two (see :mod:`relmap.network.reduce`).
+    """
+
+    cov_rel_error: float  #: ‖C_first - C_exact‖_F / ‖C_exact‖_F
+    mean_error: np.ndarray  #: (3,) first-order mean ⊟ exact-moments mean (heading wrapped)
+    mean_error_sigmas: float  #: Mahalanobis length of mean_error under the first-order cov
+    exact: AT  #: the exact-moments reduction (``moments="exact"``)
+
+    def as_dict(self) -> dict[str, object]:
+        """JSON-ready: the three figures (the exact AT left out)."""
+        return {
+            "cov_rel_error": float(self.cov_rel_error),
+            "mean_error": [float(v) for v in self.mean_error],
+            "mean_error_sigmas": float(self.mean_error_sigmas),
+        }
 
 
 class Estimate(NamedTuple):
@@ -47,6 +89,8 @@ class Estimate(NamedTuple):
     dropped: tuple[str, ...] = ()  #: ATs deleted by best deletion (reduce)
     definitions: dict[str, str] = {}  #: Delta-Y star ATs in the expression (reduce)  # noqa: RUF012
     iterations: int | None = None  #: Gauss-Newton/LM iterations (optimal)
+    moments: str = "first_order"  #: how compoundings were evaluated (reduce)
+    linearization: LinearizationCheck | None = None  #: with ``diagnose=True`` (reduce, SE(2))
 
 
 def _position_trace(at: AT | AT3) -> float:
@@ -63,6 +107,8 @@ def query(
     method: str = "auto",
     on_irreducible: str = "raise",
     criterion: Callable[[AT | AT3], float] = _position_trace,
+    moments: str = "first_order",
+    diagnose: bool = False,
 ) -> Estimate:
     """The AT of frame ``dst`` seen from frame ``src`` (mean in ``src``'s frame, covariance
     on ``(x, y, θ)`` in ``src``'s frame).
@@ -72,33 +118,88 @@ def query(
     whose deletion minimizes ``criterion`` of the result (default: trace of the position
     covariance, m²) when even Delta-Y cannot reduce the network. Raises
     :class:`relmap.errors.UnknownFrameError` or :class:`relmap.errors.DisconnectedError`.
+
+    ``moments`` (SE(2) maps, reduction only): ``"first_order"`` (Eqs. 1-7, default),
+    ``"exact"`` or ``"unscented"`` for every compounding and reversal of the reduction.
+    Exact: a serial chain gets the exact mean and covariance of its true distribution for
+    Gaussian ATs (as ``compound_chain(..., moments="exact")``). Merges remain the Gaussian
+    update of Eqs. (8)-(10) applied to the moment-matched inputs — the best linear fusion of
+    those means and covariances, *not* the exact posterior of the non-Gaussian inputs (and
+    not necessarily closer to it than first order; :mod:`relmap.network.reduce`).
+    ``"auto"`` with other moments uses the reduction only where it would anyway (no loop in
+    the way) and raises otherwise; ``method="optimal"`` is a joint Gauss-Newton solve, whose
+    covariance is the inverse information at the optimum (first order by construction), so
+    other moments raise :class:`ParameterError` there, as they do for 3-D maps.
+
+    ``diagnose=True`` (reduction, SE(2)) also evaluates the first-order and the exact-moments
+    reductions and reports their difference as ``Estimate.linearization``
+    (:class:`LinearizationCheck`); it roughly doubles the cost of the query.
     """
     if method not in METHODS:
         raise ParameterError(f"method must be one of {', '.join(METHODS)}; got {method!r}")
+    check_method(moments)
     g._check_frame(src)
     g._check_frame(dst)
+    beyond = moments != "first_order" or diagnose
+    what = f"moments={moments!r}" if moments != "first_order" else "diagnose=True"
+    if beyond and g.at_type is not AT:
+        raise ParameterError(
+            f"{what} is available for SE(2) maps only; this map holds 3-D ATs (first order)"
+        )
+    if beyond and method == "optimal":
+        raise ParameterError(
+            f"{what} applies to method='reduce': the optimal method's covariance is the "
+            "inverse information matrix at the least-squares optimum, first order by "
+            "construction; use method='reduce' (or 'auto' on a map without loops)"
+        )
     incident = {f: list(names) for f, names in g._incident.items()}
     ends = {e.name: (e.src, e.dst) for e in g.edges()}
     blocks = blocks_between(incident, ends, src, dst)
     if not blocks:
-        return Estimate(g.at_type.identity(), "reduce", "I", src, dst)
+        at = g.at_type.identity()
+        check = LinearizationCheck(0.0, np.zeros(3), 0.0, at) if diagnose else None  # type: ignore[arg-type]
+        return Estimate(at, "reduce", "I", src, dst, moments=moments, linearization=check)
     if method == "auto":
         method = "reduce" if all(len(b.names) == 1 for b in blocks) else "optimal"
+        if beyond and method == "optimal":
+            raise ParameterError(
+                f"{what} applies to the reduction, and method='auto' chose the optimal method "
+                "(a loop lies between the frames); ask for method='reduce'"
+            )
     order = {name: i for i, name in enumerate(g._edges)}
     names = sorted((n for b in blocks for n in b.names), key=order.__getitem__)
     if method == "reduce":
         in_play = set(names)
         groups = [(grp.names, grp.cov) for grp in g.groups if in_play & set(grp.names)]
-        result = reduce_network(
-            [(n, g._edges[n].src, g._edges[n].dst, g._edges[n].at) for n in names],
+        edges = [(n, g._edges[n].src, g._edges[n].dst, g._edges[n].at) for n in names]
+
+        def run(how: str) -> Reduction:
+            return reduce_network(
+                edges,
+                src,
+                dst,
+                on_irreducible=on_irreducible,
+                criterion=criterion,
+                groups=groups,
+                moments=how,
+            )
+
+        result = run(moments)
+        check = None
+        if diagnose:
+            first = result if moments == "first_order" else run("first_order")
+            exact = result if moments == "exact" else run("exact")
+            check = _compare(first.at, exact.at)  # type: ignore[arg-type]
+        return Estimate(
+            result.at,
+            "reduce",
+            result.expression,
             src,
             dst,
-            on_irreducible=on_irreducible,
-            criterion=criterion,
-            groups=groups,
-        )
-        return Estimate(
-            result.at, "reduce", result.expression, src, dst, result.dropped, result.definitions
+            result.dropped,
+            result.definitions,
+            moments=moments,
+            linearization=check,
         )
 
     from relmap.network.optimal import solve_relative  # scipy.sparse: imported only when used
@@ -115,6 +216,25 @@ def query(
         total = at if total is None else compound(total, at)
     assert total is not None
     return Estimate(total, "optimal", None, src, dst, iterations=iterations)
+
+
+def _compare(first: AT, exact: AT) -> LinearizationCheck:
+    norm = float(np.linalg.norm(exact.cov))
+    rel = float(np.linalg.norm(first.cov - exact.cov)) / norm if norm > 0 else 0.0
+    err = se2.minus(first.mean, exact.mean)
+    # Mahalanobis under the first-order covariance (pseudo-inverse: exactly known directions)
+    d2 = float(err @ np.linalg.pinv(first.cov, rcond=1e-12, hermitian=True) @ err)
+    return LinearizationCheck(rel, err, float(np.sqrt(max(d2, 0.0))), exact)
+
+
+def linearization_check(
+    g: RelationalMap, src: Frame, dst: Frame, *, on_irreducible: str = "raise"
+) -> LinearizationCheck:
+    """Predicted error of the first-order reduction from ``src`` to ``dst`` (SE(2) maps):
+    ``query(g, src, dst, method="reduce", diagnose=True).linearization``."""
+    est = query(g, src, dst, method="reduce", on_irreducible=on_irreducible, diagnose=True)
+    assert est.linearization is not None
+    return est.linearization
 
 
 class _Region(NamedTuple):
