@@ -23,7 +23,7 @@ import numpy as np
 
 from relmap import gaussian
 from relmap import moments as _moments
-from relmap._layout import components_outermost, matrix
+from relmap._layout import components_outermost, matrix, stack_last
 from relmap.at3 import AT3, compound3, merge3, reverse3
 from relmap.errors import ParameterError, ShapeError
 from relmap.gaussian import DEFAULT_RTOL, Ellipse
@@ -317,6 +317,7 @@ def _entries(C: FloatArray) -> Entries:
     return tuple(C[..., i, j] for i, j in _UPPER)  # type: ignore[return-value]
 
 
+_TWO_PI = 2.0 * np.pi
 _UPPER = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 
 
@@ -514,20 +515,37 @@ def compound_chain(steps: AT, *, axis: int = -1, moments: MomentsMethod = "first
 
 
 def _scan(mean: FloatArray, cov: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Inclusive prefix compounds along axis 0 (recursive pairing; depth log₂ n)."""
-    n = mean.shape[0]
+    """Inclusive prefix compounds along axis 0 (recursive pairing; depth log₂ n), on the nine
+    distinct numbers of each AT kept as separate arrays until the end."""
+    parts = (mean[..., 0], mean[..., 1], mean[..., 2], *_entries(cov))
+    x, y, t, *entries = _scan_parts(parts)
+    return stack_last([x, y, t], mean.shape[:-1]), _sym(tuple(entries))  # type: ignore[arg-type]
+
+
+def _scan_parts(p: tuple[FloatArray, ...]) -> tuple[FloatArray, ...]:
+    n = p[0].shape[0]
     if n == 1:
-        return mean, cov
-    pair_mean, pair_cov = _compound_arrays(
-        mean[0 : n - 1 : 2], cov[0 : n - 1 : 2], mean[1::2], cov[1::2]
-    )
-    odd_mean, odd_cov = _scan(pair_mean, pair_cov)  # prefixes ending at steps 1, 3, 5, ...
-    out_mean = np.empty_like(mean)
-    out_cov = np.empty_like(cov)
-    out_mean[1::2], out_cov[1::2] = odd_mean, odd_cov
-    out_mean[0], out_cov[0] = mean[0], cov[0]
-    even_mean, even_cov = _compound_arrays(
-        odd_mean[: (n - 1) // 2], odd_cov[: (n - 1) // 2], mean[2::2], cov[2::2]
-    )
-    out_mean[2::2], out_cov[2::2] = even_mean, even_cov
-    return out_mean, out_cov
+        return p
+    odd = _scan_parts(_compound_parts([v[0 : n - 1 : 2] for v in p], [v[1::2] for v in p]))
+    m = (n - 1) // 2  # the prefixes ending at steps 1, 3, 5, ... are odd; the rest follow
+    even = _compound_parts([v[:m] for v in odd], [v[2::2] for v in p])
+    out = tuple(np.empty_like(v) for v in p)
+    for o, v, od, ev in zip(out, p, odd, even, strict=True):
+        o[0], o[1::2], o[2::2] = v[0], od, ev
+    return out
+
+
+def _compound_parts(a: list[FloatArray], b: list[FloatArray]) -> tuple[FloatArray, ...]:
+    """:func:`_compound_arrays` on parts ``(x, y, θ, c00, c01, c02, c11, c12, c22)`` of wrapped
+    poses: their headings sum within [-2π, 2π), so one shift wraps them."""
+    xa, ya, ta, *ca = a
+    xb, yb, tb, *cb = b
+    c, s = np.cos(ta), np.sin(ta)
+    dx = c * xb - s * yb
+    dy = s * xb + c * yb
+    t = ta + tb
+    np.subtract(t, _TWO_PI, out=t, where=t >= np.pi)
+    np.add(t, _TWO_PI, out=t, where=t < -np.pi)
+    sheared = _shear(tuple(ca), dx, dy)  # type: ignore[arg-type]
+    rotated = _rotate(tuple(cb), c, s)  # type: ignore[arg-type]
+    return (xa + dx, ya + dy, t, *(u + w for u, w in zip(sheared, rotated, strict=True)))
