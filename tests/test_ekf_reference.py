@@ -337,3 +337,116 @@ def test_landmark_at_the_sensor_has_no_bearing():
     z = np.array([[3.0, 0.5]])
     with pytest.raises(rm.errors.ParameterError, match="own position"):
         ekf.correct_landmarks(state, z, sensor, lm)
+
+
+def test_single_filter_path_equals_the_general_path(monkeypatch):
+    """One filter takes its own path (Python numbers); it must give what the general path gives
+    for a batch of one: same pairings and statuses, states and d² to 1e-12 — over gated,
+    unknown, NaN and negative readings, padding, signatures unique, permuted, shared or read
+    twice, and every noise model."""
+    rng = np.random.default_rng(11)
+    taken: dict[int, list[bool]] = {k: [] for k in range(6)}
+    original = ekf._correct_one
+    now = {"variant": 0}
+
+    def counting(*args):
+        out = original(*args)
+        constant = args[2].noise_model == "constant"
+        taken[5 if now["variant"] == 0 and not constant else now["variant"]].append(out is not None)
+        return out
+
+    monkeypatch.setattr(ekf, "_correct_one", counting)
+    for trial in range(300):
+        m, L = int(rng.integers(1, 13)), int(rng.integers(1, 25))
+        state, z, sensor, lm, valid, signature = scenario(rng, (), m, L, dense=trial % 3 == 0)
+        gate = float(rng.choice([0.5, 0.99, 0.9999]))
+        perm = rng.permutation(L)
+        for variant, kw in enumerate(
+            (
+                {},
+                dict(signatures=signature, landmark_signatures=np.arange(L)),
+                dict(
+                    associate="signatures", signatures=signature, landmark_signatures=np.arange(L)
+                ),
+                dict(
+                    associate="signatures",
+                    signatures=np.where(signature >= 0, perm[np.maximum(signature, 0)], 99),
+                    landmark_signatures=perm,
+                ),
+                dict(
+                    associate="signatures",
+                    signatures=signature,
+                    landmark_signatures=rng.integers(0, max(1, L // 2), L),
+                ),
+            )
+        ):
+            kw |= dict(gate=gate, valid=None if trial % 4 == 0 else valid)
+            now["variant"] = variant
+            monkeypatch.setattr(ekf, "_FAST_SINGLE", True)
+            fast = ekf.correct_landmarks(state, z, sensor, lm, **kw)
+            monkeypatch.setattr(ekf, "_FAST_SINGLE", False)
+            slow = ekf.correct_landmarks(state, z, sensor, lm, **kw)
+            np.testing.assert_array_equal(fast.status, slow.status)
+            np.testing.assert_array_equal(fast.landmark, slow.landmark)
+            assert fast.status.dtype == slow.status.dtype == np.int64
+            assert fast.landmark.dtype == slow.landmark.dtype == np.int64
+            np.testing.assert_allclose(fast.mahalanobis2, slow.mahalanobis2, rtol=1e-12, atol=0)
+            assert np.abs(se2.minus(fast.state.mean, slow.state.mean)).max() <= 1e-12
+            scale = np.abs(slow.state.cov).max()
+            assert np.abs(fast.state.cov - slow.state.cov).max() <= 1e-12 * scale
+            assert not fast.state.mean.flags.writeable and not fast.state.cov.flags.writeable
+    # the single path served most calls: not those with a signature read twice or shared, nor
+    # nearest neighbours under range-dependent noise
+    assert np.mean(taken[0]) > 0.9 and min(np.mean(taken[k]) for k in (1, 2, 3)) > 0.3
+    assert not any(taken[5])
+
+
+def test_single_step_prediction_equals_the_general_path():
+    rng = np.random.default_rng(12)
+    drive = rm.robot.DiffDrive(0.05, 0.3)
+    for trial in range(400):
+        A = rng.normal(size=(3, 3)) * rng.choice([1e-3, 0.1, 1.0])
+        state = rm.AT(rng.normal(size=3) * [2, 2, 3], A @ A.T)
+        integration = ["midpoint", "arc"][trial % 2]
+        turn = [1.0, 1e-3, 0.0][trial % 3]
+        if trial % 5 == 0:
+            kw = dict(drive=drive)
+            noise = rm.robot.WheelNoise(*rng.uniform(0, 0.1, 2))
+            motion = rng.normal(size=2) * [3.0, 3.0 * turn]
+            motion[1] = motion[0] + motion[1]
+        else:
+            kw = {}
+            noise = rm.robot.DistanceNoise(*rng.uniform(0, 0.01, 3))
+            motion = rng.normal(size=2) * [0.3, turn]
+        fast = ekf.predict(state, motion, noise, integration=integration, **kw)
+        # the general path: the same step as a batch of one
+        slow = ekf.predict(state, motion[None], noise, integration=integration, **kw)[0]
+        assert np.abs(se2.minus(fast.mean, slow.mean)).max() <= 1e-12
+        assert np.abs(fast.cov - slow.cov).max() <= 1e-12 * np.abs(slow.cov).max()
+        assert fast.batch_shape == () and not fast.cov.flags.writeable
+        listed = ekf.predict(state, motion.tolist(), noise, integration=integration, **kw)
+        np.testing.assert_array_equal(listed.cov, fast.cov)
+
+
+def test_single_filter_discs_hold_every_landmark_inside_the_gate():
+    """The single-filter path looks for a reading's landmarks in a disc around its point: every
+    pair inside the gate must be among those candidates (large and tiny uncertainties, near
+    and far readings, sparse and dense maps)."""
+    rng = np.random.default_rng(13)
+    for trial in range(300):
+        m, L = int(rng.integers(1, 12)), int(rng.integers(1, 60))
+        state, z, sensor, lm, _, _ = scenario(rng, (), m, L, dense=trial % 2 == 0)
+        sensor = RangeBearingSensor(sensor.sigma_range, sensor.sigma_bearing, mount=sensor.mount)
+        if trial % 3 == 0:  # very uncertain, or nearly certain, pose
+            state = rm.AT(state.mean, state.cov * rng.choice([100.0, 1e-6]))
+        z = np.abs(z)
+        z[:, 0] = np.where(np.isfinite(z[:, 0]) & (z[:, 0] > 0), z[:, 0], 1.0)
+        gate2 = float(gaussian.confidence_k2(float(rng.choice([0.5, 0.99, 0.99999])), 2))
+        lmap = ekf._landmark_map(lm)
+        f = ekf._frame_one(state, sensor)
+        usable = list(range(m))
+        cand = set(ekf._disc_candidates(f, z.tolist(), usable, lmap, sensor, gate2, {}))
+        p = ekf._predict(f, lmap.lc, sensor)
+        d2, _, _ = ekf._innovations(p, z[:, 0], np.exp(1j * (z[:, 1] + f.st)))
+        inside = set(zip(*np.nonzero(d2 <= gate2 * (1 + 1e-9)), strict=True))
+        assert inside <= cand, inside - cand

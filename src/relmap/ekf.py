@@ -55,6 +55,8 @@ m×L innovations, greedy one-to-one pairing over them, a 2k×2k stacked update �
 
 from __future__ import annotations
 
+import bisect
+import cmath
 import functools
 import math
 from typing import Any, Literal, NamedTuple
@@ -66,7 +68,7 @@ from relmap._layout import matrix, stack_last
 from relmap.at import AT, compound, merge
 from relmap.errors import ParameterError, ShapeError
 from relmap.lie import se2
-from relmap.robot.motion import DiffDrive, Integration, Noise, _pairs, _step_ats
+from relmap.robot.motion import DiffDrive, Integration, Noise, _pairs, _step_ats, _step_single
 from relmap.sensors.polar import RangeBearingSensor
 from relmap.typing import ArrayLike, FloatArray, IntArray
 
@@ -119,10 +121,55 @@ def predict(
     drive: DiffDrive | None = None,
 ) -> AT:
     """The prediction step (Eq. 13) for a step ``(Δs, Δθ)`` — or wheel increments with ``drive``."""
+    if type(state) is AT and state.mean.ndim == 1:  # one filter, one step: Python floats
+        step = _step_single(motion, noise, integration, drive)
+        if step is not None:
+            return _compound_one(state, *step)
     m = _pairs(motion, "motion")
     if drive is not None:
         m = drive.motion(m)
     return compound(state, _step_ats(m, noise, integration, drive))
+
+
+def _compound_one(state: AT, delta: tuple[float, float, float], step: tuple[float, ...]) -> AT:
+    """``state ⊕ step`` (Eqs. 1-4: relmap.at's ``_shear`` and ``_rotate`` written out) for one
+    pose and one step given in Python floats, built straight into the result's arrays."""
+    xa, ya, ta = state.mean.tolist()
+    (p00, p01, p02), (_, p11, p12), (_, _, p22) = state.cov.tolist()
+    xb, yb, tb = delta
+    q00, q01, q02, q11, q12, q22 = step
+    c, s = math.cos(ta), math.sin(ta)
+    dx, dy = c * xb - s * yb, s * xb + c * yb
+    # H C_a Hᵀ with H = [[1, 0, -dy], [0, 1, dx], [0, 0, 1]]
+    r0 = p02 - dy * p22
+    r1 = p12 + dx * p22
+    # K C_b Kᵀ with K = blkdiag(R(θa), 1)
+    cc, ss, cs = c * c, s * s, c * s
+    cs_q01 = 2.0 * cs * q01
+    e02 = r0 + (c * q02 - s * q12)
+    e12 = r1 + (s * q02 + c * q12)
+    return _at_one([
+        xa + dx, ya + dy, _wrap_scalar(ta + tb),
+        p00 - dy * (p02 + r0) + (cc * q00 - cs_q01 + ss * q11),
+        p01 - dy * p12 + dx * r0 + (cs * (q00 - q11) + (cc - ss) * q01),
+        e02,
+        p11 + dx * (p12 + r1) + (ss * q00 + cs_q01 + cc * q11),
+        e12,
+        p22 + q22,
+    ])  # fmt: skip
+
+
+def _at_one(v: list[float]) -> AT:
+    """A single AT from ``[x, y, θ, c00, c01, c02, c11, c12, c22]`` computed by relmap (θ
+    wrapped): one array for mean and covariance, read-only — what ``AT._trusted`` builds, in
+    fewer numpy calls (they are most of the cost of one AT)."""
+    x, y, t, c00, c01, c02, c11, c12, c22 = v
+    buf = np.array([x, y, t, c00, c01, c02, c01, c11, c12, c02, c12, c22])
+    buf.flags.writeable = False
+    out = object.__new__(AT)
+    object.__setattr__(out, "_mean", buf[:3])
+    object.__setattr__(out, "_cov", buf[3:].reshape(3, 3))
+    return out
 
 
 class PoseUpdate(NamedTuple):
@@ -187,6 +234,13 @@ def correct_landmarks(
     serve two landmarks). Pairs whose ``d² > χ²₂(gate)`` are GATED (Eq. 25). ``valid`` (..., m)
     marks padding; NaN readings are INVALID. The used pairs form one stacked update (Eqs. 26-28).
     """
+    if _FAST_SINGLE and pairing == "one_to_one" and type(state) is AT and state.mean.ndim == 1:
+        fast = _correct_one(
+            state, readings, sensor, landmarks, associate, signatures, landmark_signatures,
+            gate, valid,
+        )  # fmt: skip
+        if fast is not None:
+            return fast
     z = np.asarray(readings, dtype=np.float64)
     lm = np.asarray(landmarks, dtype=np.float64)
     if z.ndim < 2 or z.shape[-1] != 2:
@@ -229,6 +283,10 @@ def correct_landmarks(
 
 
 # --------------------------------------------------------------------------- implementation
+# One filter (a single state AT, readings (m, 2)) takes _correct_one unless this is False.
+_FAST_SINGLE = True
+
+
 @functools.lru_cache(maxsize=64)
 def _gate2(gate: float) -> float:
     return float(gaussian.confidence_k2(gate, 2))
@@ -882,76 +940,37 @@ class _Job:
             return self.state
         if self.sensor.sigma_range == 0 or self.sensor.sigma_bearing == 0:
             mean, cov = self._update_stacked(p, vr, vb, use, None)
+        elif self.single:  # as _correct_one does it
+            new = _update_one(self.f, _pairs_one(p, vr, vb, use))
+            if new is not None:
+                return new
+            mean, cov = self._update_stacked(p, vr, vb, use, None)
         else:
             mean, cov, ill = self._update_3x3(p, vr, vb, use)
-            if ill if self.single else ill.any():
-                if self.single:
-                    mean, cov = self._update_stacked(p, vr, vb, use, None)
-                else:
-                    F = np.flatnonzero(ill)
-                    mean[F], cov[F] = self._update_stacked(p, vr, vb, use, F)
+            if ill.any():
+                F = np.flatnonzero(ill)
+                mean[F], cov[F] = self._update_stacked(p, vr, vb, use, F)
         return AT._trusted(mean.reshape(*self.batch, 3), cov.reshape(*self.batch, 3, 3))
 
     def _update_3x3(
         self, p: _Pred, vr: FloatArray, vb: FloatArray, use: np.ndarray
-    ) -> tuple[FloatArray, FloatArray, Value]:
+    ) -> tuple[FloatArray, FloatArray, np.ndarray]:
         """Mean (B, 3), covariance (B, 3, 3) and which filters are ill-conditioned."""
-        f, single = self.f, self.single
         w0 = use / p.var_r  # R⁻¹, zero for pairs not used
         w1 = use / p.var_b
         ir, u = p.ir, p.u
         wq, wr, e0, e2 = w1 * ir * ir, w1 * ir, w0 * vr, w1 * vb
         e1 = e2 * ir
-        # H₀ = -E u, H₁ = E u⊥/ρ - (0, 0, 1): A = HᵀR⁻¹H and b = HᵀR⁻¹v reduce to weighted
-        # sums over the pairs (u as a complex number, u⊥ = -iu), mapped through E per filter:
-        # Q = Σ w0 uuᵀ + wq u⊥u⊥ᵀ from Σ (w0 + wq) and Σ (w0 - wq) u², c = Σ wr u⊥,
-        # d = Σ e1 u⊥ - e0 u, then A = E Q Eᵀ - (E c) kᵀ - k (E c)ᵀ + Σ w1 kkᵀ, b = E d - k Σ e2.
-        if single:  # all nine sums in one product: weights (7, n) × features (1, u, u²)
-            X = np.ones((len(u), 3), complex)
-            X[:, 1] = u
-            np.multiply(u, u, out=X[:, 2])
-            sums = (np.array([w0, w1, wq, wr, e0, e1, e2]) @ X).tolist()
-            (s0, _, s0w), (s1, _, _), (sq, _, sqw), (_, s_u, _), (_, s0u, _), (_, s1u, _) = sums[:6]
-            s_a, n1, s2 = (s0 + sq).real, s1.real, sums[6][0].real
-            s_w, s_d = s0w - sqw, s0u + 1j * s1u
-        else:
-            s_a, n1, s2 = (w0 + wq).sum(axis=0), w1.sum(axis=0), e2.sum(axis=0)
-            s_w, s_u, s_d = (
-                (a * b).sum(axis=0) for a, b in ((w0 - wq, u * u), (wr, u), (e0 + 1j * e1, u))
-            )
-        q00, q11, q01 = 0.5 * (s_a + s_w.real), 0.5 * (s_a - s_w.real), 0.5 * s_w.imag
-        c0, c1, d0, d1 = s_u.imag, -s_u.real, -s_d.real, -s_d.imag
-        ax, ay = f.ax, f.ay
-        a02 = -ay * q00 + ax * q01 - c0
-        a12 = -ay * q01 + ax * q11 - c1
-        a22 = ay * ay * q00 - 2 * ax * ay * q01 + ax * ax * q11 - 2 * (ax * c1 - ay * c0) + n1
-        A = (q00, q01, a02, q01, q11, a12, a02, a12, a22)
-        bv = (d0, d1, ax * d1 - ay * d0 - s2)
-        p00, p01, p02, p11, p12, p22 = f.p
-        P = (p00, p01, p02, p01, p11, p12, p02, p12, p22)
-        AP = _mm(A, P)
-        M = _plus_eye(AP)  # I + A Σ⁻
-        W = _inv3(M)
-        G = _mm(P, W)  # Σ⁻ W
-        # K v = Σ⁻ y with M y = b, refined once (M is ill-conditioned after a precise reading)
-        y = _mv(W, bv)
-        y = _add(y, _mv(W, _sub(bv, _mv(M, y))))
-        dx = _mv(P, y)
-        # Joseph form with K H = G A formed from G: an exact Joseph form of the gain actually
-        # computed, so that rounding in W enters the covariance only to second order
-        GA = _mm(G, A)
-        J = _sub(_EYE, GA)  # I - K H
-        c00, c01, c02, c11, c12, c22 = _add(_abt(_mm(J, P), J), _abt(GA, G))
-        sym = [c00, c01, c02, c01, c11, c12, c02, c12, c22]
-        theta = f.t + dx[2]
-        trace = AP[0] + AP[4] + AP[8]
-        ill = not trace <= _ILL_CONDITIONED if single else ~(trace <= _ILL_CONDITIONED)
-        if single:
-            mean = np.array([f.x + dx[0], f.y + dx[1], _wrap_scalar(theta)])
-            return mean, np.array(sym).reshape(3, 3), ill
-        mean = stack_last([f.x + dx[0], f.y + dx[1], se2.wrap_angle(theta)], (self.B,))
-        cov = matrix([sym[0:3], sym[3:6], sym[6:9]], (self.B,))
-        return mean, cov, ill
+        s_a, n1, s2 = (w0 + wq).sum(axis=0), w1.sum(axis=0), e2.sum(axis=0)
+        s_w, s_u, s_d = (
+            (a * b).sum(axis=0) for a, b in ((w0 - wq, u * u), (wr, u), (e0 + 1j * e1, u))
+        )
+        dx, sym, trace = _posterior(self.f, (s_a, n1, s2, s_w, s_u, s_d))
+        f = self.f
+        mean = stack_last([f.x + dx[0], f.y + dx[1], se2.wrap_angle(f.t + dx[2])], (self.B,))
+        c00, c01, c02, c11, c12, c22 = sym
+        cov = matrix([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]], (self.B,))
+        return mean, cov, ~(trace <= _ILL_CONDITIONED)
 
     def _update_stacked(
         self, p: _Pred, vr: FloatArray, vb: FloatArray, use: np.ndarray, F: IntArray | None
@@ -997,6 +1016,500 @@ class _Job:
                 np.ascontiguousarray(a.T).reshape(shape) for a in (landmark, out_d2, status)
             )
         return LandmarkUpdate(new, landmark.astype(np.int64), out_d2, status.astype(np.int64))
+
+
+# ------------------------------------------------------------------ one filter
+# One filter (a single state, readings (m, 2), one to one) takes its own path: with about ten
+# readings, a numpy call (about a microsecond) costs as much as dozens of operations on Python
+# floats, so the readings are handled one by one in Python numbers — the formulas of _predict,
+# _innovations and _mahalanobis2 pair by pair, the sums of A = HᵀR⁻¹H and b = HᵀR⁻¹v pair by
+# pair and the 3×3 algebra of the update written out (_update_one).
+# - Known association: each reading's one landmark, looked up in a dict of the signatures.
+# - Nearest neighbour (constant sensor noise): a landmark l can be inside the gate of a reading
+#   (ρ, φ) only if it lies within a disc around the reading's point p = s + ρ e^{i(φ + θs)}
+#   (s, θs: the sensor): with ρ_l, β_l its range and bearing, |l - p|² = (ρ_l - ρ)² +
+#   4 ρ_l ρ sin²((β_l - φ - θs)/2) ≤ v_r² + ρ_l ρ v_φ², and inside the gate v_r² ≤ k² S_rr ≤
+#   k² (λ + σr²) = τ² and v_φ² ≤ k² S_φφ ≤ k² ((λ/ρ_l + 2|g|)/ρ_l + Σθθ + σφ²) (the bounds of
+#   _Job._gate_candidates), with ρ_l within ρ ± τ. The landmarks in a disc are found by
+#   bisection in the map sorted by x (cached with the map); d² is computed for those only
+#   (about one per reading), and the nearest inside the gate is taken (ties to the lowest row,
+#   as argmin).
+#   Readings with no landmark inside the gate get their full row of d² (numpy), and the pairing
+#   among them goes on as in _Job._nearest_single.
+# Anything out of the ordinary (input to validate or reject, shared or non-integer signatures, a
+# signature read twice, a sensor without noise, nearest neighbour with range-dependent noise,
+# an ill-conditioned update) returns None: the general path then runs.
+
+_CACHE_SIZE = 16
+# Relative widening of the discs, far above the rounding of their radii and distances.
+_DISC_SLACK = 1e-9
+
+
+class _Map(NamedTuple):
+    """A landmark map as the single-filter path uses it (cached by content)."""
+
+    lc: np.ndarray  # complex positions (L,)
+    points: list[complex]
+    at: frozenset[complex]  # the positions, to tell a landmark at the sensor
+    xs: list[float]  # the landmarks' x, increasing
+    by_x: list[int]  # their rows in that order
+
+
+_MAPS: dict[bytes, _Map] = {}
+_LAST_MAP: list[tuple[bytes | None, _Map | None]] = [(None, None)]  # the last call's
+# integer landmark signatures (dtype number, bytes) → {signature: row}, None when shared
+_SIGNATURE_ROWS: dict[tuple[int, bytes], dict[int, int] | None] = {}
+_LAST_ROWS: list[tuple[tuple | None, dict[int, int] | None]] = [(None, None)]
+
+
+def _landmark_map(lm: FloatArray) -> _Map | None:
+    """The landmarks ``(L, 2)`` for the single-filter path; None if not finite."""
+    key = lm.tobytes()
+    last_key, last = _LAST_MAP[0]  # one tuple: consistent under threads
+    if last_key == key:  # the same map as last time (compared, not hashed)
+        return last
+    hit = _MAPS.get(key)
+    if hit is None:
+        if not np.isfinite(lm).all():
+            return None
+        lc = np.ascontiguousarray(lm).view(np.complex128)[:, 0].copy()
+        lc.flags.writeable = False
+        points = lc.tolist()
+        by_x = np.argsort(lm[:, 0], kind="stable")
+        hit = _Map(lc, points, frozenset(points), lm[by_x, 0].tolist(), by_x.tolist())
+        if len(_MAPS) >= _CACHE_SIZE:
+            _MAPS.clear()
+        _MAPS[key] = hit
+    _LAST_MAP[0] = (key, hit)
+    return hit
+
+
+def _signature_rows(lsig: np.ndarray) -> dict[int, int] | None:
+    """Integer landmark signatures → {signature: row}, cached by content; None if shared."""
+    key = (lsig.dtype.num, lsig.tobytes())
+    last_key, last = _LAST_ROWS[0]
+    if last_key == key:
+        return last
+    if key in _SIGNATURE_ROWS:
+        out = _SIGNATURE_ROWS[key]
+        _LAST_ROWS[0] = (key, out)
+        return out
+    values = lsig.tolist()
+    rows = dict(zip(values, range(len(values)), strict=True))
+    out = rows if len(rows) == len(values) else None
+    if len(_SIGNATURE_ROWS) >= _CACHE_SIZE:
+        _SIGNATURE_ROWS.clear()
+    _SIGNATURE_ROWS[key] = out
+    _LAST_ROWS[0] = (key, out)
+    return out
+
+
+def _correct_one(
+    state: AT,
+    readings: ArrayLike,
+    sensor: RangeBearingSensor,
+    landmarks: ArrayLike,
+    associate: str,
+    signatures: ArrayLike | None,
+    landmark_signatures: ArrayLike | None,
+    gate: float,
+    valid: ArrayLike | None,
+) -> LandmarkUpdate | None:
+    """:func:`correct_landmarks` of one filter, one to one (see the notes above), or None."""
+    if not (isinstance(gate, float) and 0.0 < gate < 1.0):
+        return None
+    if associate not in ("signatures", "mahalanobis") or not isinstance(sensor, RangeBearingSensor):
+        return None
+    if not (sensor.sigma_range > 0.0 and sensor.sigma_bearing > 0.0):
+        return None
+    z = np.asarray(readings, dtype=np.float64)
+    lm = np.asarray(landmarks, dtype=np.float64)
+    if z.ndim != 2 or z.shape[1] != 2 or lm.ndim != 2 or lm.shape[1] != 2:
+        return None
+    m, L = z.shape[0], lm.shape[0]
+    if m == 0 or L == 0:
+        return None
+    present = None
+    if valid is not None:
+        v = np.asarray(valid, bool)
+        if v.shape != (m,):
+            return None
+        present = v.tolist()
+    lmap = _landmark_map(lm)
+    if lmap is None:
+        return None
+    zl = z.tolist()
+    status = [UNKNOWN] * m
+    usable = []
+    for j, (r, b) in enumerate(zl):
+        if present is not None and not present[j]:
+            status[j] = ABSENT
+        elif 0.0 < r < math.inf and -math.inf < b < math.inf:
+            usable.append(j)
+        else:
+            status[j] = INVALID
+    known = signatures is not None or associate == "signatures"
+    if known:
+        if signatures is None or landmark_signatures is None:
+            return None
+        lsig, sig = np.asarray(landmark_signatures), np.asarray(signatures)
+        if lsig.shape != (L,) or sig.shape != (m,):
+            return None
+        if lsig.dtype.kind not in "iu" or sig.dtype.kind not in "iu":
+            return None
+        rows = _signature_rows(lsig)
+        if rows is None:
+            return None
+        sl = sig.tolist()
+        cand = []
+        for j in usable:
+            k = rows.get(sl[j])
+            if k is not None:
+                cand.append((j, k))
+        if len({k for _, k in cand}) < len(cand):
+            return None  # a signature read twice: the general path pairs by distance
+    elif sensor.noise_model != "constant":
+        return None
+    f = _frame_one(state, sensor)
+    if f.sc in lmap.at:
+        return None  # a landmark at the sensor: the general path raises
+    gate2 = _gate2(gate)
+    ez: dict[int, complex] = {}
+    if not known:
+        cand = _disc_candidates(f, zl, usable, lmap, sensor, gate2, ez)
+    landmark, out_d2 = [-1] * m, [math.inf] * m
+    pairs = _exact_pairs(f, zl, cand, lmap.points, sensor, ez)
+    if pairs is None:
+        return None
+    used: list[tuple] = []
+    if known:
+        for j, k, d2, pair in pairs:
+            landmark[j], out_d2[j] = k, d2
+            if d2 <= gate2:
+                status[j] = USED
+                used.append(pair)
+            else:
+                status[j] = GATED
+    else:
+        used = _pair_nearest(f, z, usable, lmap, sensor, gate2, pairs, landmark, out_d2, status)
+    new = state
+    if used:
+        new = _update_one(f, used)  # type: ignore[assignment]
+        if new is None:
+            return None
+    ints = np.array(landmark + status, np.int64)
+    return LandmarkUpdate(new, ints[:m], np.array(out_d2), ints[m:])
+
+
+def _frame_one(state: AT, sensor: RangeBearingSensor) -> _Frame:
+    """:meth:`_Frame.build` for one filter."""
+    x, y, t = state.mean.tolist()
+    (p00, p01, p02), (_, p11, p12), (_, _, p22) = state.cov.tolist()
+    c, s = math.cos(t), math.sin(t)
+    mx, my, mt = sensor.mount.tolist()
+    ax, ay = c * mx - s * my, s * mx + c * my
+    v00 = p00 - 2 * ay * p02 + ay * ay * p22
+    v01 = p01 + ax * p02 - ay * p12 - ax * ay * p22
+    v11 = p11 + 2 * ax * p12 + ax * ax * p22
+    return _Frame(
+        x, y, t, (p00, p01, p02, p11, p12, p22), ax, ay, complex(x + ax, y + ay),
+        _wrap_scalar(t + mt), 0.5 * (v00 + v11), complex(0.5 * (v00 - v11), -v01),
+        complex(p02 - ay * p22, -(p12 + ax * p22)),
+    )  # fmt: skip
+
+
+def _disc_candidates(
+    f: _Frame,
+    zl: list[list[float]],
+    usable: list[int],
+    lmap: _Map,
+    sensor: RangeBearingSensor,
+    gate2: float,
+    ez: dict[int, complex],
+) -> list[tuple[int, int]]:
+    """(reading, landmark) pairs that may lie inside the gate: the landmarks in each reading's
+    disc (see the notes above), by reading then landmark. Fills ``ez`` with the readings'
+    directions ``exp(i(φ + θs))``."""
+    if not usable:
+        return []
+    k2 = gate2 * _SLACK
+    var_r, var_b = sensor.sigma_range**2, sensor.sigma_bearing**2
+    lam = max(f.h + abs(f.cbar), 0.0)
+    g2 = 2.0 * abs(f.gbar)
+    pb = f.p[5] + var_b
+    tau2 = k2 * (lam + var_r)
+    tau = math.sqrt(tau2)
+    sx, sy, st = f.sc.real, f.sc.imag, f.st
+    grow = 1.0 + _DISC_SLACK
+    points, xs, by_x = lmap.points, lmap.xs, lmap.by_x
+    out = []
+    for j in usable:
+        r, b = zl[j]
+        e = ez[j] = cmath.rect(1.0, b + st)
+        p = complex(sx + r * e.real, sy + r * e.imag)
+        lo = r - tau
+        disc = r + r + tau
+        disc *= disc  # |l - p| ≤ |l - s| + |s - p| ≤ (ρ + τ) + ρ
+        if lo > 0.0:
+            near = tau2 + r * k2 * (lam / lo + g2 + (r + tau) * pb)
+            if near < disc:
+                disc = near
+        disc *= grow
+        R = math.sqrt(disc)
+        # the landmarks within R of p in x (sorted by x), then in the disc
+        found = []
+        for k in by_x[bisect.bisect_left(xs, p.real - R) : bisect.bisect_right(xs, p.real + R)]:
+            d = points[k] - p
+            if d.real * d.real + d.imag * d.imag <= disc:
+                found.append(k)
+        if len(found) > 1:
+            found.sort()
+        for k in found:
+            out.append((j, k))
+    return out
+
+
+def _exact_pairs(
+    f: _Frame,
+    zl: list[list[float]],
+    cand: list[tuple[int, int]],
+    points: list[complex],
+    sensor: RangeBearingSensor,
+    ez: dict[int, complex],
+) -> list[tuple[int, int, float, tuple]] | None:
+    """``(reading, landmark, d², update pair)`` of the candidate pairs: :func:`_predict` and
+    :func:`_innovations` in Python numbers; None if some S is not positive definite. ``ez``:
+    the readings' ``exp(i(φ + θs))`` known so far (completed here)."""
+    sc, st, h, cbar, gbar = f.sc, f.st, f.h, f.cbar, f.gbar
+    p22, h2 = f.p[5], 2.0 * f.h
+    model = sensor.noise_model
+    sr, sb = sensor.sigma_range, sensor.sigma_bearing
+    var_r, var_b = sr**2, sb**2
+    out = []
+    for j, k in cand:
+        zr, zb = zl[j]
+        e = ez.get(j)
+        if e is None:
+            a = zb + st
+            e = ez[j] = cmath.rect(1.0, a)
+        d = points[k] - sc
+        r = abs(d)
+        if r == 0.0:
+            return None
+        ir = 1.0 / r
+        u = d * ir
+        cw = cbar * (u * u)
+        gu = gbar * u
+        if model != "constant":
+            scale = r if model == "proportional" else r * r
+            var_r, var_b = (sr * scale) ** 2, (sb * scale) ** 2
+        uvu = h + cw.real
+        s00 = uvu + var_r
+        s01 = gu.real - cw.imag * ir
+        s11 = ((h2 - uvu) * ir - 2 * gu.imag) * ir + (p22 + var_b)
+        det = s00 * s11 - s01 * s01
+        if not (det > 0.0 and s11 > 0.0):
+            return None
+        w = e * u.conjugate()
+        vr, vb = zr - r, math.atan2(w.imag, w.real)
+        x = vr - s01 / s11 * vb  # d² = x² s11/det + v_φ²/s11: S⁻¹ factored as in _predict
+        out.append((j, k, x * x * (s11 / det) + vb * vb / s11, (ir, u, vr, vb, var_r, var_b)))
+    return out
+
+
+def _pair_nearest(
+    f: _Frame,
+    z: FloatArray,
+    usable: list[int],
+    lmap: _Map,
+    sensor: RangeBearingSensor,
+    gate2: float,
+    pairs: list[tuple[int, int, float, tuple]],
+    landmark: list[int],
+    out_d2: list[float],
+    status: list[int],
+) -> list[tuple]:
+    """One to one by Mahalanobis distance as :meth:`_Job._nearest_single` pairs, from the
+    candidate pairs' d²: fills the outputs, returns the used pairs for the update."""
+    inside = [q for q in pairs if q[2] <= gate2]
+    best: dict[int, tuple] = {}
+    for q in inside:  # by reading, then landmark: the first of equal d² stays, as argmin
+        b = best.get(q[0])
+        if b is None or q[2] < b[2]:
+            best[q[0]] = q
+    chosen = list(best.values())
+    if len({q[1] for q in chosen}) < len(chosen):  # two want one landmark: the greedy pairing
+        cost = np.full((len(z), len(lmap.points)), np.inf)
+        for j, k, d2, _ in inside:
+            cost[j, k] = d2
+        pair = _one_to_one(cost).tolist()
+        chosen = [q for q in inside if pair[q[0]] == q[1]]
+    for j, k, d2, _ in chosen:
+        landmark[j], out_d2[j], status[j] = k, d2, USED
+    if len(chosen) < len(usable):  # the others, as in _Job._nearest_single
+        taken = {q[0] for q in chosen}
+        rej = np.array([j for j in usable if j not in taken])
+        p = _predict(f, lmap.lc, sensor)
+        c, _, _ = _innovations(p, z[rej, 0], np.exp(1j * (z[rej, 1] + f.st)))
+        nearest = c.min(axis=1)
+        free = c.copy()
+        free[:, [q[1] for q in chosen]] = np.inf
+        pair = _one_to_one(free)
+        paired = pair >= 0
+        got = np.where(paired, c[np.arange(len(rej)), np.maximum(pair, 0)], nearest)
+        st = np.where(paired, GATED, np.where(np.isfinite(nearest), LOST, UNKNOWN))
+        for j, pj, gj, sj in zip(
+            rej.tolist(), pair.tolist(), got.tolist(), st.tolist(), strict=True
+        ):
+            landmark[j], out_d2[j], status[j] = pj, gj, sj
+    return [q[3] for q in chosen]
+
+
+def _pairs_one(p: _Pred, vr: FloatArray, vb: FloatArray, use: np.ndarray) -> list[tuple]:
+    """The used pairs of one filter (arrays (m,)) as :func:`_update_one` takes them."""
+    idx = np.flatnonzero(use)
+    n = len(idx)
+    var_r, var_b = p.var_r, p.var_b
+    var_r = var_r[idx].tolist() if isinstance(var_r, np.ndarray) else [var_r] * n
+    var_b = var_b[idx].tolist() if isinstance(var_b, np.ndarray) else [var_b] * n
+    return list(zip(p.ir[idx].tolist(), p.u[idx].tolist(), vr[idx].tolist(), vb[idx].tolist(),
+                    var_r, var_b, strict=True))  # fmt: skip
+
+
+def _update_one(f: _Frame, pairs: list[tuple]) -> AT | None:
+    """The 3×3 update (:func:`_posterior`, written out on Python floats) of one filter from its
+    used pairs ``(1/ρ, u, v_r, v_φ, σr², σφ²)``; None when ill-conditioned (the stacked solve's
+    case)."""
+    s_a = n1 = s2 = 0.0
+    s_w = s_u = s_d = 0j
+    for ir, u, vr, vb, var_r, var_b in pairs:
+        w0, w1 = 1.0 / var_r, 1.0 / var_b
+        wq, e2 = w1 * ir * ir, w1 * vb
+        s_a += w0 + wq
+        n1 += w1
+        s2 += e2
+        s_w += (w0 - wq) * (u * u)
+        s_u += (w1 * ir) * u
+        s_d += complex(w0 * vr, e2 * ir) * u
+    a00, a11, a01 = 0.5 * (s_a + s_w.real), 0.5 * (s_a - s_w.real), 0.5 * s_w.imag
+    c0, c1, b0, b1 = s_u.imag, -s_u.real, -s_d.real, -s_d.imag
+    ax, ay = f.ax, f.ay
+    a02 = -ay * a00 + ax * a01 - c0
+    a12 = -ay * a01 + ax * a11 - c1
+    a22 = ay * ay * a00 - 2 * ax * ay * a01 + ax * ax * a11 - 2 * (ax * c1 - ay * c0) + n1
+    b2 = ax * b1 - ay * b0 - s2
+    p00, p01, p02, p11, p12, p22 = f.p
+    # M = I + A Σ⁻
+    m00 = a00 * p00 + a01 * p01 + a02 * p02
+    m11 = a01 * p01 + a11 * p11 + a12 * p12
+    m22 = a02 * p02 + a12 * p12 + a22 * p22
+    if not m00 + m11 + m22 <= _ILL_CONDITIONED:
+        return None
+    m00 += 1.0
+    m11 += 1.0
+    m22 += 1.0
+    m01 = a00 * p01 + a01 * p11 + a02 * p12
+    m02 = a00 * p02 + a01 * p12 + a02 * p22
+    m10 = a01 * p00 + a11 * p01 + a12 * p02
+    m12 = a01 * p02 + a11 * p12 + a12 * p22
+    m20 = a02 * p00 + a12 * p01 + a22 * p02
+    m21 = a02 * p01 + a12 * p11 + a22 * p12
+    # W = M⁻¹ by the adjugate (det M ≥ 1)
+    i00, i10, i20 = m11 * m22 - m12 * m21, m12 * m20 - m10 * m22, m10 * m21 - m11 * m20
+    rd = 1.0 / (m00 * i00 + m01 * i10 + m02 * i20)
+    w00, w01, w02 = i00 * rd, (m02 * m21 - m01 * m22) * rd, (m01 * m12 - m02 * m11) * rd
+    w10, w11, w12 = i10 * rd, (m00 * m22 - m02 * m20) * rd, (m02 * m10 - m00 * m12) * rd
+    w20, w21, w22 = i20 * rd, (m01 * m20 - m00 * m21) * rd, (m00 * m11 - m01 * m10) * rd
+    # G = Σ⁻ W
+    g00, g01, g02 = (p00 * w00 + p01 * w10 + p02 * w20, p00 * w01 + p01 * w11 + p02 * w21,
+                     p00 * w02 + p01 * w12 + p02 * w22)  # fmt: skip
+    g10, g11, g12 = (p01 * w00 + p11 * w10 + p12 * w20, p01 * w01 + p11 * w11 + p12 * w21,
+                     p01 * w02 + p11 * w12 + p12 * w22)  # fmt: skip
+    g20, g21, g22 = (p02 * w00 + p12 * w10 + p22 * w20, p02 * w01 + p12 * w11 + p22 * w21,
+                     p02 * w02 + p12 * w12 + p22 * w22)  # fmt: skip
+    # K v = Σ⁻ y with M y = b, refined once
+    y0 = w00 * b0 + w01 * b1 + w02 * b2
+    y1 = w10 * b0 + w11 * b1 + w12 * b2
+    y2 = w20 * b0 + w21 * b1 + w22 * b2
+    r0 = b0 - (m00 * y0 + m01 * y1 + m02 * y2)
+    r1 = b1 - (m10 * y0 + m11 * y1 + m12 * y2)
+    r2 = b2 - (m20 * y0 + m21 * y1 + m22 * y2)
+    y0, y1, y2 = (y0 + (w00 * r0 + w01 * r1 + w02 * r2), y1 + (w10 * r0 + w11 * r1 + w12 * r2),
+                  y2 + (w20 * r0 + w21 * r1 + w22 * r2))  # fmt: skip
+    # K H = G A, and the Joseph form (I - GA) Σ⁻ (I - GA)ᵀ + GA Gᵀ
+    k00, k01, k02 = (g00 * a00 + g01 * a01 + g02 * a02, g00 * a01 + g01 * a11 + g02 * a12,
+                     g00 * a02 + g01 * a12 + g02 * a22)  # fmt: skip
+    k10, k11, k12 = (g10 * a00 + g11 * a01 + g12 * a02, g10 * a01 + g11 * a11 + g12 * a12,
+                     g10 * a02 + g11 * a12 + g12 * a22)  # fmt: skip
+    k20, k21, k22 = (g20 * a00 + g21 * a01 + g22 * a02, g20 * a01 + g21 * a11 + g22 * a12,
+                     g20 * a02 + g21 * a12 + g22 * a22)  # fmt: skip
+    j00, j01, j02, j10, j11, j12, j20, j21, j22 = (
+        1.0 - k00,
+        -k01,
+        -k02,
+        -k10,
+        1.0 - k11,
+        -k12,
+        -k20,
+        -k21,
+        1.0 - k22,
+    )
+    t00, t01, t02 = (j00 * p00 + j01 * p01 + j02 * p02, j00 * p01 + j01 * p11 + j02 * p12,
+                     j00 * p02 + j01 * p12 + j02 * p22)  # fmt: skip
+    t10, t11, t12 = (j10 * p00 + j11 * p01 + j12 * p02, j10 * p01 + j11 * p11 + j12 * p12,
+                     j10 * p02 + j11 * p12 + j12 * p22)  # fmt: skip
+    t20, t21, t22 = (j20 * p00 + j21 * p01 + j22 * p02, j20 * p01 + j21 * p11 + j22 * p12,
+                     j20 * p02 + j21 * p12 + j22 * p22)  # fmt: skip
+    c00 = (t00 * j00 + t01 * j01 + t02 * j02) + (k00 * g00 + k01 * g01 + k02 * g02)
+    c01 = (t00 * j10 + t01 * j11 + t02 * j12) + (k00 * g10 + k01 * g11 + k02 * g12)
+    c02 = (t00 * j20 + t01 * j21 + t02 * j22) + (k00 * g20 + k01 * g21 + k02 * g22)
+    c11 = (t10 * j10 + t11 * j11 + t12 * j12) + (k10 * g10 + k11 * g11 + k12 * g12)
+    c12 = (t10 * j20 + t11 * j21 + t12 * j22) + (k10 * g20 + k11 * g21 + k12 * g22)
+    c22 = (t20 * j20 + t21 * j21 + t22 * j22) + (k20 * g20 + k21 * g21 + k22 * g22)
+    return _at_one([
+        f.x + (p00 * y0 + p01 * y1 + p02 * y2),
+        f.y + (p01 * y0 + p11 * y1 + p12 * y2),
+        _wrap_scalar(f.t + (p02 * y0 + p12 * y1 + p22 * y2)),
+        c00, c01, c02, c11, c12, c22,
+    ])  # fmt: skip
+
+
+def _posterior(f: _Frame, sums: tuple[Value, ...]) -> tuple[tuple, tuple, Value]:
+    """``(Δmean, covariance entries (00, 01, 02, 11, 12, 22), tr(AΣ⁻))`` of the 3×3 update from
+    the sums over the used pairs, per filter (arrays (B,); :func:`_update_one` for one filter).
+
+    H₀ = -E u, H₁ = E u⊥/ρ - (0, 0, 1): A = HᵀR⁻¹H and b = HᵀR⁻¹v reduce to weighted sums over
+    the pairs (u as a complex number, u⊥ = -iu), mapped through E per filter: Q = Σ w0 uuᵀ +
+    wq u⊥u⊥ᵀ from ``s_a = Σ (w0 + wq)`` and ``s_w = Σ (w0 - wq) u²``, ``c = Σ wr u⊥`` from
+    ``s_u = Σ wr u``, ``d = Σ e1 u⊥ - e0 u`` from ``s_d = Σ (e0 + i e1) u``, ``n1 = Σ w1``,
+    ``s2 = Σ e2``; then A = E Q Eᵀ - (E c) kᵀ - k (E c)ᵀ + n1 kkᵀ, b = E d - k s2 (w0, w1 the
+    weights R⁻¹, wq = w1/ρ², wr = w1/ρ, e0 = w0 v_r, e2 = w1 v_φ, e1 = e2/ρ).
+    """
+    s_a, n1, s2, s_w, s_u, s_d = sums
+    q00, q11, q01 = 0.5 * (s_a + s_w.real), 0.5 * (s_a - s_w.real), 0.5 * s_w.imag
+    c0, c1, d0, d1 = s_u.imag, -s_u.real, -s_d.real, -s_d.imag
+    ax, ay = f.ax, f.ay
+    a02 = -ay * q00 + ax * q01 - c0
+    a12 = -ay * q01 + ax * q11 - c1
+    a22 = ay * ay * q00 - 2 * ax * ay * q01 + ax * ax * q11 - 2 * (ax * c1 - ay * c0) + n1
+    A = (q00, q01, a02, q01, q11, a12, a02, a12, a22)
+    bv = (d0, d1, ax * d1 - ay * d0 - s2)
+    p00, p01, p02, p11, p12, p22 = f.p
+    P = (p00, p01, p02, p01, p11, p12, p02, p12, p22)
+    AP = _mm(A, P)
+    trace = AP[0] + AP[4] + AP[8]
+    M = _plus_eye(AP)  # I + A Σ⁻
+    W = _inv3(M)
+    G = _mm(P, W)  # Σ⁻ W
+    # K v = Σ⁻ y with M y = b, refined once (M is ill-conditioned after a precise reading)
+    y = _mv(W, bv)
+    y = _add(y, _mv(W, _sub(bv, _mv(M, y))))
+    dx = _mv(P, y)
+    # Joseph form with K H = G A formed from G: an exact Joseph form of the gain actually
+    # computed, so that rounding in W enters the covariance only to second order
+    GA = _mm(G, A)
+    J = _sub(_EYE, GA)  # I - K H
+    return dx, _add(_abt(_mm(J, P), J), _abt(GA, G)), trace
 
 
 # ------------------------------------------------------------------ 3×3 algebra on entries

@@ -294,6 +294,73 @@ def _step_ats(
     return AT._trusted(delta, cov)
 
 
+def _step_single(
+    motion: ArrayLike, noise: Noise, integration: Integration, drive: DiffDrive | None
+) -> tuple[tuple[float, float, float], tuple[float, ...]] | None:
+    """One step as Python floats, for a single filter's prediction: the step ``(Δx, Δy, Δθ)``
+    in the robot frame and the distinct entries ``(c00, c01, c02, c11, c12, c22)`` of its
+    covariance — the numbers :func:`_step_ats` gives, without its arrays. None unless
+    ``motion`` is one finite pair and the model one this path covers (the α-model is not):
+    the general path then validates (and raises) as usual.
+    """
+    if isinstance(motion, np.ndarray):
+        if motion.shape != (2,) or motion.dtype.kind not in "fiu":
+            return None
+        u0, u1 = motion.tolist()
+    elif isinstance(motion, list | tuple) and len(motion) == 2:
+        u0, u1 = motion
+        if type(u0) not in (float, int) or type(u1) not in (float, int):
+            return None
+    else:
+        return None
+    if not (math.isfinite(u0) and math.isfinite(u1)):
+        return None
+    if drive is not None:  # Eq. 9, as DiffDrive.motion's product with the wheel map
+        r, b = drive.wheel_radius, drive.baseline
+        ds, dt = float(u0 * (r / 2) + u1 * (r / 2)), float(u0 * (-r / b) + u1 * (r / b))
+    else:
+        ds, dt = float(u0), float(u1)
+    if isinstance(noise, DistanceNoise):
+        s00, s01 = noise.k_s * abs(ds), 0.0
+        s11 = noise.k_theta * abs(dt) + noise.k_theta_s * abs(ds)
+    elif isinstance(noise, WheelNoise) and drive is not None:
+        r, b = drive.wheel_radius, drive.baseline
+        vl = noise.sigma**2 + noise.k * abs((ds - b * dt / 2) / r)
+        vr = noise.sigma**2 + noise.k * abs((ds + b * dt / 2) / r)
+        s00, s01, s11 = r * r / 4 * (vl + vr), r * r / (2 * b) * (vr - vl), (r / b) ** 2 * (vl + vr)
+    else:
+        return None
+    if integration == "midpoint":
+        a, b_ = math.cos(dt / 2), math.sin(dt / 2)
+        da, db = -b_ / 2, a / 2
+    elif integration == "arc":
+        a, b_, da, db = _arc_parts(dt)
+    else:
+        return None
+    # J S Jᵀ as in _step_ats: J's rows are (a, e), (b, f), (0, 1)
+    e, f = ds * da, ds * db
+    r0 = (a * s00 + e * s01, a * s01 + e * s11)
+    r1 = (b_ * s00 + f * s01, b_ * s01 + f * s11)
+    c00 = a * r0[0] + e * r0[1]
+    c01 = b_ * r0[0] + f * r0[1]
+    c11 = b_ * r1[0] + f * r1[1]
+    return (ds * a, ds * b_, dt), (c00, c01, r0[1], c11, r1[1], s11)
+
+
+def _arc_parts(dt: float) -> tuple[float, float, float, float]:
+    """:func:`_increment_parts` of the arc for one step, in Python floats."""
+    if abs(dt) < _ARC_SERIES:
+        t2 = dt * dt
+        return (
+            1 - t2 / 6 + t2 * t2 / 120,
+            dt / 2 - dt * t2 / 24 + dt * t2 * t2 / 720,
+            -dt / 3 + dt * t2 / 30,
+            0.5 - t2 / 8 + t2 * t2 / 144,
+        )
+    s, c, h = math.sin(dt), math.cos(dt), math.sin(dt / 2)
+    return s / dt, 2 * h**2 / dt, (dt * c - s) / (dt * dt), (dt * s - 2 * h**2) / (dt * dt)
+
+
 def step(
     pose: AT,
     motion: ArrayLike,
