@@ -148,7 +148,7 @@ def _compound_one(state: AT, delta: tuple[float, float, float], step: tuple[floa
     cs_q01 = 2.0 * cs * q01
     e02 = r0 + (c * q02 - s * q12)
     e12 = r1 + (s * q02 + c * q12)
-    return _at_one([
+    return AT._single([
         xa + dx, ya + dy, _wrap_scalar(ta + tb),
         p00 - dy * (p02 + r0) + (cc * q00 - cs_q01 + ss * q11),
         p01 - dy * p12 + dx * r0 + (cs * (q00 - q11) + (cc - ss) * q01),
@@ -157,19 +157,6 @@ def _compound_one(state: AT, delta: tuple[float, float, float], step: tuple[floa
         e12,
         p22 + q22,
     ])  # fmt: skip
-
-
-def _at_one(v: list[float]) -> AT:
-    """A single AT from ``[x, y, θ, c00, c01, c02, c11, c12, c22]`` computed by relmap (θ
-    wrapped): one array for mean and covariance, read-only — what ``AT._trusted`` builds, in
-    fewer numpy calls (they are most of the cost of one AT)."""
-    x, y, t, c00, c01, c02, c11, c12, c22 = v
-    buf = np.array([x, y, t, c00, c01, c02, c01, c11, c12, c02, c12, c22])
-    buf.flags.writeable = False
-    out = object.__new__(AT)
-    object.__setattr__(out, "_mean", buf[:3])
-    object.__setattr__(out, "_cov", buf[3:].reshape(3, 3))
-    return out
 
 
 class PoseUpdate(NamedTuple):
@@ -1466,7 +1453,7 @@ def _update_one(f: _Frame, pairs: list[tuple]) -> AT | None:
     c11 = (t10 * j10 + t11 * j11 + t12 * j12) + (k10 * g10 + k11 * g11 + k12 * g12)
     c12 = (t10 * j20 + t11 * j21 + t12 * j22) + (k10 * g20 + k11 * g21 + k12 * g22)
     c22 = (t20 * j20 + t21 * j21 + t22 * j22) + (k20 * g20 + k21 * g21 + k22 * g22)
-    return _at_one([
+    return AT._single([
         f.x + (p00 * y0 + p01 * y1 + p02 * y2),
         f.y + (p01 * y0 + p11 * y1 + p12 * y2),
         _wrap_scalar(f.t + (p02 * y0 + p12 * y1 + p22 * y2)),
