@@ -62,13 +62,18 @@ def save_map(
 
 
 def solve_graph(
-    graph: PoseGraph, *, progress: Progress | None = None, max_iterations: int = 100
+    graph: PoseGraph,
+    *,
+    progress: Progress | None = None,
+    max_iterations: int = 100,
+    rtol: float | None = None,
 ) -> Solution:
     """Optimize a whole pose graph from the file's initial guess (the optimal method).
 
     The anchor is the first ``FIX`` vertex if the file has one, else the first vertex; it
     stays at its file pose. Returns the :class:`relmap.network.optimal.Solution` (poses in
-    :attr:`PoseGraph.vertex_ids` order).
+    :attr:`PoseGraph.vertex_ids` order). ``rtol``: the convergence tolerance of
+    :func:`relmap.network.optimal.optimize` (default there).
     """
     from relmap.network.optimal import optimize
     from relmap.network.problem import Problem
@@ -87,4 +92,5 @@ def solve_graph(
         [f"e{k}" for k in range(len(i))],
         graph.measurements.group,
     )
-    return optimize(problem, progress=progress, max_iterations=max_iterations)
+    options = {} if rtol is None else {"rtol": rtol}
+    return optimize(problem, progress=progress, max_iterations=max_iterations, **options)

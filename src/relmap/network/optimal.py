@@ -477,7 +477,7 @@ def optimize(
     p: Problem,
     *,
     max_iterations: int = 100,
-    rtol: float = 1e-14,
+    rtol: float = 1e-10,
     atol: float = 1e-9,
     progress: Progress | None = None,
 ) -> Solution:
@@ -489,8 +489,10 @@ def optimize(
     step predicts a decrease of the objective below ``rtol`` relatively (so the factorization
     that proved it is the one at the optimum, kept for covariances), or when steps stop
     lowering the objective beyond rounding. Gauss-Newton converges quadratically near the
-    optimum, so the default asks for the last step to be negligible: the poses and the
-    covariances are then those of the optimum to rounding, at the price of one iteration.
+    optimum, so the default (1e-10, against GTSAM's 1e-5 on the achieved decrease) leaves the
+    objective within about 1e-10 relative of its minimum and the poses within a small
+    fraction of their σ (1e-6 m on FR079); ``rtol=1e-14`` reaches the optimum to rounding, at
+    the price of about one more factorization.
     """
     param = parameterize(p, atol=atol)
     w = _weights(p, param)
