@@ -582,21 +582,42 @@ def localize_mrclam(
         updates.append(up)
         return up.state
 
-    start = _start(log.truth_at(t[0]))
+    in_run = (log.meas_t >= t[0]) & (log.meas_t <= t[-1])
+    return _localization(
+        ("mrclam", int(robot), associate), t, motion, events, correct, progress, cal,
+        log.truth_at, data.landmark_xy, updates, int((in_run & ~offered).sum()),
+    )  # fmt: skip
+
+
+def _localization(
+    what: tuple[str, int | None, str],
+    t: FloatArray,
+    motion: FloatArray,
+    events: IntArray,
+    correct: Callable[[int, AT], AT],
+    progress: Progress | None,
+    cal: Calibration,
+    truth_at: Callable[[FloatArray], FloatArray],
+    landmarks: ArrayLike,
+    updates: list[ekf.LandmarkUpdate],
+    ignored: int,
+) -> Localization:
+    """Run the filter and dead reckoning from the true start, and score both."""
+    start = _start(truth_at(t[0]))
     estimate = _run(_Odometry(motion, cal.odometry), start, events, correct, progress)
     dr = _dead_reckoning(motion, cal.odometry, start)
-    truth = log.truth_at(t)
-    in_run = (log.meas_t >= t[0]) & (log.meas_t <= t[-1])
-    counts = _statuses(updates, int((in_run & ~offered).sum()))
+    truth = truth_at(t)
+    counts = _statuses(updates, ignored)  # after the run: the updates are complete
+    dataset, robot, associate = what
     return Localization(
-        dataset="mrclam",
-        robot=int(robot),
+        dataset=dataset,
+        robot=robot,
         associate=associate,
         t=t,
         estimate=estimate,
         dead_reckoning=dr,
         truth=truth,
-        landmarks=np.asarray(data.landmark_xy),
+        landmarks=np.asarray(landmarks),
         calibration=cal,
         score=score(estimate, truth, rejected=_rejected(counts)),
         baseline=score(dr, truth),
@@ -643,25 +664,10 @@ def localize_plaza(
         updates.append(up)
         return up.state
 
-    start = _start(data.truth_at(t[0]))
-    estimate = _run(_Odometry(motion, cal.odometry), start, events, correct, progress)
-    dr = _dead_reckoning(motion, cal.odometry, start)
-    truth = data.truth_at(t)
-    counts = _statuses(updates, 0)
-    return Localization(
-        dataset="plaza",
-        robot=None,
-        associate=associate,
-        t=t,
-        estimate=estimate,
-        dead_reckoning=dr,
-        truth=truth,
-        landmarks=np.asarray(data.beacon_xy),
-        calibration=cal,
-        score=score(estimate, truth, rejected=_rejected(counts)),
-        baseline=score(dr, truth),
-        readings=counts,
-    )
+    return _localization(
+        ("plaza", None, associate), t, motion, events, correct, progress, cal, data.truth_at,
+        data.beacon_xy, updates, 0,
+    )  # fmt: skip
 
 
 # ------------------------------------------------------------------------------ any folder
