@@ -237,19 +237,34 @@ def compound_moments(
         C = np.stack([np.broadcast_to(Ca, (*batch, 3, 3)), np.broadcast_to(Cb, (*batch, 3, 3))])
         mean, cov = _chain(m, C)
         return Moments(mean[1], cov[1])
-    X = np.asarray(cross_cov, dtype=np.float64)
-    if X.ndim < 2 or X.shape[-2:] != (3, 3):
-        raise ShapeError(f"cross_cov must have shape (..., 3, 3); got {X.shape}")
-    batch = np.broadcast_shapes(batch, X.shape[:-2])
+    return Moments(*_pair(*_joint(ma, Ca, mb, Cb, cross_cov, batch)))
+
+
+def _joint(
+    ma: FloatArray,
+    Ca: FloatArray,
+    mb: FloatArray,
+    Cb: FloatArray,
+    cross_cov: ArrayLike | None,
+    batch: tuple[int, ...],
+) -> tuple[FloatArray, FloatArray]:
+    """The 6-D Gaussian of the pair ``(a, b)``: mean (..., 6), covariance (..., 6, 6)."""
+    X = None
+    if cross_cov is not None:
+        X = np.asarray(cross_cov, dtype=np.float64)
+        if X.ndim < 2 or X.shape[-2:] != (3, 3):
+            raise ShapeError(f"cross_cov must have shape (..., 3, 3); got {X.shape}")
+        batch = np.broadcast_shapes(batch, X.shape[:-2])
     mu = np.concatenate(
         [np.broadcast_to(ma, (*batch, 3)), np.broadcast_to(mb, (*batch, 3))], axis=-1
     )
     S = np.zeros((*batch, 6, 6))
     S[..., :3, :3] = Ca
     S[..., 3:, 3:] = Cb
-    S[..., :3, 3:] = X
-    S[..., 3:, :3] = np.swapaxes(X, -1, -2)
-    return Moments(*_pair(mu, S))
+    if X is not None:
+        S[..., :3, 3:] = X
+        S[..., 3:, :3] = np.swapaxes(X, -1, -2)
+    return mu, S
 
 
 # Terms of c = z_a + e^{iθ_a} z_b and of Θ = θ_a + θ_b, as (coefficient vector A, frequency w).
@@ -340,20 +355,7 @@ def unscented_compound(
     ma, Ca = _poses(mean_a, cov_a, "a")
     mb, Cb = _poses(mean_b, cov_b, "b")
     batch = np.broadcast_shapes(ma.shape[:-1], Ca.shape[:-2], mb.shape[:-1], Cb.shape[:-2])
-    if cross_cov is not None:
-        X = np.asarray(cross_cov, dtype=np.float64)
-        if X.ndim < 2 or X.shape[-2:] != (3, 3):
-            raise ShapeError(f"cross_cov must have shape (..., 3, 3); got {X.shape}")
-        batch = np.broadcast_shapes(batch, X.shape[:-2])
-    mu = np.concatenate(
-        [np.broadcast_to(ma, (*batch, 3)), np.broadcast_to(mb, (*batch, 3))], axis=-1
-    )
-    S = np.zeros((*batch, 6, 6))
-    S[..., :3, :3] = Ca
-    S[..., 3:, 3:] = Cb
-    if cross_cov is not None:
-        S[..., :3, 3:] = X
-        S[..., 3:, :3] = np.swapaxes(X, -1, -2)
+    mu, S = _joint(ma, Ca, mb, Cb, cross_cov, batch)
     return unscented(_compose6, mu, S, chart_in=EUCLIDEAN, chart_out=SE2)
 
 
