@@ -1,5 +1,6 @@
-"""Files: relational-map files (JSON/YAML), 2-D pose graphs (g2o, TORO), loading either as a map,
-landmark-localization datasets (UTIAS MRCLAM, CMU Plaza)."""
+"""Files: relational-map files (JSON/YAML), pose graphs (g2o and TORO in 2-D; g2o and the legacy
+EDGE3 format in 3-D), loading either as a map, landmark-localization datasets (UTIAS MRCLAM,
+CMU Plaza)."""
 
 from relmap.io.datasets import (
     DatasetKind,
