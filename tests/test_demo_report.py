@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from relmap import demo as d
+from relmap.demo_report import write_report
 
 SAMPLES = 2000  # reduced Monte Carlo sizes: the test checks plumbing, not statistics
 
@@ -18,7 +19,7 @@ SAMPLES = 2000  # reduced Monte Carlo sizes: the test checks plumbing, not stati
 def built(tmp_path_factory):
     result = d.run(seed=3, samples=SAMPLES)
     folder = tmp_path_factory.mktemp("report")
-    index = d.write_report(result, folder)
+    index = write_report(result, folder)
     out = io.StringIO()
     d.print_demo(result, out)
     return result, index, out.getvalue()

@@ -17,7 +17,8 @@ def _demo(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from relmap._progress import TerminalProgress
-    from relmap.demo import print_demo, run, write_report
+    from relmap.demo import print_demo, run
+    from relmap.demo_report import write_report
     from relmap.errors import ParameterError
 
     if args.samples < 100:
