@@ -36,7 +36,14 @@ m×L innovations, greedy one-to-one pairing over them, a 2k×2k stacked update �
   can come that close: ``d² ≥ v_r²/S_rr`` and ``d² ≥ v_φ²/S_φφ`` (Cauchy-Schwarz), with
   ``S_rr``, ``S_φφ`` bounded through the largest eigenvalue of V and the readings' ranges and
   bearings through their hull. With signatures, only landmarks whose signature was read; with
-  unique signatures and no signature read twice, each reading has its one landmark (no matrix).
+  unique signatures and no signature read twice, each reading has its one landmark (no matrix;
+  integer signatures of a small span are looked up in a table, not by binary search). The
+  kept landmarks of each filter are gathered from the bits of one word per filter (L ≤ 64).
+- Grid: bearing innovations are differences of bearings measured from the centre of the
+  filter's readings; when every candidate's bearing bound leaves them within π, no entry
+  inside the gate needs wrapping and those outside stay outside (see _gate_candidates), so the
+  grid skips the wrap. A batch's bearing innovations of known pairs are differences of
+  bearings (atan2 of the predicted direction) too: no complex exponential of the readings.
 - Pairing (one to one, Mahalanobis): the greedy "cheapest pair first" run takes its pairs in
   increasing d²; those inside the gate are exactly the greedy pairing of the pairs inside the
   gate, so that runs first. When no two readings of a filter share their nearest landmark, it
@@ -48,7 +55,8 @@ m×L innovations, greedy one-to-one pairing over them, a 2k×2k stacked update �
   ``A = HᵀR⁻¹H``, a 3×3 sum over the pairs, and ``b = HᵀR⁻¹v``: ``K v = Σ⁻ y`` with
   ``(I + AΣ⁻) y = b`` (solved by the adjugate, refined once), ``K H = G A`` with
   ``G = Σ⁻(I + AΣ⁻)⁻¹``, and the Joseph form ``(I - GA) Σ⁻ (I - GA)ᵀ + G A Gᵀ`` — the exact
-  Joseph form of the gain computed, so rounding in G enters only to second order. When
+  Joseph form of the gain computed, so rounding in G enters only to second order. For a batch
+  the 3×3 matrices are stacked as (3, 3, B) arrays (a few numpy calls per product). When
   ``tr(AΣ⁻) > 10⁵`` (a reading far more precise than the prior: A then holds too few digits
   of the prior's information) and for a sensor without noise (no R⁻¹), the 2k×2k solve.
 """
@@ -64,7 +72,6 @@ from typing import Any, Literal, NamedTuple
 import numpy as np
 
 from relmap import gaussian
-from relmap._layout import matrix, stack_last
 from relmap.at import AT, compound, merge
 from relmap.errors import ParameterError, ShapeError
 from relmap.lie import se2
@@ -121,10 +128,12 @@ def predict(
     drive: DiffDrive | None = None,
 ) -> AT:
     """The prediction step (Eq. 13) for a step ``(Δs, Δθ)`` — or wheel increments with ``drive``."""
-    if type(state) is AT and state.mean.ndim == 1:  # one filter, one step: Python floats
+    if type(state) is AT:  # one step (Python floats) for one filter or a batch
         step = _step_single(motion, noise, integration, drive)
         if step is not None:
-            return _compound_one(state, *step)
+            if state.mean.ndim == 1:
+                return _compound_one(state, *step)
+            return _compound_batch(state, *step)
     m = _pairs(motion, "motion")
     if drive is not None:
         m = drive.motion(m)
@@ -157,6 +166,36 @@ def _compound_one(state: AT, delta: tuple[float, float, float], step: tuple[floa
         e12,
         p22 + q22,
     ])  # fmt: skip
+
+
+def _compound_batch(state: AT, delta: tuple[float, float, float], step: tuple[float, ...]) -> AT:
+    """:func:`_compound_one` for a batch of poses and one step: the same formulas on arrays,
+    written into arrays laid out with the components outermost (as relmap.at builds them)."""
+    mean, cov = state.mean, state.cov
+    batch = np.broadcast_shapes(mean.shape[:-1], cov.shape[:-2])
+    xa, ya, ta = mean[..., 0], mean[..., 1], mean[..., 2]
+    p00, p01, p02 = cov[..., 0, 0], cov[..., 0, 1], cov[..., 0, 2]
+    p11, p12, p22 = cov[..., 1, 1], cov[..., 1, 2], cov[..., 2, 2]
+    xb, yb, tb = delta
+    q00, q01, q02, q11, q12, q22 = step
+    c, s = np.cos(ta), np.sin(ta)
+    dx, dy = c * xb - s * yb, s * xb + c * yb
+    r0 = p02 - dy * p22
+    r1 = p12 + dx * p22
+    cc, ss, cs = c * c, s * s, c * s
+    cs_q01 = (2.0 * q01) * cs
+    out_m = np.empty((3, *batch))
+    np.add(xa, dx, out=out_m[0])
+    np.add(ya, dy, out=out_m[1])
+    out_m[2] = se2.wrap_angle(ta + tb)
+    out_c = np.empty((3, 3, *batch))
+    out_c[0, 0] = p00 - dy * (p02 + r0) + (cc * q00 - cs_q01 + ss * q11)
+    out_c[0, 1] = out_c[1, 0] = p01 - dy * p12 + dx * r0 + (cs * (q00 - q11) + (cc - ss) * q01)
+    out_c[0, 2] = out_c[2, 0] = r0 + (c * q02 - s * q12)
+    out_c[1, 1] = p11 + dx * (p12 + r1) + (ss * q00 + cs_q01 + cc * q11)
+    out_c[1, 2] = out_c[2, 1] = r1 + (s * q02 + c * q12)
+    out_c[2, 2] = p22 + q22
+    return AT._trusted(np.moveaxis(out_m, 0, -1), np.moveaxis(out_c, (0, 1), (-2, -1)))
 
 
 class PoseUpdate(NamedTuple):
@@ -406,17 +445,21 @@ def _innovations(p: _Pred, zr: FloatArray, ez: FloatArray) -> tuple[FloatArray, 
     return _mahalanobis2(p, vr, vb), vr, vb
 
 
-def _grid_mahalanobis2(p: _Pred, bearing: FloatArray, zr: FloatArray, zb: FloatArray) -> FloatArray:
+def _grid_mahalanobis2(
+    p: _Pred, bearing: FloatArray, zr: FloatArray, zb: FloatArray, wrap: bool = True
+) -> FloatArray:
     """d² (m, C, B) of readings (m, B) (bearings wrapped) against predictions (C, B) with
     bearings ``bearing``, in blocks of filters small enough for their temporaries to stay in
-    cache (a large grid is bound by memory traffic)."""
+    cache (a large grid is bound by memory traffic). ``wrap=False``: the bearing differences
+    are not wrapped (see :meth:`_Job._gate_candidates` for when that is exact enough)."""
     m, C, B = len(zr), len(bearing), zr.shape[1]
     d2 = np.empty((m, C, B))
     step = max(1, _GRID_BLOCK // max(1, m * C))
     for s in range(0, B, step):
         b = slice(s, s + step)
         vb = zb[:, None, b] - bearing[:, b]
-        _wrap_near(vb)
+        if wrap:
+            _wrap_near(vb)
         d = np.subtract(zr[:, None, b], p.r[:, b], out=d2[:, :, b])
         t = p.k1[:, b] * vb
         d -= t
@@ -439,11 +482,37 @@ def _mahalanobis2(p: _Pred, vr: FloatArray, vb: FloatArray) -> FloatArray:
     return d2
 
 
+_POW2 = np.left_shift(np.uint64(1), np.arange(64, dtype=np.uint64))
+_ZERO, _ONE = np.uint64(0), np.uint64(1)
+
+
+def _sorted_lookup(keys: np.ndarray, values: np.ndarray) -> IntArray:
+    """``min(searchsorted(keys, values), len(keys) - 1)`` for increasing ``keys``: for integer
+    keys of a small span, through a table of that span (a binary search per value is slow)."""
+    n = len(keys)
+    if keys.dtype.kind in "iu" and values.dtype.kind in "iu" and n:
+        lo, hi = int(keys[0]), int(keys[-1])
+        if hi - lo <= 64 * n + 1024:
+            table = np.searchsorted(keys, np.arange(lo, hi + 1, dtype=keys.dtype))
+            np.minimum(table, n - 1, out=table)
+            idx = values - lo if lo else values
+            return table.take(idx, mode="clip")
+    return np.minimum(np.searchsorted(keys, values), n - 1)
+
+
 def _clashes(pair: IntArray, C: int) -> np.ndarray | np.bool_:
     """Per filter: do two rows of ``pair`` (n, …) hold the same column (≥ 0, < C)?"""
     if pair.ndim == 1:
         k = [c for c in pair.tolist() if c >= 0]
         return np.bool_(len(set(k)) < len(k))
+    if C <= 64 and pair.dtype.kind == "i" and hasattr(np, "bitwise_count"):
+        # a bit per column: no two rows alike iff the bits of the rows, OR-ed, number the rows
+        # (no counts of C × B)
+        taken = pair >= 0
+        bits = np.left_shift(np.uint64(1), np.where(taken, pair, 0).astype(np.uint64))
+        bits[~taken] = 0
+        union = np.bitwise_or.reduce(bits, axis=0)
+        return np.bitwise_count(union) != np.count_nonzero(taken, axis=0)
     j, b = np.nonzero(pair >= 0)
     count = np.bincount(b * C + pair[j, b], minlength=C * pair.shape[1])
     return (count.reshape(-1, C) > 1).any(axis=1)
@@ -626,6 +695,22 @@ class _Job:
     def _compact(self, mask: np.ndarray) -> tuple[IntArray, np.ndarray]:
         """Landmark mask (L, B) → the kept landmarks' rows (K, B), in order, padded with 0, and
         which are real."""
+        if self.L <= 64 and hasattr(np, "bitwise_count"):
+            # the kept rows as the bits of one word per filter, taken lowest first
+            bits = np.bitwise_or.reduce(np.where(mask, _POW2[: self.L, None], _ZERO), axis=0)
+            count = np.bitwise_count(bits)
+            C = int(count.max())
+            cand = np.empty((C, self.B), np.intp)
+            low = np.empty_like(bits)
+            for c in range(C):
+                np.negative(bits, out=low)
+                low &= bits  # the lowest bit set
+                bits ^= low
+                low -= _ONE  # its index: the bits below it (0 - 1 wraps: 64, padding)
+                cand[c] = np.bitwise_count(low)
+            ok = np.arange(C)[:, None] < count
+            cand[~ok] = 0
+            return cand, ok
         by_filter = np.ascontiguousarray(mask.T)
         count = by_filter.sum(axis=1)
         bi, li = np.nonzero(by_filter)
@@ -652,7 +737,7 @@ class _Job:
         mask[order[pos[j, b]], b] = True
         return self._compact(mask)
 
-    def _gate_candidates(self) -> tuple[IntArray, np.ndarray]:
+    def _gate_candidates(self) -> tuple[IntArray, np.ndarray, FloatArray | None]:
         """Landmarks that may lie inside the gate of some usable reading of the filter (see the
         module notes): range and bearing of the landmark against the readings' hull, with
         ``S_rr ≤ λ + σr²`` and ``S_φφ ≤ λ/ρ² + 2|g|/ρ + Σθθ + σφ²``, λ = h + |c̄| the top
@@ -691,7 +776,17 @@ class _Job:
         bound += k2 * (f.p[5] + var_b)
         keep &= gap <= bound
         keep &= some
-        return self._compact(keep)
+        # Bearings measured from the hull's centre c: a reading's lies within ± half of it, a
+        # candidate's within ± (half + δ), δ² = the largest bound; so a pair inside the gate
+        # (|v_φ| ≤ δ) has |φ - c - (β - c)| < π unwrapped when half + δ < π, and a pair whose
+        # unwrapped difference reaches π has d² ≥ π²/S_φφ > the gate either way: the grid's
+        # entries inside the gate need no wrapping, and only those count (the grid is not
+        # complete: leftovers are computed anew).
+        centre = None
+        top = np.max(bound, axis=0, where=keep, initial=0.0)
+        if (0.5 * (b_hi - b_lo) + np.sqrt(top) < 0.99 * np.pi).all():
+            centre = 0.5 * (b_lo + b_hi)
+        return (*self._compact(keep), centre)
 
     # ---------------------------------------------------------------- association
     def known(self) -> tuple[IntArray, FloatArray, IntArray, AT] | None:
@@ -700,7 +795,7 @@ class _Job:
         lsig, sig = self.lsig, self.sig
         assert lsig is not None and sig is not None
         if self.L == 1 or (lsig[1:] > lsig[:-1]).all():  # sorted already (e.g. the row numbers)
-            lid = np.minimum(np.searchsorted(lsig, sig), self.L - 1)
+            lid = _sorted_lookup(lsig, sig)
             found = lsig[lid] == sig
         else:
             order = np.argsort(lsig, kind="stable")
@@ -719,7 +814,10 @@ class _Job:
             return None
         p = _predict(self.f, self.lc[lid], self.sensor)
         vr = self.zr - p.r
-        vb = np.angle(self.ez * np.conj(p.u))
+        if self.single:
+            vb = np.angle(self.ez * np.conj(p.u))
+        else:  # bearings wrapped: as in the grid of nearest(), with no exp of the readings
+            vb = _wrap_near(self.zb - _wrap_near(np.angle(p.u) - self.f.st))
         d2 = _mahalanobis2(p, vr, vb)
         used = found & (d2 <= self.gate2)
         landmark = np.where(found, lid, -1)
@@ -735,14 +833,21 @@ class _Job:
         cand: IntArray | None = None
         ok: np.ndarray | None = None
         complete = True  # do the columns hold every landmark a usable reading may pair with?
+        centre = None
         if self.m * self.L * self.B > _CANDIDATES_ABOVE:
             found = None if self.sig is None else self._signature_candidates()
             if found is None:
-                found, complete = self._gate_candidates(), False
+                *found, centre = self._gate_candidates()
+                complete = False
             cand, ok = found
         p = _predict(self.f, self._landmarks(cand), self.sensor)
         bearing = _wrap_near(np.angle(p.u) - self.f.st)  # predicted bearings (C, B)
-        d2 = _grid_mahalanobis2(p, bearing, self.zr, self.zb)
+        if centre is None:
+            d2 = _grid_mahalanobis2(p, bearing, self.zr, self.zb)
+        else:  # bearings from the centre of the readings' (see _gate_candidates)
+            d2 = _grid_mahalanobis2(
+                p, _wrap_near(bearing - centre), self.zr, self.zb - centre, wrap=False
+            )
         sub = d2 <= self.gate2
         self._restrict(sub, cand, ok)
         pair = _one_to_one(d2, sub)
@@ -752,13 +857,24 @@ class _Job:
         if not used.any():  # perhaps no candidate at all
             landmark, out_d2, new = np.full(pair.shape, -1), np.full(pair.shape, np.inf), self.state
         else:
-            cols = self.cols
-            landmark = np.where(used, _pick(self._columns(cand), k, cols), -1)
-            out_d2 = np.where(used, _at(d2, k, cols), np.inf)
+            # entry k[j, b] of (C, B) arrays, as flat indices (take is faster than a 2-D
+            # fancy index)
+            flat = k * self.B
+            flat += self.cols
+
+            def pick(v: np.ndarray) -> np.ndarray:
+                return np.ravel(v).take(flat) if v.flags.c_contiguous else _pick(v, k, self.cols)
+
+            columns = self._columns(cand)
+            landmark = np.where(used, pick(columns), -1)
+            at_d2 = np.arange(0, self.m * d2.shape[1], d2.shape[1])[:, None] * self.B + flat
+            out_d2 = np.where(used, np.ravel(d2).take(at_d2), np.inf)
             # the used pairs' innovations, as in the grid
-            vr = self.zr - _pick(p.r, k, cols)
-            vb = _wrap_near(self.zb - _pick(bearing, k, cols))
-            new = self._update(p.pick(k, cols), vr, vb, used)
+            vr = self.zr - pick(p.r)
+            vb = _wrap_near(self.zb - pick(bearing))
+            var_r, var_b = (v if isinstance(v, float) else pick(v) for v in (p.var_r, p.var_b))
+            used_p = _Pred(None, pick(p.ir), pick(p.u), var_r, var_b, None, None, None)
+            new = self._update(used_p, vr, vb, used)
         rejected = self.usable & ~used
         if rejected.any():
             self._leftovers(rejected, used, landmark, out_d2, status, d2, cand, ok, complete)
@@ -952,12 +1068,13 @@ class _Job:
         s_w, s_u, s_d = (
             (a * b).sum(axis=0) for a, b in ((w0 - wq, u * u), (wr, u), (e0 + 1j * e1, u))
         )
-        dx, sym, trace = _posterior(self.f, (s_a, n1, s2, s_w, s_u, s_d))
         f = self.f
-        mean = stack_last([f.x + dx[0], f.y + dx[1], se2.wrap_angle(f.t + dx[2])], (self.B,))
-        c00, c01, c02, c11, c12, c22 = sym
-        cov = matrix([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]], (self.B,))
-        return mean, cov, ~(trace <= _ILL_CONDITIONED)
+        dx, cov, trace = _posterior_stacked(f, (s_a, n1, s2, s_w, s_u, s_d))
+        mean = np.empty((3, self.B))
+        np.add(f.x, dx[0], out=mean[0])
+        np.add(f.y, dx[1], out=mean[1])
+        mean[2] = se2.wrap_angle(f.t + dx[2])
+        return mean.T, np.moveaxis(cov, 2, 0), ~(trace <= _ILL_CONDITIONED)
 
     def _update_stacked(
         self, p: _Pred, vr: FloatArray, vb: FloatArray, use: np.ndarray, F: IntArray | None
@@ -1364,9 +1481,9 @@ def _pairs_one(p: _Pred, vr: FloatArray, vb: FloatArray, use: np.ndarray) -> lis
 
 
 def _update_one(f: _Frame, pairs: list[tuple]) -> AT | None:
-    """The 3×3 update (:func:`_posterior`, written out on Python floats) of one filter from its
-    used pairs ``(1/ρ, u, v_r, v_φ, σr², σφ²)``; None when ill-conditioned (the stacked solve's
-    case)."""
+    """The 3×3 update (:func:`_posterior_stacked`, written out on Python floats) of one filter
+    from its used pairs ``(1/ρ, u, v_r, v_φ, σr², σφ²)``; None when ill-conditioned (the
+    stacked solve's case)."""
     s_a = n1 = s2 = 0.0
     s_w = s_u = s_d = 0j
     for ir, u, vr, vb, var_r, var_b in pairs:
@@ -1461,9 +1578,10 @@ def _update_one(f: _Frame, pairs: list[tuple]) -> AT | None:
     ])  # fmt: skip
 
 
-def _posterior(f: _Frame, sums: tuple[Value, ...]) -> tuple[tuple, tuple, Value]:
-    """``(Δmean, covariance entries (00, 01, 02, 11, 12, 22), tr(AΣ⁻))`` of the 3×3 update from
-    the sums over the used pairs, per filter (arrays (B,); :func:`_update_one` for one filter).
+def _posterior_stacked(f: _Frame, sums: tuple[Value, ...]) -> tuple[FloatArray, ...]:
+    """``(Δmean (3, B), covariance (3, 3, B), tr(AΣ⁻) (B,))`` of the 3×3 update from the sums
+    over the used pairs, per filter (arrays (B,); :func:`_update_one` for one filter), its 3×3
+    matrices stacked as (3, 3, B) arrays (a few numpy calls per product).
 
     H₀ = -E u, H₁ = E u⊥/ρ - (0, 0, 1): A = HᵀR⁻¹H and b = HᵀR⁻¹v reduce to weighted sums over
     the pairs (u as a complex number, u⊥ = -iu), mapped through E per filter: Q = Σ w0 uuᵀ +
@@ -1479,78 +1597,65 @@ def _posterior(f: _Frame, sums: tuple[Value, ...]) -> tuple[tuple, tuple, Value]
     a02 = -ay * q00 + ax * q01 - c0
     a12 = -ay * q01 + ax * q11 - c1
     a22 = ay * ay * q00 - 2 * ax * ay * q01 + ax * ax * q11 - 2 * (ax * c1 - ay * c0) + n1
-    A = (q00, q01, a02, q01, q11, a12, a02, a12, a22)
-    bv = (d0, d1, ax * d1 - ay * d0 - s2)
-    p00, p01, p02, p11, p12, p22 = f.p
-    P = (p00, p01, p02, p01, p11, p12, p02, p12, p22)
-    AP = _mm(A, P)
-    trace = AP[0] + AP[4] + AP[8]
-    M = _plus_eye(AP)  # I + A Σ⁻
-    W = _inv3(M)
-    G = _mm(P, W)  # Σ⁻ W
-    # K v = Σ⁻ y with M y = b, refined once (M is ill-conditioned after a precise reading)
-    y = _mv(W, bv)
-    y = _add(y, _mv(W, _sub(bv, _mv(M, y))))
-    dx = _mv(P, y)
+    A = _sym3((q00, q01, a02, q11, a12, a22))
+    P = _sym3(f.p)
+    bv = np.stack([d0, d1, ax * d1 - ay * d0 - s2])
+    M = _mm3(A, P)
+    trace = M[0, 0] + M[1, 1] + M[2, 2]
+    for i in range(3):
+        M[i, i] += 1.0  # I + A Σ⁻
+    W = _inv3_stacked(M)
+    G = _mm3(P, W)
+    # K v = Σ⁻ y with M y = b, refined once
+    y = _mv3(W, bv)
+    y += _mv3(W, bv - _mv3(M, y))
+    dx = _mv3(P, y)
     # Joseph form with K H = G A formed from G: an exact Joseph form of the gain actually
     # computed, so that rounding in W enters the covariance only to second order
-    GA = _mm(G, A)
-    J = _sub(_EYE, GA)  # I - K H
-    return dx, _add(_abt(_mm(J, P), J), _abt(GA, G)), trace
+    GA = _mm3(G, A)
+    J = np.negative(GA)
+    for i in range(3):
+        J[i, i] += 1.0  # I - K H
+    cov = _abt3(_mm3(J, P), J)
+    cov += _abt3(GA, G)
+    for i, j in ((0, 1), (0, 2), (1, 2)):
+        cov[j, i] = cov[i, j]  # exactly symmetric
+    return dx, cov, trace
 
 
-# ------------------------------------------------------------------ 3×3 algebra on entries
-Mat3 = tuple  # 9 entries, row-major: numbers or arrays of one shape
+def _sym3(p: tuple[FloatArray, ...]) -> FloatArray:
+    """The symmetric (3, 3, B) matrix of upper entries ``(00, 01, 02, 11, 12, 22)``."""
+    out = np.empty((3, 3, len(p[0])))
+    for (i, j), v in zip(((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)), p, strict=True):
+        out[i, j] = v
+        out[j, i] = v
+    return out
 
 
-def _mm(X: Mat3, Y: Mat3) -> Mat3:
-    x0, x1, x2, x3, x4, x5, x6, x7, x8 = X
-    y0, y1, y2, y3, y4, y5, y6, y7, y8 = Y
-    return (
-        x0 * y0 + x1 * y3 + x2 * y6, x0 * y1 + x1 * y4 + x2 * y7, x0 * y2 + x1 * y5 + x2 * y8,
-        x3 * y0 + x4 * y3 + x5 * y6, x3 * y1 + x4 * y4 + x5 * y7, x3 * y2 + x4 * y5 + x5 * y8,
-        x6 * y0 + x7 * y3 + x8 * y6, x6 * y1 + x7 * y4 + x8 * y7, x6 * y2 + x7 * y5 + x8 * y8,
-    )  # fmt: skip
+def _mm3(X: FloatArray, Y: FloatArray) -> FloatArray:
+    """``X Y`` of (3, 3, B) stacks."""
+    return (X[:, :, None] * Y[None]).sum(axis=1)
 
 
-def _mv(X: Mat3, v: tuple) -> tuple:
-    x0, x1, x2, x3, x4, x5, x6, x7, x8 = X
-    v0, v1, v2 = v
-    return (x0 * v0 + x1 * v1 + x2 * v2, x3 * v0 + x4 * v1 + x5 * v2, x6 * v0 + x7 * v1 + x8 * v2)
+def _mv3(X: FloatArray, v: FloatArray) -> FloatArray:
+    """``X v`` of a (3, 3, B) stack and a (3, B) stack."""
+    return (X * v[None]).sum(axis=1)
 
 
-_EYE = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+def _abt3(X: FloatArray, Y: FloatArray) -> FloatArray:
+    """``X Yᵀ`` of (3, 3, B) stacks."""
+    return (X[:, None] * Y[None]).sum(axis=2)
 
 
-def _abt(X: Mat3, Y: Mat3) -> tuple:
-    """The upper entries ``(00, 01, 02, 11, 12, 22)`` of ``X Yᵀ``, a symmetric matrix."""
-    x0, x1, x2, x3, x4, x5, x6, x7, x8 = X
-    y0, y1, y2, y3, y4, y5, y6, y7, y8 = Y
-    return (
-        x0 * y0 + x1 * y1 + x2 * y2, x0 * y3 + x1 * y4 + x2 * y5, x0 * y6 + x1 * y7 + x2 * y8,
-        x3 * y3 + x4 * y4 + x5 * y5, x3 * y6 + x4 * y7 + x5 * y8, x6 * y6 + x7 * y7 + x8 * y8,
-    )  # fmt: skip
+_NEXT, _AFTER = [1, 2, 0], [2, 0, 1]
 
 
-def _plus_eye(X: Mat3) -> Mat3:
-    return (X[0] + 1.0, X[1], X[2], X[3], X[4] + 1.0, X[5], X[6], X[7], X[8] + 1.0)
-
-
-def _add(a: tuple, b: tuple) -> tuple:
-    return tuple([x + y for x, y in zip(a, b, strict=True)])
-
-
-def _sub(a: tuple, b: tuple) -> tuple:
-    return tuple([x - y for x, y in zip(a, b, strict=True)])
-
-
-def _inv3(M: Mat3) -> Mat3:
-    """Inverse by the adjugate (used on ``I + AΣ``, whose determinant is at least 1)."""
-    a, b, c, d, e, f, g, h, i = M
-    A, B, C = e * i - f * h, f * g - d * i, d * h - e * g
-    r = 1.0 / (a * A + b * B + c * C)
-    return (
-        A * r, (c * h - b * i) * r, (b * f - c * e) * r,
-        B * r, (a * i - c * g) * r, (c * d - a * f) * r,
-        C * r, (b * g - a * h) * r, (a * e - b * d) * r,
-    )  # fmt: skip
+def _inv3_stacked(M: FloatArray) -> FloatArray:
+    """Inverse of a (3, 3, B) stack by the adjugate (on ``I + AΣ``: determinant at least 1):
+    column i is ``row(i+1) × row(i+2)`` over the determinant."""
+    N1, N2 = M[_NEXT], M[_AFTER]  # rows i+1 and i+2
+    C = N1[:, _NEXT] * N2[:, _AFTER]
+    C -= N1[:, _AFTER] * N2[:, _NEXT]  # C[i] = row(i+1) × row(i+2)
+    r = 1.0 / (M[0] * C[0]).sum(axis=0)
+    C *= r
+    return C.transpose(1, 0, 2)
