@@ -45,3 +45,13 @@ def components_outermost(arr: FloatArray, k: int) -> FloatArray:
     axes = tuple(range(-k, 0))
     front = tuple(range(k))
     return np.moveaxis(np.ascontiguousarray(np.moveaxis(arr, axes, front)), front, axes)
+
+
+def read_only(arr: FloatArray, shape: tuple[int, ...]) -> FloatArray:
+    """A read-only view of ``arr`` broadcast to ``shape`` (a plain view when it has that shape:
+    np.broadcast_to costs microseconds, which matter for single values)."""
+    if arr.shape != shape:
+        return np.broadcast_to(arr, shape)
+    view = arr.view()
+    view.flags.writeable = False
+    return view

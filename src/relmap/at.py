@@ -23,7 +23,7 @@ import numpy as np
 
 from relmap import gaussian
 from relmap import moments as _moments
-from relmap._layout import components_outermost, matrix, stack_last
+from relmap._layout import components_outermost, matrix, read_only, stack_last
 from relmap.at3 import AT3, compound3, merge3, reverse3
 from relmap.errors import ParameterError, ShapeError
 from relmap.gaussian import DEFAULT_RTOL, Ellipse
@@ -91,8 +91,8 @@ class AT:
 
     def _set(self, mean: FloatArray, cov: FloatArray, batch: tuple[int, ...]) -> None:
         # Read-only views: the arrays cannot be modified through the AT.
-        object.__setattr__(self, "_mean", _read_only(mean, (*batch, 3)))
-        object.__setattr__(self, "_cov", _read_only(cov, (*batch, 3, 3)))
+        object.__setattr__(self, "_mean", read_only(mean, (*batch, 3)))
+        object.__setattr__(self, "_cov", read_only(cov, (*batch, 3, 3)))
 
     @classmethod
     def _trusted(cls, mean: FloatArray, cov: FloatArray) -> AT:
@@ -311,16 +311,6 @@ class AT:
 # Covariance products written out on the 6 distinct entries of a symmetric 3×3 matrix
 # (c00, c01, c02, c11, c12, c22): several times faster than batched matmul for small matrices.
 Entries = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]
-
-
-def _read_only(arr: FloatArray, shape: tuple[int, ...]) -> FloatArray:
-    """A read-only view of ``arr`` broadcast to ``shape`` (a plain view when it has that shape:
-    np.broadcast_to costs microseconds, which matter for single ATs)."""
-    if arr.shape != shape:
-        return np.broadcast_to(arr, shape)
-    view = arr.view()
-    view.flags.writeable = False
-    return view
 
 
 def _entries(C: FloatArray) -> Entries:

@@ -25,7 +25,7 @@ from typing import Literal, overload
 import numpy as np
 
 from relmap import gaussian
-from relmap._layout import components_outermost
+from relmap._layout import components_outermost, read_only
 from relmap.errors import ParameterError, ShapeError
 from relmap.gaussian import DEFAULT_RTOL
 from relmap.lie import SE3, se3, so3
@@ -107,8 +107,8 @@ class AT3:
 
     def _set(self, T: FloatArray, C: FloatArray, batch: tuple[int, ...]) -> None:
         # read-only views: the arrays cannot be modified through the AT3
-        object.__setattr__(self, "_mean", _read_only(T, (*batch, 4, 4)))
-        object.__setattr__(self, "_cov", _read_only(C, (*batch, 6, 6)))
+        object.__setattr__(self, "_mean", read_only(T, (*batch, 4, 4)))
+        object.__setattr__(self, "_cov", read_only(C, (*batch, 6, 6)))
 
     @classmethod
     def _trusted(cls, T: FloatArray, C: FloatArray) -> AT3:
@@ -370,16 +370,6 @@ def ellipsoid(cov3: ArrayLike, probability: float = 0.9) -> tuple[FloatArray, Fl
     k = np.sqrt(gaussian.confidence_k2(probability, 3))
     lam, U = np.linalg.eigh(np.asarray(cov3, dtype=np.float64))
     return k * np.sqrt(np.clip(lam, 0, None)), U
-
-
-def _read_only(arr: FloatArray, shape: tuple[int, ...]) -> FloatArray:
-    """A read-only view of ``arr`` broadcast to ``shape`` (a plain view when it has that shape:
-    np.broadcast_to costs microseconds, which matter for single AT3s)."""
-    if arr.shape != shape:
-        return np.broadcast_to(arr, shape)
-    view = arr.view()
-    view.flags.writeable = False
-    return view
 
 
 # ---------------------------------------------------------------- batched SE(3) kernels

@@ -72,7 +72,7 @@ from typing import Any, Literal, NamedTuple
 import numpy as np
 
 from relmap import gaussian
-from relmap.at import AT, _rotate, _shear, compound, merge
+from relmap.at import AT, _compound_arrays, _rotate, _shear, compound, merge
 from relmap.errors import ParameterError, ShapeError
 from relmap.lie import se2
 from relmap.robot.motion import DiffDrive, Integration, Noise, _pairs, _step_ats, _step_single
@@ -161,33 +161,10 @@ def _compound_one(state: AT, delta: tuple[float, float, float], step: tuple[floa
 
 
 def _compound_batch(state: AT, delta: tuple[float, float, float], step: tuple[float, ...]) -> AT:
-    """:func:`_compound_one` for a batch of poses and one step: the same formulas on arrays,
-    written into arrays laid out with the components outermost (as relmap.at builds them)."""
-    mean, cov = state.mean, state.cov
-    batch = np.broadcast_shapes(mean.shape[:-1], cov.shape[:-2])
-    xa, ya, ta = mean[..., 0], mean[..., 1], mean[..., 2]
-    p00, p01, p02 = cov[..., 0, 0], cov[..., 0, 1], cov[..., 0, 2]
-    p11, p12, p22 = cov[..., 1, 1], cov[..., 1, 2], cov[..., 2, 2]
-    xb, yb, tb = delta
+    """:func:`_compound_one` for a batch of poses and one step (relmap.at's array path)."""
     q00, q01, q02, q11, q12, q22 = step
-    c, s = np.cos(ta), np.sin(ta)
-    dx, dy = c * xb - s * yb, s * xb + c * yb
-    r0 = p02 - dy * p22
-    r1 = p12 + dx * p22
-    cc, ss, cs = c * c, s * s, c * s
-    cs_q01 = (2.0 * q01) * cs
-    out_m = np.empty((3, *batch))
-    np.add(xa, dx, out=out_m[0])
-    np.add(ya, dy, out=out_m[1])
-    out_m[2] = se2.wrap_angle(ta + tb)
-    out_c = np.empty((3, 3, *batch))
-    out_c[0, 0] = p00 - dy * (p02 + r0) + (cc * q00 - cs_q01 + ss * q11)
-    out_c[0, 1] = out_c[1, 0] = p01 - dy * p12 + dx * r0 + (cs * (q00 - q11) + (cc - ss) * q01)
-    out_c[0, 2] = out_c[2, 0] = r0 + (c * q02 - s * q12)
-    out_c[1, 1] = p11 + dx * (p12 + r1) + (ss * q00 + cs_q01 + cc * q11)
-    out_c[1, 2] = out_c[2, 1] = r1 + (s * q02 + c * q12)
-    out_c[2, 2] = p22 + q22
-    return AT._trusted(np.moveaxis(out_m, 0, -1), np.moveaxis(out_c, (0, 1), (-2, -1)))
+    cov_b = np.array([[q00, q01, q02], [q01, q11, q12], [q02, q12, q22]])
+    return AT._trusted(*_compound_arrays(state.mean, state.cov, np.array(delta), cov_b))
 
 
 class PoseUpdate(NamedTuple):
