@@ -450,12 +450,13 @@ def _rotations(q: FloatArray) -> FloatArray:
     return so3.from_quaternion(q, atol=np.inf)
 
 
-def _g2o3_chart(R: FloatArray) -> FloatArray:
+def _g2o3_chart(R: FloatArray, rotation_scale: float = 2.0) -> FloatArray:
     """``K = blkdiag(R, 2R)`` (..., 6, 6): ``Σ = K I⁻¹ Kᵀ`` maps g2o's 3-D error covariance
-    (translation, quaternion vector part; body frame of z) to relmap's chart (module docstring)."""
+    (translation, quaternion vector part; body frame of z) to relmap's chart (module docstring).
+    ``_g2o3_chart(Rᵀ, 0.5)`` is its inverse."""
     K = np.zeros((*R.shape[:-2], 6, 6))
     K[..., :3, :3] = R
-    K[..., 3:, 3:] = 2.0 * R
+    K[..., 3:, 3:] = rotation_scale * R
     return K
 
 
@@ -760,11 +761,8 @@ def file_information(measurements: AT | AT3, format: GraphFormat = "g2o") -> Flo
                 f"3-D information can be written for format 'g2o' only; got {format!r} (the "
                 "legacy EDGE3 format is read only)"
             )
-        R = np.asarray(measurements.rotation)
-        Kinv = np.zeros((*R.shape[:-2], 6, 6))
-        Kinv[..., :3, :3] = np.swapaxes(R, -1, -2)
-        Kinv[..., 3:, 3:] = 0.5 * np.swapaxes(R, -1, -2)
-        cov_file = _sandwich(Kinv, np.asarray(measurements.cov))
+        Rt = np.swapaxes(np.asarray(measurements.rotation), -1, -2)
+        cov_file = _sandwich(_g2o3_chart(Rt, 0.5), np.asarray(measurements.cov))
     else:
         raise TypeError(f"expected an AT or AT3, got {type(measurements).__name__}")
     if format not in ("g2o", "toro"):
