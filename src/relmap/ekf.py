@@ -72,7 +72,7 @@ from typing import Any, Literal, NamedTuple
 import numpy as np
 
 from relmap import gaussian
-from relmap.at import AT, _compound_arrays, _rotate, _shear, compound, merge
+from relmap.at import AT, _compound_arrays, compound, merge
 from relmap.errors import ParameterError, ShapeError
 from relmap.lie import se2
 from relmap.robot.motion import DiffDrive, Integration, Noise, _pairs, _step_ats, _step_single
@@ -141,23 +141,29 @@ def predict(
 
 
 def _compound_one(state: AT, delta: tuple[float, float, float], step: tuple[float, ...]) -> AT:
-    """``state ⊕ step`` (Eqs. 1-4) for one pose and one step given in Python floats: relmap.at's
-    ``_shear`` and ``_rotate`` on floats, built straight into the result's arrays."""
+    """``state ⊕ step`` (Eqs. 1-4) for one pose and one step given in Python floats, built
+    straight into the result's arrays. relmap.at's ``_shear`` and ``_rotate`` written out
+    (bitwise the same): calling them costs 2.6 µs of this function's 10 µs, on the path of every
+    single-filter prediction."""
     xa, ya, ta = state.mean.tolist()
     (p00, p01, p02), (_, p11, p12), (_, _, p22) = state.cov.tolist()
     xb, yb, tb = delta
+    q00, q01, q02, q11, q12, q22 = step
     c, s = math.cos(ta), math.sin(ta)
     dx, dy = c * xb - s * yb, s * xb + c * yb
-    sheared = _shear((p00, p01, p02, p11, p12, p22), dx, dy)  # H C_a Hᵀ
-    rotated = _rotate(step, c, s)  # type: ignore[arg-type]  # K C_b Kᵀ
-    return AT._single(
-        [
-            xa + dx,
-            ya + dy,
-            _wrap_scalar(ta + tb),
-            *(u + w for u, w in zip(sheared, rotated, strict=True)),
-        ]
-    )
+    r0 = p02 - dy * p22  # H C_a Hᵀ, H = [[1, 0, -dy], [0, 1, dx], [0, 0, 1]]
+    r1 = p12 + dx * p22
+    cc, ss, cs = c * c, s * s, c * s  # K C_b Kᵀ, K = blkdiag(R(θa), 1)
+    cs_q01 = 2.0 * cs * q01
+    return AT._single([
+        xa + dx, ya + dy, _wrap_scalar(ta + tb),
+        p00 - dy * (p02 + r0) + (cc * q00 - cs_q01 + ss * q11),
+        p01 - dy * p12 + dx * r0 + (cs * (q00 - q11) + (cc - ss) * q01),
+        r0 + (c * q02 - s * q12),
+        p11 + dx * (p12 + r1) + (ss * q00 + cs_q01 + cc * q11),
+        r1 + (s * q02 + c * q12),
+        p22 + q22,
+    ])  # fmt: skip
 
 
 def _compound_batch(state: AT, delta: tuple[float, float, float], step: tuple[float, ...]) -> AT:
