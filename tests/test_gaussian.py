@@ -44,6 +44,13 @@ def test_confidence_k2_matches_paper_values():
     assert gaussian.confidence_k2(0.9, 2) == pytest.approx(-2 * math.log(0.1), rel=1e-13)
 
 
+def test_planar_k2_closed_form_equals_chi2_quantile():
+    from scipy.special import gammaincinv
+
+    p = np.array([1e-12, 0.01, 0.5, 0.9, 0.99, 1 - 1e-12])
+    np.testing.assert_allclose(gaussian.confidence_k2(p, 2), 2 * gammaincinv(1.0, p), rtol=1e-12)
+
+
 @pytest.mark.parametrize("dof", [1, 2, 3, 4, 6, 9])
 def test_k2_and_probability_are_inverse(dof):
     p = np.array([0.01, 0.5, 0.9, 0.99, 0.999999])
