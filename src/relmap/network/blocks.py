@@ -13,6 +13,8 @@ from collections import deque
 from collections.abc import Hashable, Mapping, Sequence
 from typing import NamedTuple
 
+import numpy as np
+
 from relmap.errors import DisconnectedError
 
 __all__ = ["Block", "blocks_between"]
@@ -36,13 +38,20 @@ def blocks_between(
 ) -> list[Block]:
     """The blocks on the way from ``src`` to ``dst``, in order (empty if ``src == dst``).
 
-    ``incident`` maps each frame to the names of its ATs, ``ends`` each name to its
-    ``(src, dst)`` frames. Self-loops are ignored. Raises :class:`DisconnectedError` when no
-    chain of ATs links the frames. Iterative Tarjan (no recursion limit), O(frames + ATs).
+    ``incident`` maps each frame to the names of its ATs, in the order of ``ends``, which maps
+    each name to its ``(src, dst)`` frames. Self-loops are ignored. Raises
+    :class:`DisconnectedError` when no chain of ATs links the frames. Iterative Tarjan (no
+    recursion limit), O(frames + ATs); compiled (:mod:`relmap.network._tarjan`) when numba
+    is enabled, with the same blocks in the same order.
     """
     if src == dst:
         return []
-    blocks = _biconnected_components(incident, ends, src)
+    from relmap import _numba
+
+    if _numba.enabled():
+        blocks = _compiled_components(ends, src)
+    else:
+        blocks = _biconnected_components(incident, ends, src)
     frames_of = [{f for nm in blk for f in ends[nm]} for blk in blocks]
     # Block-cut tree search: from src, through blocks and the frames they share, to dst.
     blocks_at: dict[Frame, list[int]] = {}
@@ -79,6 +88,17 @@ def blocks_between(
         Block(path[i - 1][1], path[i + 1][1], tuple(blocks[path[i][1]]))  # type: ignore[index]
         for i in range(1, len(path), 2)
     ]
+
+
+def _compiled_components(ends: Mapping[str, tuple[Frame, Frame]], root: Frame) -> list[list[str]]:
+    """:func:`_biconnected_components` on integer frames, compiled (same lists, same order)."""
+    from relmap.network._tarjan import blocks
+
+    names = list(ends)
+    index: dict[Frame, int] = {root: 0}
+    a = np.array([index.setdefault(s, len(index)) for s, _ in ends.values()], dtype=np.int64)
+    b = np.array([index.setdefault(d, len(index)) for _, d in ends.values()], dtype=np.int64)
+    return [[names[e] for e in block.tolist()] for block in blocks(len(index), a, b, 0)]
 
 
 def _biconnected_components(
