@@ -390,3 +390,16 @@ def test_exact_headings_mixed_with_uncertain_ones():
     assert est.at.cov[2, 2] == pytest.approx(0.0, abs=1e-15)
     expected_heading = se2.wrap_angle(g2.edge("A").at.mean[2] + g2.edge("D").at.mean[2])
     assert abs(se2.angle_difference(est.at.mean[2], expected_heading)) < 1e-12
+
+
+def test_from_edges_names_and_duplicates():
+    ats = rm.AT.from_sigmas(np.tile([1.0, 0.0, 0.1], (3, 1)), [0.1, 0.1, 0.01])
+    g = rm.RelationalMap.from_edges([0, 1, 2], [1, 2, 0], ats)
+    assert [e.name for e in g.edges()] == ["e0", "e1", "e2"]
+    assert g.add(0, 2, ats[0]) == "e3"
+    assert [e.name for e in g.incident(0)] == ["e0", "e2", "e3"]
+    np.testing.assert_array_equal(g.edge("e1").at.mean, ats.mean[1])
+    named = rm.RelationalMap.from_edges(["a", "b", "c"], ["b", "c", "a"], ats, names=["A", "B", 7])
+    assert [e.name for e in named.edges()] == ["A", "B", "7"]
+    with pytest.raises(ValueError, match="'B' is already"):
+        rm.RelationalMap.from_edges([0, 1, 2], [1, 2, 0], ats, names=["A", "B", "B"])

@@ -8,8 +8,8 @@ import pytest
 
 pytest.importorskip("numba")
 
-from relmap.network._ordering import elimination_fill, minimum_degree  # noqa: E402
-from relmap.network.sparse import _minimum_degree  # noqa: E402
+from relmap.network._ordering import elimination_fill, minimum_degree
+from relmap.network.sparse import _minimum_degree
 
 
 def _dense_fill(k, a, b, order):

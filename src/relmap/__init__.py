@@ -11,13 +11,25 @@ In 3-D (:class:`AT3`) the mean is a translation and a rotation and the covarianc
 ``(δx, δy, δz, δφx, δφy, δφz)``: translation in the parent frame, rotation applied on the left.
 """
 
-from relmap import decisions, errors, gaussian, lie, moments, montecarlo, propagate
+import importlib
+from typing import Any
+
+from relmap import errors, gaussian, lie, moments
 from relmap.at import AT, compound, compound_chain, merge, reverse
 from relmap.at3 import AT3
 from relmap.gaussian import Ellipse
 from relmap.network import Estimate, RelationalMap
 
 __version__ = "0.1.0"
+
+_LAZY = ("decisions", "montecarlo", "propagate")  # imported on first use: a faster start-up
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        return importlib.import_module(f"relmap.{name}")
+    raise AttributeError(f"module 'relmap' has no attribute {name!r}")
+
 
 __all__ = [
     "AT",

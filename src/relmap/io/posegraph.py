@@ -591,9 +591,11 @@ def read_graph(path: str | os.PathLike[str]) -> PoseGraph:
     vertex_quaternions = edge_quaternions = None
     if spec.dim == 2:
         z[:, 2] = se2.wrap_angle(z[:, 2])  # wrap before M(θ) is built: re-reading gives equal bits
-        measurements = _validated(
-            p, spec.edge, edg.lines, lambda k: AT.from_body(z[k], cov_file[k])
-        )
+        # AT.from_body without its check of the body covariance: cov_file is already the
+        # symmetrized inverse of a checked information matrix (the same bits, one check fewer)
+        M = se2.body_to_chart(z)
+        cov = M @ cov_file @ np.swapaxes(M, -1, -2)
+        measurements = _validated(p, spec.edge, edg.lines, lambda k: AT(z[k], cov[k]))
         poses = poses.copy()
         poses[:, 2] = se2.wrap_angle(poses[:, 2])
     elif spec.format == "g2o":

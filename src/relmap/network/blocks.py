@@ -10,7 +10,7 @@ compound of one AT per block.
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Hashable, Mapping, Sequence
+from collections.abc import Hashable, Iterable, Mapping
 from typing import NamedTuple
 
 import numpy as np
@@ -31,7 +31,7 @@ class Block(NamedTuple):
 
 
 def blocks_between(
-    incident: Mapping[Frame, Sequence[str]],
+    incident: Mapping[Frame, Iterable[str]],
     ends: Mapping[str, tuple[Frame, Frame]],
     src: Frame,
     dst: Frame,
@@ -102,7 +102,7 @@ def _compiled_components(ends: Mapping[str, tuple[Frame, Frame]], root: Frame) -
 
 
 def _biconnected_components(
-    incident: Mapping[Frame, Sequence[str]],
+    incident: Mapping[Frame, Iterable[str]],
     ends: Mapping[str, tuple[Frame, Frame]],
     root: Frame,
 ) -> list[list[str]]:

@@ -217,10 +217,20 @@ class RelationalMap:
             raise ShapeError(f"ats must be a 1-D batch of ATs; got batch shape {ats.batch_shape}")
         g = cls()
         g._accept(ats)
-        for k in range(m):
-            g._insert(
-                Edge(g._new_name(None if names is None else names[k]), src[k], dst[k], ats, index=k)
-            )
+        if names is None:  # a new map: the automatic names e0 … e(m-1) cannot collide
+            names, g._auto = [f"e{k}" for k in range(m)], m
+        else:
+            names = [str(nm) for nm in names]
+            if len(set(names)) < m:
+                seen: set[str] = set()
+                dup = next(nm for nm in names if nm in seen or seen.add(nm))  # type: ignore[func-returns-value]
+                raise ValueError(f"an AT named {dup!r} is already in the map")
+        edges = g._edges
+        incident = g._incident
+        for name, s, d, k in zip(names, src, dst, range(m), strict=True):
+            edges[name] = Edge(name, s, d, ats, index=k)
+            incident.setdefault(s, {})[name] = None
+            incident.setdefault(d, {})[name] = None
         return g
 
     @classmethod

@@ -152,9 +152,8 @@ def query(
             "inverse information matrix at the least-squares optimum, first order by "
             "construction; use method='reduce' (or 'auto' on a map without loops)"
         )
-    incident = {f: list(names) for f, names in g._incident.items()}
     ends = {e.name: (e.src, e.dst) for e in g.edges()}
-    blocks = blocks_between(incident, ends, src, dst)
+    blocks = blocks_between(g._incident, ends, src, dst)
     if not blocks:
         at = g.at_type.identity()
         check = LinearizationCheck(0.0, np.zeros(3), 0.0, at) if diagnose else None  # type: ignore[arg-type]
