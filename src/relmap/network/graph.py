@@ -360,10 +360,14 @@ class RelationalMap:
         source batch."""
         k = len(names)
         group = self.at_type.group
+        edges = [self._edges[nm] for nm in names]
+        if k and all(e._source is edges[0]._source and e._index is not None for e in edges):
+            rows = np.array([e._index for e in edges], dtype=np.int64)  # one batch (a file)
+            source = edges[0]._source
+            return np.ascontiguousarray(source.mean[rows]), np.ascontiguousarray(source.cov[rows])
         mean, cov = np.empty((k, *group.point_shape)), np.empty((k, group.dof, group.dof))
         by_source: dict[int, tuple[AT | AT3, list[int], list[int]]] = {}
-        for pos, nm in enumerate(names):
-            e = self._edges[nm]
+        for pos, e in enumerate(edges):
             if e._index is None:
                 mean[pos], cov[pos] = e._source.mean, e._source.cov
             else:
