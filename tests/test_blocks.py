@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from relmap import _numba
 from relmap.errors import DisconnectedError
 from relmap.network.blocks import _biconnected_components, _compiled_components, blocks_between
 
@@ -47,6 +48,7 @@ def test_compiled_blocks_equal_python_blocks(seed, monkeypatch):
         except DisconnectedError:
             return None
 
+    monkeypatch.setattr(_numba, "LARGE", 0)  # the compiled path even for a small network
     compiled = between()
     monkeypatch.setenv("RELMAP_NUMBA", "0")
     python = between()

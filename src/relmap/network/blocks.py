@@ -41,14 +41,15 @@ def blocks_between(
     ``incident`` maps each frame to the names of its ATs, in the order of ``ends``, which maps
     each name to its ``(src, dst)`` frames. Self-loops are ignored. Raises
     :class:`DisconnectedError` when no chain of ATs links the frames. Iterative Tarjan (no
-    recursion limit), O(frames + ATs); compiled (:mod:`relmap.network._tarjan`) when numba
-    is enabled, with the same blocks in the same order.
+    recursion limit), O(frames + ATs); compiled (:mod:`relmap.network._tarjan`) for large
+    maps when numba is enabled (:func:`relmap._numba.enabled`), with the same blocks in the
+    same order.
     """
     if src == dst:
         return []
     from relmap import _numba
 
-    if _numba.enabled():
+    if _numba.enabled(len(ends)):
         blocks = _compiled_components(ends, src)
     else:
         blocks = _biconnected_components(incident, ends, src)
