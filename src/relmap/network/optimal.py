@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
+from relmap import _numba
 from relmap.at import AT
 from relmap.at3 import AT3
 from relmap.errors import SolverError
@@ -116,7 +117,9 @@ class Solution:
         free = np.flatnonzero(self.param.col[:, 0] >= 0)
         standard = self.param.size == b * (n - 1) and not self.param.kind.any()
         if standard and self.factor is not None and len(free):
-            blocks = selected_inverse_blocks(self.factor.pattern, self._data, block=b)
+            blocks = selected_inverse_blocks(
+                self.factor.pattern, self._data, block=b, factor=self.factor
+            )
             out[free] = blocks[self.param.col[free, 0] // b]
             return out
         for f in range(n):
@@ -210,7 +213,10 @@ class _System:
         g_index = np.concatenate([param.col[i].T.reshape(-1), param.col[j].T.reshape(-1)])
         self.g_index = np.where(g_index >= 0, g_index, param.size)
         # information W = Σ⁻¹ (LᵀL) of each soft AT
-        self.W = np.swapaxes(w.L, -1, -2) @ w.L
+        self.W = np.ascontiguousarray(np.swapaxes(w.L, -1, -2) @ w.L)
+        self._z = np.ascontiguousarray(p.z[w.edges])
+        m = len(i)  # the plain ATs' contribution slots, AT by AT (for the numba kernel)
+        self._position = np.ascontiguousarray(self.pattern.position[: 36 * m].reshape(36, m).T)
 
     def _scalar_pattern(
         self, p: Problem, param: Parameterization, w: _Weights, i: IntArray, j: IntArray
@@ -311,6 +317,21 @@ class _System:
         param, w = self.param, self.w
         poses = param.poses(xy, theta)
         Jf = param.frame_jacobian(poses)
+        if Jf is None and not w.groups and _numba.enabled():
+            from relmap.network import _linearize
+
+            cost, data, grad = _linearize.planar(
+                poses,
+                self.i,
+                self.j,
+                self._z,
+                self.W,
+                self._position,
+                self.g_index,
+                self.pattern.nnz,
+                param.size,
+            )
+            return cost, poses, data, grad
         if Jf is None:
             cost, blocks, g = self._blocks(poses)
         else:
@@ -409,7 +430,11 @@ class _LieSystem:
         )
         g_index = np.concatenate([param.col[self.i].T.reshape(-1), param.col[self.j].T.reshape(-1)])
         self.g_index = np.where(g_index >= 0, g_index, param.size)
-        self.W = np.swapaxes(w.L, -1, -2) @ w.L
+        self.W = np.ascontiguousarray(np.swapaxes(w.L, -1, -2) @ w.L)
+        m = len(self.i)  # the plain ATs' contribution slots, AT by AT (for the numba kernel)
+        self._position = np.ascontiguousarray(
+            self.pattern.position[: 4 * b * b * m].reshape(b * b, 4, m).transpose(2, 0, 1)
+        )
 
     def linearize(self, poses: FloatArray) -> tuple[float, FloatArray, FloatArray, FloatArray]:
         """(cost, poses, normal-matrix CSC data, gradient) at ``poses``."""
@@ -418,6 +443,21 @@ class _LieSystem:
         r, Jr = _residual(group, d, p.z[self.w.edges])
         if Jr is not None:
             Ji, Jj = Jr @ Ji, Jr @ Jj
+        if not self.w.groups and _numba.enabled():
+            from relmap.network import _linearize
+
+            cost, data, grad = _linearize.hessian_blocks(
+                np.ascontiguousarray(Ji),
+                np.ascontiguousarray(Jj),
+                self.W,
+                np.ascontiguousarray(r),
+                self._position,
+                self.g_index,
+                self.pattern.nnz,
+                self.param.size,
+                (0,) * b,
+            )
+            return cost, poses, data, grad
         Wr = np.einsum("kab,kb->ka", self.W, r)
         cost = float(np.einsum("ka,ka->", r, Wr))
         JiT, JjT = np.swapaxes(Ji, -1, -2), np.swapaxes(Jj, -1, -2)

@@ -137,6 +137,7 @@ class SymmetricPattern:
         self._perm: IntArray | None = None
         self.block: int | None = None  #: parameters per node when nodes are uniform blocks
         self._supernodal: _Supernodal | None = None
+        self._blockchol: _BlockSymbolic | None = None
 
     def assemble(self, values: FloatArray) -> FloatArray:
         """CSC data from the contributions' values (in the order the pattern was built)."""
@@ -171,6 +172,13 @@ class SymmetricPattern:
         if self._supernodal is None:
             self._supernodal = _Supernodal(self)
         return self._supernodal
+
+    @property
+    def blockchol(self) -> _BlockSymbolic:
+        """The symbolic analysis for the numba block LDLᵀ, computed once (uniform blocks only)."""
+        if self._blockchol is None:
+            self._blockchol = _BlockSymbolic(self)
+        return self._blockchol
 
     @property
     def permutation(self) -> IntArray:
@@ -220,25 +228,33 @@ class SymmetricFactor:
     def __init__(self, pattern: SymmetricPattern, backend: str = "auto") -> None:
         self.pattern = pattern
         if backend == "auto":
-            if pattern.block is not None and pattern.block >= 6:
-                backend = "supernodal"
-            else:
-                try:
-                    import qdldl  # noqa: F401
-
-                    backend = "qdldl"
-                except ImportError:
-                    backend = "superlu"
-        if backend not in ("supernodal", "qdldl", "superlu"):
+            backend = _auto_backend(pattern)
+        if backend not in BACKENDS:
             raise ValueError(f"unknown sparse backend {backend!r}")
+        if backend == "block" and pattern.block is None:
+            raise ValueError("the block backend needs a pattern of uniform node blocks")
         self.backend = backend
         self._active = backend  # the backend that holds the current factorization
         self._qdldl = None
         self._lu = None
+        self._block: _BlockNumeric | None = None
+
+    @property
+    def active(self) -> str:
+        """The backend holding the current factorization (``superlu`` after a fallback)."""
+        return self._active
 
     def factorize(self, data: FloatArray) -> None:
         """Factorize the matrix with the given CSC data (the pattern's)."""
         self._active = self.backend
+        if self.backend == "block":
+            if self._block is None:
+                self._block = _BlockNumeric(self.pattern.blockchol)
+            try:
+                self._block.factorize(data)
+                return
+            except np.linalg.LinAlgError:
+                self._active = "superlu"
         if self.backend == "supernodal":
             try:
                 self.pattern.supernodal.factorize(data)
@@ -258,6 +274,9 @@ class SymmetricFactor:
 
     def solve(self, b: FloatArray) -> FloatArray:
         """``A⁻¹ b`` for a vector ``(size,)`` or a matrix of columns ``(size, k)``."""
+        if self._active == "block":
+            assert self._block is not None
+            return self._block.solve(b)
         if self._active == "supernodal":
             return self.pattern.supernodal.solve(b)
         if self._active == "qdldl":
@@ -272,6 +291,24 @@ class SymmetricFactor:
         return out
 
 
+BACKENDS = ("block", "supernodal", "qdldl", "superlu")
+
+
+def _auto_backend(pattern: SymmetricPattern) -> str:
+    """The ``auto`` rule of :class:`SymmetricFactor` (see its docstring)."""
+    from relmap import _numba
+
+    if pattern.block is not None and _numba.enabled():
+        return "block"
+    if pattern.block is not None and pattern.block >= 6:
+        return "supernodal"
+    try:
+        import qdldl  # noqa: F401
+    except ImportError:
+        return "superlu"
+    return "qdldl"
+
+
 def _superlu(pattern: SymmetricPattern, data: FloatArray):  # type: ignore[no-untyped-def]
     """SuperLU in symmetric mode on the matrix pre-ordered by the node ordering."""
     from scipy.sparse.linalg import splu
@@ -283,7 +320,10 @@ def _superlu(pattern: SymmetricPattern, data: FloatArray):  # type: ignore[no-un
 
 
 def selected_inverse_blocks(
-    pattern: SymmetricPattern, data: FloatArray, block: int = 3
+    pattern: SymmetricPattern,
+    data: FloatArray,
+    block: int = 3,
+    factor: SymmetricFactor | None = None,
 ) -> FloatArray:
     """The diagonal ``block × block`` blocks of ``A⁻¹`` (selected inversion), ``(nodes, b, b)``.
 
@@ -291,7 +331,26 @@ def selected_inverse_blocks(
     is factorized as ``A = L D Lᵀ`` (SuperLU, node-ordered, so L's pattern is block-aligned),
     then the Takahashi recursion ``Z_SJ = -Z_SS L̃_SJ``, ``Z_JJ = D̃_J⁻¹ - L̃_SJᵀ Z_SJ`` runs
     over block columns from last to first; only entries of Z on L's pattern are formed.
+
+    With numba, the block LDLᵀ of :class:`SymmetricFactor`'s ``block`` backend and its compiled
+    recursion instead; ``factor``, when it holds that factorization of this ``data``, is
+    reused (no new factorization). A matrix that is not positive definite falls back to the
+    SuperLU path.
     """
+    from relmap import _numba
+
+    if pattern.block == block and _numba.enabled():
+        numeric = None
+        if factor is not None and factor.pattern is pattern and factor.active == "block":
+            numeric = factor._block
+        if numeric is None:
+            numeric = _BlockNumeric(pattern.blockchol)
+            try:
+                numeric.factorize(data)
+            except np.linalg.LinAlgError:
+                numeric = None
+        if numeric is not None:
+            return numeric.diagonal_inverse_blocks()
     n = pattern.size // block
     lu, perm = _superlu(pattern, data)
     # SuperLU factors Pr A Pc = L U; with diagonal pivots Pr = Pc, the postorder of its
@@ -743,3 +802,78 @@ def _supernodes(parent: IntArray, count: IntArray, relax: int, fill: float = 0.2
         sum_count = cnt[v]
     starts.append(k)
     return np.array(starts, dtype=np.int64)
+
+
+class _BlockSymbolic:
+    """Symbolic analysis of the numba block LDLᵀ (:mod:`relmap.network._blockchol`), once per
+    pattern of uniform ``b × b`` node blocks: a minimum-degree ordering of the node graph, its
+    elimination tree in postorder, the block pattern of L (row subtrees), and the map of every
+    lower-triangle entry of the matrix into the factor's block buffer."""
+
+    def __init__(self, pattern: SymmetricPattern) -> None:
+        from relmap.network import _blockchol as kernels
+
+        b = pattern.block
+        if b is None:
+            raise ValueError("the block factorization needs a pattern of uniform node blocks")
+        n = pattern.size // b
+        indptr, indices = pattern.indptr.astype(np.int64), pattern.indices.astype(np.int64)
+        a, c = kernels.block_pairs(indptr, indices, b)  # both triangles
+        upper = a < c
+        order = _minimum_degree(n, a[upper], c[upper]) if len(a) else np.arange(n)
+        rank = np.empty(n, dtype=np.int64)
+        rank[order] = np.arange(n)
+        post = kernels.etree_postorder(n, *kernels.adjacency(n, a, c, rank))  # new → md order
+        order = order[post]  # new → original node
+        rank[order] = np.arange(n)
+        Lp, Li = kernels.structure(n, *kernels.adjacency(n, a, c, rank))
+        self.n, self.b, self.Lp, self.Li = n, b, Lp, Li
+        self.order = order
+        self.perm = (b * order[:, None] + np.arange(b)).reshape(-1)  # scalar new → old
+        # lower-triangle entries (new block row >= new block column) → buffer positions
+        self.src, self.dst = kernels.scatter_map(indptr, indices, rank, b, Lp, Li)
+        self.nnz_L = int(b * b * len(Li) + n * b * (b + 1) // 2)  #: scalars in L (one triangle)
+
+
+class _BlockNumeric:
+    """One numerical block LDLᵀ factorization on a :class:`_BlockSymbolic` analysis."""
+
+    def __init__(self, sym: _BlockSymbolic) -> None:
+        self.sym = sym
+        bb = sym.b * sym.b
+        self.X = np.empty((sym.n + len(sym.Li)) * bb)
+        self.Dinv = np.empty(sym.n * bb)
+        self._bt = (0,) * sym.b  # its length specializes the kernels to b
+
+    def factorize(self, data: FloatArray) -> None:
+        """Numerical factorization; raises :class:`numpy.linalg.LinAlgError` if not SPD."""
+        from relmap.network import _blockchol as kernels
+
+        s = self.sym
+        data = np.asarray(data, dtype=np.float64)
+        bad = kernels.factorize(s.Lp, s.Li, s.src, s.dst, data, self.X, self.Dinv, self._bt)
+        if bad >= 0:
+            raise np.linalg.LinAlgError("the matrix is not positive definite")
+
+    def solve(self, rhs: FloatArray) -> FloatArray:
+        """``A⁻¹ rhs`` for ``rhs`` (size,) or (size, k)."""
+        from relmap.network import _blockchol as kernels
+
+        s = self.sym
+        vector = rhs.ndim == 1
+        Y = np.asarray(rhs, dtype=np.float64)[s.perm]
+        Y = np.ascontiguousarray(Y[:, None] if vector else Y)
+        kernels.solve(s.Lp, s.Li, self.X, self.Dinv, Y, self._bt)
+        out = np.empty_like(Y)
+        out[s.perm] = Y
+        return out[:, 0] if vector else out
+
+    def diagonal_inverse_blocks(self) -> FloatArray:
+        """The diagonal blocks of ``A⁻¹`` per node, in the pattern's node order, (n, b, b)."""
+        from relmap.network import _blockchol as kernels
+
+        s = self.sym
+        Z = kernels.selected_inverse(s.Lp, s.Li, self.X, self.Dinv, self._bt)
+        out = np.empty((s.n, s.b, s.b))
+        out[s.order] = Z[: s.n * s.b * s.b].reshape(s.n, s.b, s.b)
+        return out

@@ -1,0 +1,462 @@
+"""numba kernels of the block LDLᵀ factorization (:class:`relmap.network.sparse.BlockFactor`).
+
+Matrices of ``n × n`` dense ``b × b`` blocks (a node's parameters together), the nodes already
+in their fill-reducing order. L is stored by block columns: ``Lp`` (n+1) pointers, ``Li``
+(nnzb,) sorted block rows strictly below the diagonal; numeric blocks live in one buffer
+``X`` (n + nnzb, b, b): ``X[:n]`` the diagonal blocks D_J, ``X[n + p]`` the block L_{Li[p], J}
+of the unit-block-diagonal factor ``A = L D Lᵀ``. Imported only when numba is enabled.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from relmap.typing import FloatArray, IntArray
+
+__all__ = [
+    "adjacency",
+    "block_pairs",
+    "etree_postorder",
+    "factorize",
+    "scatter_map",
+    "selected_inverse",
+    "solve",
+    "structure",
+]
+
+
+@numba.njit(cache=True)
+def _etree(n: int, adj_ptr: IntArray, adj: IntArray) -> IntArray:  # pragma: no cover
+    """Parent of every node in the elimination tree (Liu's algorithm, path compression)."""
+    parent = np.full(n, -1, np.int64)
+    anc = np.full(n, -1, np.int64)
+    for k in range(n):
+        for p in range(adj_ptr[k], adj_ptr[k + 1]):
+            i = adj[p]
+            while i != -1 and i < k:
+                nxt = anc[i]
+                anc[i] = k
+                if nxt == -1:
+                    parent[i] = k
+                i = nxt
+    return parent
+
+
+@numba.njit(cache=True)
+def etree_postorder(n: int, adj_ptr: IntArray, adj: IntArray) -> IntArray:  # pragma: no cover
+    """A postorder (new → old) of the elimination tree of the graph ``adj`` (CSR, symmetric)."""
+    parent = _etree(n, adj_ptr, adj)
+    head = np.full(n, -1, np.int64)
+    nxt = np.full(n, -1, np.int64)
+    for v in range(n - 1, -1, -1):  # children lists, in increasing order
+        p = parent[v]
+        if p >= 0:
+            nxt[v] = head[p]
+            head[p] = v
+    post = np.empty(n, np.int64)
+    stack = np.empty(n, np.int64)
+    k = 0
+    for root in range(n):
+        if parent[root] != -1:
+            continue
+        top = 0
+        stack[0] = root
+        while top >= 0:
+            v = stack[top]
+            c = head[v]
+            if c == -1:
+                top -= 1
+                post[k] = v
+                k += 1
+            else:
+                head[v] = nxt[c]
+                top += 1
+                stack[top] = c
+    return post
+
+
+@numba.njit(cache=True)
+def structure(
+    n: int, adj_ptr: IntArray, adj: IntArray
+) -> tuple[IntArray, IntArray]:  # pragma: no cover
+    """Block pattern of L (``Lp``, ``Li``, rows sorted) for the graph ``adj`` (CSR, symmetric,
+    in elimination order), by row subtrees of the elimination tree."""
+    parent = _etree(n, adj_ptr, adj)
+    mark = np.full(n, -1, np.int64)
+    count = np.zeros(n, np.int64)
+    for k in range(n):  # row k of L: walk from each A_ki (i < k) up the tree to k
+        mark[k] = k
+        for p in range(adj_ptr[k], adj_ptr[k + 1]):
+            i = adj[p]
+            while i < k and mark[i] != k:
+                mark[i] = k
+                count[i] += 1
+                i = parent[i]
+    Lp = np.zeros(n + 1, np.int64)
+    for j in range(n):
+        Lp[j + 1] = Lp[j] + count[j]
+    Li = np.empty(Lp[n], np.int64)
+    fill = Lp[:-1].copy()
+    mark[:] = -1
+    for k in range(n):
+        mark[k] = k
+        for p in range(adj_ptr[k], adj_ptr[k + 1]):
+            i = adj[p]
+            while i < k and mark[i] != k:
+                mark[i] = k
+                Li[fill[i]] = k
+                fill[i] += 1
+                i = parent[i]
+    return Lp, Li
+
+
+@numba.njit(cache=True)
+def block_pairs(
+    indptr: IntArray, indices: IntArray, b: int
+) -> tuple[IntArray, IntArray]:  # pragma: no cover
+    """The off-diagonal node pairs (row, column) of a CSC pattern of b × b blocks (both
+    triangles, as stored), read from the first scalar of every block."""
+    size = len(indptr) - 1
+    count = 0
+    for c in range(0, size, b):
+        for p in range(indptr[c], indptr[c + 1]):
+            r = indices[p]
+            if r % b == 0 and r // b != c // b:
+                count += 1
+    rows = np.empty(count, np.int64)
+    cols = np.empty(count, np.int64)
+    t = 0
+    for c in range(0, size, b):
+        for p in range(indptr[c], indptr[c + 1]):
+            r = indices[p]
+            if r % b == 0 and r // b != c // b:
+                rows[t] = r // b
+                cols[t] = c // b
+                t += 1
+    return rows, cols
+
+
+@numba.njit(cache=True)
+def adjacency(
+    n: int, rows: IntArray, cols: IntArray, rank: IntArray
+) -> tuple[IntArray, IntArray]:  # pragma: no cover
+    """CSR (pointers, neighbours) of the relabelled graph: edge (rank[rows], rank[cols])."""
+    ptr = np.zeros(n + 1, np.int64)
+    for t in range(len(rows)):
+        ptr[rank[rows[t]] + 1] += 1
+    for v in range(n):
+        ptr[v + 1] += ptr[v]
+    fill = ptr[:-1].copy()
+    adj = np.empty(len(rows), np.int64)
+    for t in range(len(rows)):
+        v = rank[rows[t]]
+        adj[fill[v]] = rank[cols[t]]
+        fill[v] += 1
+    return ptr, adj
+
+
+@numba.njit(cache=True)
+def scatter_map(
+    indptr: IntArray, indices: IntArray, rank: IntArray, b: int, Lp: IntArray, Li: IntArray
+) -> tuple[IntArray, IntArray]:  # pragma: no cover
+    """For every CSC entry in a lower-triangle block (after relabelling nodes by ``rank``), its
+    index in the data (``src``) and in the factor's flat block buffer (``dst``)."""
+    size = len(indptr) - 1
+    n = len(Lp) - 1
+    bb = b * b
+    pos = np.full(n, -1, np.int64)
+    src = np.empty(len(indices), np.int64)
+    dst = np.empty(len(indices), np.int64)
+    t = 0
+    for c0 in range(0, size, b):
+        J = rank[c0 // b]
+        for p in range(Lp[J], Lp[J + 1]):
+            pos[Li[p]] = (n + p) * bb
+        pos[J] = J * bb
+        for c in range(c0, c0 + b):
+            for p in range(indptr[c], indptr[c + 1]):
+                r = indices[p]
+                row = rank[r // b]
+                if row >= J:
+                    src[t] = p
+                    dst[t] = pos[row] + (r % b) * b + c % b
+                    t += 1
+        for p in range(Lp[J], Lp[J + 1]):
+            pos[Li[p]] = -1
+    return src[:t], dst[:t]
+
+
+@numba.njit(cache=True)
+def factorize(
+    Lp: IntArray,
+    Li: IntArray,
+    src: IntArray,
+    dst: IntArray,
+    data: FloatArray,
+    X: FloatArray,
+    Dinv: FloatArray,
+    bt: tuple[int, ...],
+) -> int:  # pragma: no cover
+    """Left-looking block ``L D Lᵀ`` into ``X`` and ``Dinv`` (flat: (n + nnzb)·b², n·b²).
+
+    ``bt`` is any tuple of length b (its length, known when compiling, lets the b × b loops
+    unroll). The matrix's lower-triangle blocks are scattered from ``data`` by
+    ``X[dst] = data[src]``. Returns -1, or the first block column whose pivot block D_J is
+    not positive definite (the factorization is then incomplete).
+    """
+    b = len(bt)
+    bb = b * b
+    n = len(Lp) - 1
+    X[:] = 0.0
+    for t in range(len(src)):
+        X[dst[t]] = data[src[t]]
+    pos = np.zeros(n, np.int64)
+    head = np.full(n, -1, np.int64)
+    nxt = np.full(n, -1, np.int64)
+    ptr = np.zeros(n, np.int64)
+    W = np.empty(bb)
+    C = np.empty(bb)
+    V = np.empty(bb)
+    for j in range(n):
+        for p in range(Lp[j], Lp[j + 1]):
+            pos[Li[p]] = (n + p) * bb
+        pos[j] = j * bb
+        k = head[j]
+        while k != -1:
+            k_next = nxt[k]
+            p = ptr[k]  # Li[p] == j
+            lo = (n + p) * bb
+            do = k * bb
+            for r in range(b):  # W = D_k L_jkᵀ
+                for c in range(b):
+                    s = 0.0
+                    for t in range(b):
+                        s += X[do + r * b + t] * X[lo + c * b + t]
+                    W[r * b + c] = s
+            for q in range(p, Lp[k + 1]):  # A_ij -= L_ik W for the rows i >= j of column k
+                so = (n + q) * bb
+                to = pos[Li[q]]
+                for r in range(b):
+                    for c in range(b):
+                        V[c] = X[to + r * b + c]
+                    for t in range(b):
+                        a = X[so + r * b + t]
+                        for c in range(b):
+                            V[c] -= a * W[t * b + c]
+                    for c in range(b):
+                        X[to + r * b + c] = V[c]
+            ptr[k] = p + 1
+            if p + 1 < Lp[k + 1]:
+                i = Li[p + 1]
+                nxt[k] = head[i]
+                head[i] = k
+            k = k_next
+        # D_j: symmetrize, Cholesky C (the positive-definiteness test), D_j⁻¹ = C⁻ᵀ C⁻¹
+        do = j * bb
+        for r in range(b):
+            for c in range(r):
+                v = 0.5 * (X[do + r * b + c] + X[do + c * b + r])
+                X[do + r * b + c] = v
+                X[do + c * b + r] = v
+        for t in range(bb):
+            C[t] = 0.0
+            W[t] = 0.0
+        for c in range(b):
+            s = X[do + c * b + c]
+            for t in range(c):
+                s -= C[c * b + t] * C[c * b + t]
+            if not s > 0.0:
+                return j
+            d = np.sqrt(s)
+            C[c * b + c] = d
+            for r in range(c + 1, b):
+                s = X[do + r * b + c]
+                for t in range(c):
+                    s -= C[r * b + t] * C[c * b + t]
+                C[r * b + c] = s / d
+        for c in range(b):  # W = C⁻¹ (lower)
+            W[c * b + c] = 1.0 / C[c * b + c]
+            for r in range(c + 1, b):
+                s = 0.0
+                for t in range(c, r):
+                    s -= C[r * b + t] * W[t * b + c]
+                W[r * b + c] = s / C[r * b + r]
+        io = j * bb
+        for r in range(b):
+            for c in range(r + 1):
+                s = 0.0
+                for t in range(r, b):
+                    s += W[t * b + r] * W[t * b + c]
+                Dinv[io + r * b + c] = s
+                Dinv[io + c * b + r] = s
+        for p in range(Lp[j], Lp[j + 1]):  # L_ij = (updated A_ij) D_j⁻¹
+            lo = (n + p) * bb
+            for r in range(b):
+                for c in range(b):
+                    V[c] = 0.0
+                for t in range(b):
+                    a = X[lo + r * b + t]
+                    for c in range(b):
+                        V[c] += a * Dinv[io + t * b + c]
+                for c in range(b):
+                    X[lo + r * b + c] = V[c]
+        if Lp[j] < Lp[j + 1]:
+            ptr[j] = Lp[j]
+            i = Li[Lp[j]]
+            nxt[j] = head[i]
+            head[i] = j
+    return -1
+
+
+@numba.njit(cache=True)
+def _solve_vector(
+    Lp: IntArray, Li: IntArray, X: FloatArray, Dinv: FloatArray, y: FloatArray, bt: tuple[int, ...]
+) -> None:  # pragma: no cover
+    """``y ← A⁻¹ y`` in place for one right-hand side (n·b,)."""
+    b = len(bt)
+    bb = b * b
+    n = len(Lp) - 1
+    v = np.empty(b)
+    w = np.empty(b)
+    for j in range(n):  # L y = rhs
+        for t in range(b):
+            v[t] = y[j * b + t]
+        for p in range(Lp[j], Lp[j + 1]):
+            lo = (n + p) * bb
+            io = Li[p] * b
+            for r in range(b):
+                s = 0.0
+                for t in range(b):
+                    s += X[lo + r * b + t] * v[t]
+                y[io + r] -= s
+    for j in range(n):  # D y = y
+        io = j * bb
+        for t in range(b):
+            v[t] = y[j * b + t]
+        for r in range(b):
+            s = 0.0
+            for t in range(b):
+                s += Dinv[io + r * b + t] * v[t]
+            y[j * b + r] = s
+    for j in range(n - 1, -1, -1):  # Lᵀ x = y
+        for r in range(b):
+            w[r] = y[j * b + r]
+        for p in range(Lp[j], Lp[j + 1]):
+            lo = (n + p) * bb
+            io = Li[p] * b
+            for t in range(b):
+                v[t] = y[io + t]
+            for t in range(b):
+                for r in range(b):
+                    w[r] -= X[lo + t * b + r] * v[t]
+        for r in range(b):
+            y[j * b + r] = w[r]
+
+
+@numba.njit(cache=True)
+def solve(
+    Lp: IntArray, Li: IntArray, X: FloatArray, Dinv: FloatArray, Y: FloatArray, bt: tuple[int, ...]
+) -> None:  # pragma: no cover
+    """``Y ← A⁻¹ Y`` in place, ``Y`` (n·b, q): q right-hand sides in the factor's order."""
+    b = len(bt)
+    bb = b * b
+    n = len(Lp) - 1
+    q = Y.shape[1]
+    if q == 1:
+        _solve_vector(Lp, Li, X, Dinv, Y[:, 0], bt)
+        return
+    for j in range(n):  # L y = rhs
+        for p in range(Lp[j], Lp[j + 1]):
+            lo = (n + p) * bb
+            i = Li[p]
+            for r in range(b):
+                for t in range(b):
+                    a = X[lo + r * b + t]
+                    for c in range(q):
+                        Y[i * b + r, c] -= a * Y[j * b + t, c]
+    tmp = np.empty((b, q))
+    for j in range(n):  # D y = y
+        io = j * bb
+        for r in range(b):
+            for c in range(q):
+                s = 0.0
+                for t in range(b):
+                    s += Dinv[io + r * b + t] * Y[j * b + t, c]
+                tmp[r, c] = s
+        for r in range(b):
+            for c in range(q):
+                Y[j * b + r, c] = tmp[r, c]
+    for j in range(n - 1, -1, -1):  # Lᵀ x = y
+        for p in range(Lp[j], Lp[j + 1]):
+            lo = (n + p) * bb
+            i = Li[p]
+            for t in range(b):
+                for r in range(b):
+                    a = X[lo + t * b + r]
+                    for c in range(q):
+                        Y[j * b + r, c] -= a * Y[i * b + t, c]
+
+
+@numba.njit(cache=True)
+def selected_inverse(
+    Lp: IntArray, Li: IntArray, X: FloatArray, Dinv: FloatArray, bt: tuple[int, ...]
+) -> FloatArray:  # pragma: no cover
+    """The blocks of ``Z = A⁻¹`` on L's pattern, in X's layout (flat, (n + nnzb)·b²), by the
+    block Takahashi recursion ``Z_SJ = -Z_SS L_SJ``, ``Z_JJ = D_J⁻¹ - L_SJᵀ Z_SJ`` over block
+    columns from last to first (L's pattern is chordal: Z_SS's blocks are all on it)."""
+    b = len(bt)
+    bb = b * b
+    n = len(Lp) - 1
+    Z = np.zeros_like(X)
+    width = 0
+    for j in range(n):
+        width = max(width, Lp[j + 1] - Lp[j])
+    acc = np.zeros(width * bb)
+    for j in range(n - 1, -1, -1):
+        p0 = Lp[j]
+        m = Lp[j + 1] - p0
+        acc[: m * bb] = 0.0
+        for a in range(m):
+            col = Li[p0 + a]  # l
+            lo = (n + p0 + a) * bb  # L_lj
+            zo = col * bb  # Z_ll
+            ao = a * bb
+            for r in range(b):  # acc_a -= Z_ll L_lj
+                for t in range(b):
+                    z = Z[zo + r * b + t]
+                    for c in range(b):
+                        acc[ao + r * b + c] -= z * X[lo + t * b + c]
+            q = Lp[col]
+            for a2 in range(a + 1, m):
+                k = Li[p0 + a2]
+                while Li[q] != k:
+                    q += 1
+                zo = (n + q) * bb  # Z_kl
+                ko = (n + p0 + a2) * bb  # L_kj
+                a2o = a2 * bb
+                for r in range(b):
+                    for t in range(b):
+                        z = Z[zo + r * b + t]
+                        for c in range(b):
+                            acc[a2o + r * b + c] -= z * X[lo + t * b + c]  # Z_kl L_lj
+                            acc[ao + t * b + c] -= z * X[ko + r * b + c]  # Z_klᵀ L_kj
+        jo = j * bb
+        for t in range(bb):
+            Z[jo + t] = Dinv[jo + t]
+        for a in range(m):
+            lo = (n + p0 + a) * bb
+            ao = a * bb
+            for t in range(bb):
+                Z[lo + t] = acc[ao + t]
+            for t in range(b):  # Z_jj -= L_ajᵀ acc_a
+                for r in range(b):
+                    x = X[lo + t * b + r]
+                    for c in range(b):
+                        Z[jo + r * b + c] -= x * acc[ao + t * b + c]
+        for r in range(b):
+            for c in range(r):
+                v = 0.5 * (Z[jo + r * b + c] + Z[jo + c * b + r])
+                Z[jo + r * b + c] = v
+                Z[jo + c * b + r] = v
+    return Z

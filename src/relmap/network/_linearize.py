@@ -1,0 +1,174 @@
+"""numba kernels of the Gauss-Newton linearization (:mod:`relmap.network.optimal`).
+
+One pass over the ATs computes each residual, its weighted Jacobian products and gradient, and
+adds them straight into the normal matrix's CSC data and the gradient (no intermediate arrays,
+no ``bincount``). Imported only when numba is enabled.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from relmap.typing import FloatArray, IntArray
+
+__all__ = ["hessian_blocks", "planar"]
+
+_PI = np.pi
+_TWO_PI = 2.0 * np.pi
+
+
+@numba.njit(cache=True, inline="always")
+def _wrap(x: float) -> float:  # pragma: no cover
+    """An angle wrapped to [-π, π), as :func:`relmap.lie.se2.wrap_angle`."""
+    if -_PI <= x < _PI:
+        return x
+    w = (x + _PI) % _TWO_PI - _PI
+    if w >= _PI:
+        w -= _TWO_PI
+    return w
+
+
+@numba.njit(cache=True)
+def planar(
+    poses: FloatArray,
+    i: IntArray,
+    j: IntArray,
+    z: FloatArray,
+    W: FloatArray,
+    position: IntArray,
+    g_index: IntArray,
+    nnz: int,
+    size: int,
+) -> tuple[float, FloatArray, FloatArray]:  # pragma: no cover
+    """(cost, CSC data (nnz,), gradient (size,)) of the planar ATs ``i → j``.
+
+    ``poses`` (n, 3), ``z`` (m, 3), ``W`` (m, 3, 3) information; ``position`` (m, 36) the data
+    slot of each contribution, ordered [AT][block (ii, ij, ji, jj)][entry r·3+c] (slot ``nnz``
+    discards); ``g_index`` (2·3·m) the gradient slot, [frame (i, j)][component][AT] (slot
+    ``size`` discards). The closed forms of ``_System._blocks``, AT by AT.
+    """
+    m = len(i)
+    data = np.zeros(nnz + 1)
+    grad = np.zeros(size + 1)
+    cost = 0.0
+    Hii = np.empty(9)
+    Hij = np.empty(9)
+    Hjj = np.empty(9)
+    for k in range(m):
+        a_, b_ = i[k], j[k]
+        xi, yi, ti = poses[a_, 0], poses[a_, 1], poses[a_, 2]
+        xj, yj, tj = poses[b_, 0], poses[b_, 1], poses[b_, 2]
+        c, s = np.cos(ti), np.sin(ti)
+        dx, dy = xj - xi, yj - yi
+        r0 = c * dx + s * dy - z[k, 0]
+        r1 = -s * dx + c * dy - z[k, 1]
+        r2 = _wrap(_wrap(tj - ti) - z[k, 2])
+        w00, w01, w02 = W[k, 0, 0], W[k, 0, 1], W[k, 0, 2]
+        w11, w12, w22 = W[k, 1, 1], W[k, 1, 2], W[k, 2, 2]
+        wr0 = w00 * r0 + w01 * r1 + w02 * r2
+        wr1 = w01 * r0 + w11 * r1 + w12 * r2
+        wr2 = w02 * r0 + w12 * r1 + w22 * r2
+        cost += r0 * wr0 + r1 * wr1 + r2 * wr2
+        cc, ss, cs = c * c, s * s, c * s
+        a = cc * w00 - 2 * cs * w01 + ss * w11
+        b = cs * (w00 - w11) + (cc - ss) * w01
+        e02 = c * w02 - s * w12
+        d11 = ss * w00 + 2 * cs * w01 + cc * w11
+        e12 = s * w02 + c * w12
+        f = w22
+        u0 = -dy * a + dx * b + e02
+        u1 = -dy * b + dx * d11 + e12
+        u2 = -dy * e02 + dx * e12 + f
+        Hjj[0], Hjj[1], Hjj[2] = a, b, e02
+        Hjj[3], Hjj[4], Hjj[5] = b, d11, e12
+        Hjj[6], Hjj[7], Hjj[8] = e02, e12, f
+        Hij[0], Hij[1], Hij[2] = -a, -b, -e02
+        Hij[3], Hij[4], Hij[5] = -b, -d11, -e12
+        Hij[6], Hij[7], Hij[8] = -u0, -u1, -u2
+        Hii[0], Hii[1], Hii[2] = a, b, u0
+        Hii[3], Hii[4], Hii[5] = b, d11, u1
+        Hii[6], Hii[7], Hii[8] = u0, u1, -dy * u0 + dx * u1 + u2
+        for q in range(9):
+            data[position[k, q]] += Hii[q]
+            data[position[k, 9 + q]] += Hij[q]
+            data[position[k, 18 + q]] += Hij[3 * (q % 3) + q // 3]
+            data[position[k, 27 + q]] += Hjj[q]
+        gj0 = c * wr0 - s * wr1
+        gj1 = s * wr0 + c * wr1
+        gj2 = wr2
+        grad[g_index[k]] -= gj0
+        grad[g_index[m + k]] -= gj1
+        grad[g_index[2 * m + k]] -= -dy * gj0 + dx * gj1 + gj2
+        grad[g_index[3 * m + k]] += gj0
+        grad[g_index[4 * m + k]] += gj1
+        grad[g_index[5 * m + k]] += gj2
+    return cost, data[:nnz], grad[:size]
+
+
+@numba.njit(cache=True)
+def hessian_blocks(
+    Ji: FloatArray,
+    Jj: FloatArray,
+    W: FloatArray,
+    r: FloatArray,
+    position: IntArray,
+    g_index: IntArray,
+    nnz: int,
+    size: int,
+    bt: tuple[int, ...],
+) -> tuple[float, FloatArray, FloatArray]:  # pragma: no cover
+    """(cost, CSC data (nnz,), gradient (size,)) from the residuals ``r`` (m, b) and their
+    Jacobians ``Ji``, ``Jj`` (m, b, b), information ``W`` (m, b, b).
+
+    ``position`` (m, b², 4) gives the data slot of each contribution, [AT][entry q][block t
+    (ii, ij, ji, jj)] (slot ``nnz`` discards); ``g_index`` (2·b·m): [frame (i, j)][component]
+    [AT] (slot ``size`` discards); ``bt`` any tuple of length b (the loops unroll to it).
+    """
+    m, b = Ji.shape[0], len(bt)
+    data = np.zeros(nnz + 1)
+    grad = np.zeros(size + 1)
+    cost = 0.0
+    WJi = np.empty((b, b))
+    WJj = np.empty((b, b))
+    Wr = np.empty(b)
+    for k in range(m):
+        for u in range(b):
+            s = 0.0
+            for v in range(b):
+                s += W[k, u, v] * r[k, v]
+            Wr[u] = s
+            cost += r[k, u] * s
+            for c in range(b):
+                si = 0.0
+                sj = 0.0
+                for v in range(b):
+                    si += W[k, u, v] * Ji[k, v, c]
+                    sj += W[k, u, v] * Jj[k, v, c]
+                WJi[u, c] = si
+                WJj[u, c] = sj
+        for a in range(b):
+            gi = 0.0
+            gj = 0.0
+            for u in range(b):
+                gi += Ji[k, u, a] * Wr[u]
+                gj += Jj[k, u, a] * Wr[u]
+            grad[g_index[a * m + k]] += gi
+            grad[g_index[(b + a) * m + k]] += gj
+            for c in range(b):
+                hii = 0.0
+                hij = 0.0
+                hji = 0.0
+                hjj = 0.0
+                for u in range(b):
+                    xi, xj = Ji[k, u, a], Jj[k, u, a]
+                    hii += xi * WJi[u, c]
+                    hij += xi * WJj[u, c]
+                    hji += xj * WJi[u, c]
+                    hjj += xj * WJj[u, c]
+                q = a * b + c
+                data[position[k, q, 0]] += hii
+                data[position[k, q, 1]] += hij
+                data[position[k, q, 2]] += hji
+                data[position[k, q, 3]] += hjj
+    return cost, data[:nnz], grad[:size]
