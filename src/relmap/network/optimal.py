@@ -317,7 +317,7 @@ class _System:
         param, w = self.param, self.w
         poses = param.poses(xy, theta)
         Jf = param.frame_jacobian(poses)
-        if Jf is None and not w.groups and _numba.enabled():
+        if Jf is None and not w.groups and _numba.enabled(len(self.i)):
             from relmap.network import _linearize
 
             cost, data, grad = _linearize.planar(
@@ -443,7 +443,7 @@ class _LieSystem:
         r, Jr = _residual(group, d, p.z[self.w.edges])
         if Jr is not None:
             Ji, Jj = Jr @ Ji, Jr @ Jj
-        if not self.w.groups and _numba.enabled():
+        if not self.w.groups and _numba.enabled(len(self.i)):
             from relmap.network import _linearize
 
             cost, data, grad = _linearize.hessian_blocks(

@@ -298,7 +298,7 @@ def _auto_backend(pattern: SymmetricPattern) -> str:
     """The ``auto`` rule of :class:`SymmetricFactor` (see its docstring)."""
     from relmap import _numba
 
-    if pattern.block is not None and _numba.enabled():
+    if pattern.block is not None and _numba.enabled(pattern.size // pattern.block):
         return "block"
     if pattern.block is not None and pattern.block >= 6:
         return "supernodal"
@@ -339,10 +339,9 @@ def selected_inverse_blocks(
     """
     from relmap import _numba
 
-    if pattern.block == block and _numba.enabled():
-        numeric = None
-        if factor is not None and factor.pattern is pattern and factor.active == "block":
-            numeric = factor._block
+    held = factor is not None and factor.pattern is pattern and factor.active == "block"
+    if pattern.block == block and (held or _numba.enabled(pattern.size // block)):
+        numeric = factor._block if held else None  # type: ignore[union-attr]
         if numeric is None:
             numeric = _BlockNumeric(pattern.blockchol)
             try:
@@ -444,7 +443,9 @@ def _gather_plan(colptr: IntArray, rowidx: IntArray, n: int) -> tuple[IntArray, 
 def _etree_depth(colptr: IntArray, rowidx: IntArray, n: int) -> IntArray:
     """Depth of each block column in the elimination tree (parent = first block below)."""
     count = np.diff(colptr)
-    parent = np.where(count > 0, rowidx[np.minimum(colptr[:-1], max(len(rowidx) - 1, 0))], -1)
+    if not len(rowidx):  # no off-diagonal blocks (e.g. a single node): all are roots
+        return np.zeros(n, dtype=np.int64)
+    parent = np.where(count > 0, rowidx[np.minimum(colptr[:-1], len(rowidx) - 1)], -1)
     # pointer jumping: depth = number of ancestors, in O(n log depth) vectorized steps
     depth = (parent >= 0).astype(np.int64)
     anc = np.where(parent >= 0, parent, np.arange(n))
