@@ -20,11 +20,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from types import ModuleType
 from typing import Literal, overload
 
 import numpy as np
 
-from relmap import gaussian
+from relmap import _numba, gaussian
 from relmap._layout import components_outermost, read_only
 from relmap.errors import ParameterError, ShapeError
 from relmap.gaussian import DEFAULT_RTOL
@@ -450,11 +451,34 @@ def _rotate(top: FloatArray, D: FloatArray, R: FloatArray, Z: FloatArray, W: Flo
         _es("ilw,klw->ikw", zs, R, out=W[k])
 
 
+_KERNELS: list[ModuleType] = []  # relmap._at3_kernels once imported (numba's import is ~0.3 s)
+
+
+def _kernels() -> ModuleType | None:
+    """The fused numba kernels (:mod:`relmap._at3_kernels`) when they run
+    (:func:`relmap._numba.enabled`), else None (the numpy kernels here run)."""
+    if not _numba.enabled():
+        return None
+    if not _KERNELS:
+        from relmap import _at3_kernels
+
+        _KERNELS.append(_at3_kernels)
+    return _KERNELS[0]
+
+
 def _compound_batched(a: AT3, b: AT3, X: FloatArray | None, batch: tuple[int, ...]) -> AT3:
     N = math.prod(batch)
     Ta, Ca = _planes(a._mean, batch, N), _planes(a._cov, batch, N)
     Tb, Cb = _planes(b._mean, batch, N), _planes(b._cov, batch, N)
     Xp = None if X is None else _planes(X, batch, N)
+    kernels = _kernels()
+    if kernels is not None:  # C-contiguous planes: copies only of views (slices, broadcasts)
+        Ta, Ca, Tb, Cb = (np.ascontiguousarray(x) for x in (Ta, Ca, Tb, Cb))
+        if Xp is None:
+            To, Co = kernels.compound_batched(Ta, Ca, Tb, Cb)
+        else:
+            To, Co = kernels.compound_cross_batched(Ta, Ca, Tb, Cb, np.ascontiguousarray(Xp))
+        return AT3._own(_logical(To, batch), _logical(Co, batch))
     To, Co = _new_pose_and_cov(N)
     m = min(N, _CHUNK)
     scratch = np.empty((3 + 27 + 27 + 9 + 9 + 18 + (0 if X is None else 72), m))
@@ -501,6 +525,10 @@ def _reverse_batched(a: AT3) -> AT3:
     batch = a.batch_shape
     N = math.prod(batch)
     T, C = _planes(a._mean, batch, N), _planes(a._cov, batch, N)
+    kernels = _kernels()
+    if kernels is not None:
+        To, Co = kernels.reverse_batched(np.ascontiguousarray(T), np.ascontiguousarray(C))
+        return AT3._own(_logical(To, batch), _logical(Co, batch))
     To, Co = _new_pose_and_cov(N)
     m = min(N, _CHUNK)
     scratch = np.empty((3 + 27 + 27 + 18 + 9 + 9, m))
@@ -601,6 +629,9 @@ def compound3(a: AT3, b: AT3, *, cross_cov: ArrayLike | None = None) -> AT3:
         gaussian.check_finite(X, "cross_cov")
     Ta, Tb = a._mean, b._mean
     if Ta.ndim == 2 and Tb.ndim == 2 and (X is None or X.ndim == 2):
+        kernels = _kernels()
+        if kernels is not None:
+            return AT3._own(*kernels.compound_one(Ta, a._cov, Tb, b._cov, X))
         return _compound_one(Ta, a._cov, Tb, b._cov, X)
     batch = Ta.shape[:-2]
     try:
@@ -623,7 +654,15 @@ def reverse3(a: AT3, *, jacobian: bool = False) -> AT3 | tuple[AT3, FloatArray]:
     ``jacobian=True``; A's cross-covariance with its reversal is then ``C Jᵀ``)."""
     if not isinstance(a, AT3):
         raise TypeError(f"expected an AT3, got {type(a).__name__}")
-    out = _reverse_one(a._mean, a._cov) if a._mean.ndim == 2 else _reverse_batched(a)
+    if a._mean.ndim == 2:
+        kernels = _kernels()
+        out = (
+            _reverse_one(a._mean, a._cov)
+            if kernels is None
+            else AT3._own(*kernels.reverse_one(a._mean, a._cov))
+        )
+    else:
+        out = _reverse_batched(a)
     if jacobian:
         return out, se3.inverse(a._mean, jacobians=True)[1]
     return out

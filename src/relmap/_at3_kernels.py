@@ -1,0 +1,429 @@
+"""Fused numba kernels for :mod:`relmap.at3`: compound (optionally with cross-covariance), reversal.
+
+Imported by :mod:`relmap.at3` only when :func:`relmap._numba.enabled`; the numpy kernels there
+are the fallback and the reference. Per element the whole first-order propagation runs in
+registers (3×3 blocks as 9-tuples, row-major; the Jacobians' structure written out as in the
+numpy path: a shear by ``[u]×`` and a rotation) and each input and output is read or written
+once; batches go through in chunks staged in a small scratch array (see "loads and stores").
+
+Array conventions (relmap's storage, :mod:`relmap._layout`): the batched kernels take
+C-contiguous entry-major planes, poses ``(4, 4, N)`` and covariances ``(6, 6, N)``, and return
+new C-contiguous planes of the same shapes; the ``*_one`` kernels take a single ``(4, 4)`` pose
+and ``(6, 6)`` covariance of any strides and return new ones. Output covariances are exactly
+symmetric (their diagonal blocks are averaged with their transposes, as in the numpy path). The
+operations and their order follow the numpy path, without ``fastmath``, so results agree with
+it to rounding (the batched kernels' are bitwise equal in the cases measured).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+from numba import types
+
+# The kernels (compound_batched, compound_cross_batched, reverse_batched, compound_one,
+# reverse_one) are module attributes made on first access: see __getattr__ below.
+
+_inline = numba.njit(cache=True, fastmath=False, inline="always")
+
+# Compiled signatures, of read-only arrays (AT3's; writable ones convert to them): the batched
+# kernels take C-contiguous planes (relmap's own layout; at3 copies other views first) and the
+# single-pair ones any strides (layout "A": a batch's element is a strided view), so nothing is
+# compiled at call time. A kernel is compiled, or loaded from numba's on-disk cache, the first
+# time it is looked up here (module ``__getattr__``), not at import.
+_A2 = types.Array(types.float64, 2, "A", readonly=True)
+_C3 = types.Array(types.float64, 3, "C", readonly=True)
+_P2 = types.UniTuple(types.float64[:, ::1], 2)
+_P3 = types.UniTuple(types.float64[:, :, ::1], 2)
+_X2 = types.optional(_A2)
+_SIGNATURES = {
+    "compound_batched": [_P3(_C3, _C3, _C3, _C3)],
+    "compound_cross_batched": [_P3(_C3, _C3, _C3, _C3, _C3)],
+    "reverse_batched": [_P3(_C3, _C3)],
+    "compound_one": [_P2(_A2, _A2, _A2, _A2, _X2)],
+    "reverse_one": [_P2(_A2, _A2)],
+}
+
+
+def __getattr__(name: str) -> object:
+    """Compile (or load) the kernel ``name`` from its Python source ``_name``, once."""
+    if name not in _SIGNATURES:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    kernel = numba.njit(_SIGNATURES[name], cache=True, fastmath=False, nogil=True)(
+        globals()["_" + name]
+    )
+    globals()[name] = kernel
+    return kernel
+
+
+# 3×3 blocks and vectors as tuples -----------------------------------------------------------
+
+
+@_inline
+def _mm(a, b):  # type: ignore[no-untyped-def]
+    """a @ b."""
+    return (
+        a[0] * b[0] + a[1] * b[3] + a[2] * b[6],
+        a[0] * b[1] + a[1] * b[4] + a[2] * b[7],
+        a[0] * b[2] + a[1] * b[5] + a[2] * b[8],
+        a[3] * b[0] + a[4] * b[3] + a[5] * b[6],
+        a[3] * b[1] + a[4] * b[4] + a[5] * b[7],
+        a[3] * b[2] + a[4] * b[5] + a[5] * b[8],
+        a[6] * b[0] + a[7] * b[3] + a[8] * b[6],
+        a[6] * b[1] + a[7] * b[4] + a[8] * b[7],
+        a[6] * b[2] + a[7] * b[5] + a[8] * b[8],
+    )
+
+
+@_inline
+def _mmt(a, b):  # type: ignore[no-untyped-def]
+    """a @ bᵀ."""
+    return (
+        a[0] * b[0] + a[1] * b[1] + a[2] * b[2],
+        a[0] * b[3] + a[1] * b[4] + a[2] * b[5],
+        a[0] * b[6] + a[1] * b[7] + a[2] * b[8],
+        a[3] * b[0] + a[4] * b[1] + a[5] * b[2],
+        a[3] * b[3] + a[4] * b[4] + a[5] * b[5],
+        a[3] * b[6] + a[4] * b[7] + a[5] * b[8],
+        a[6] * b[0] + a[7] * b[1] + a[8] * b[2],
+        a[6] * b[3] + a[7] * b[4] + a[8] * b[5],
+        a[6] * b[6] + a[7] * b[7] + a[8] * b[8],
+    )
+
+
+@_inline
+def _tr(a):  # type: ignore[no-untyped-def]
+    return (a[0], a[3], a[6], a[1], a[4], a[7], a[2], a[5], a[8])
+
+
+@_inline
+def _add(a, b):  # type: ignore[no-untyped-def]
+    return (
+        a[0] + b[0], a[1] + b[1], a[2] + b[2],
+        a[3] + b[3], a[4] + b[4], a[5] + b[5],
+        a[6] + b[6], a[7] + b[7], a[8] + b[8],
+    )  # fmt: skip
+
+
+@_inline
+def _sub(a, b):  # type: ignore[no-untyped-def]
+    return (
+        a[0] - b[0], a[1] - b[1], a[2] - b[2],
+        a[3] - b[3], a[4] - b[4], a[5] - b[5],
+        a[6] - b[6], a[7] - b[7], a[8] - b[8],
+    )  # fmt: skip
+
+
+@_inline
+def _sym(a):  # type: ignore[no-untyped-def]
+    """(a + aᵀ) / 2, exactly symmetric."""
+    return _half(_add(a, _tr(a)))
+
+
+@_inline
+def _half(a):  # type: ignore[no-untyped-def]
+    return (
+        a[0] * 0.5, a[1] * 0.5, a[2] * 0.5,
+        a[3] * 0.5, a[4] * 0.5, a[5] * 0.5,
+        a[6] * 0.5, a[7] * 0.5, a[8] * 0.5,
+    )  # fmt: skip
+
+
+@_inline
+def _mv(a, v):  # type: ignore[no-untyped-def]
+    """a @ v."""
+    return (
+        a[0] * v[0] + a[1] * v[1] + a[2] * v[2],
+        a[3] * v[0] + a[4] * v[1] + a[5] * v[2],
+        a[6] * v[0] + a[7] * v[1] + a[8] * v[2],
+    )
+
+
+@_inline
+def _hat(u):  # type: ignore[no-untyped-def]
+    """[u]× (its zeros take part in the products, as in the numpy path)."""
+    return (0.0, -u[2], u[1], u[2], 0.0, -u[0], -u[1], u[0], 0.0)
+
+
+# the propagation on blocks ----------------------------------------------------------------
+
+
+@_inline
+def _shear(A, B, D, S):  # type: ignore[no-untyped-def]
+    """Blocks (0, 0) and (0, 1) of ``Ja C Jaᵀ``, ``Ja = [[I, -S], [0, I]]``: with
+    ``E = B - S D``, ``(A - S Bᵀ - E Sᵀ, E)``; block (1, 1) stays D."""
+    E = _sub(B, _mm(S, D))
+    return _sub(_sub(A, _mmt(S, B)), _mmt(E, S)), E
+
+
+@_inline
+def _rotate(A, B, D, R):  # type: ignore[no-untyped-def]
+    """The blocks (0, 0), (0, 1), (1, 1) of ``blkdiag(R, R) C blkdiag(R, R)ᵀ``."""
+    return _mmt(_mm(R, A), R), _mmt(_mm(R, B), R), _mmt(_mm(R, D), R)
+
+
+@_inline
+def _compound(ra, ta, rb, tb, Aa, Ba, Da, Ab, Bb, Db):  # type: ignore[no-untyped-def]
+    """Mean (R, t) and the unsymmetrized blocks (0, 0), (0, 1), (1, 1) of ``a ⊕ b``'s
+    covariance, and ``S = [Ra tb]×`` (for the cross terms)."""
+    u = _mv(ra, tb)
+    R = _mm(ra, rb)
+    t = (u[0] + ta[0], u[1] + ta[1], u[2] + ta[2])
+    S = _hat(u)
+    top0, E = _shear(Aa, Ba, Da, S)
+    W0, W1, W2 = _rotate(Ab, Bb, Db, ra)
+    return R, t, S, _add(top0, W0), _add(E, W1), _add(Da, W2)
+
+
+@_inline
+def _cross(ra, S, X00, X01, X10, X11):  # type: ignore[no-untyped-def]
+    """Blocks (0, 0), (0, 1), (1, 1) of ``K + Kᵀ``, ``K = Ja X Jbᵀ``."""
+    Y00, Y01, Y10, Y11 = _mmt(X00, ra), _mmt(X01, ra), _mmt(X10, ra), _mmt(X11, ra)
+    K00 = _sub(Y00, _mm(S, Y10))
+    K01 = _sub(Y01, _mm(S, Y11))
+    return _add(K00, _tr(K00)), _add(K01, _tr(Y10)), _add(Y11, _tr(Y11))
+
+
+@_inline
+def _reverse(r, t, A, B, D):  # type: ignore[no-untyped-def]
+    """``(Rᵀ, -Rᵀ t)`` and the unsymmetrized blocks of ``J C Jᵀ``,
+    ``J = -blkdiag(Rᵀ, Rᵀ) [[I, [t]×], [0, I]]`` (a shear by ``u = -t``, then Rᵀ)."""
+    rt = _tr(r)
+    v = _mv(rt, t)
+    S = _hat((-t[0], -t[1], -t[2]))
+    top0, E = _shear(A, B, D, S)
+    W0, W1, W2 = _rotate(top0, E, D, rt)
+    return rt, (-v[0], -v[1], -v[2]), W0, W1, W2
+
+
+# loads and stores -------------------------------------------------------------------------
+# A batched kernel works on a chunk of _W elements at a time, staged in one scratch array
+# ``buf`` (rows, _W): the chunk's inputs are copied in one entry (a contiguous run) at a time,
+# the propagation runs over the chunk reading and writing ``buf`` only, and the results are
+# copied out one entry at a time. Reading ~100 entry planes at once in the propagation loop
+# would make ~150 concurrent memory streams, far more than the hardware prefetchers follow
+# (measured: 1.7x slower at N = 10⁵); and with every access in one array of a compile-time
+# width, LLVM can prove the loop free of aliasing and vectorizes it across the chunk.
+
+_W = 256  # elements per chunk: the scratch (~180 rows) stays in the L2 cache
+# scratch rows: a pose's entries (i < 3, j < 4) at row + 4 i + j, a covariance's at row + 6 i + j
+_TA, _TB, _CA, _CB, _XC, _TO, _CO = 0, 12, 24, 60, 96, 132, 144
+_ROWS = 180
+
+
+@_inline
+def _blk(b, r, n):  # type: ignore[no-untyped-def]
+    """The 3×3 block starting at row r of a covariance staged in ``buf``, element n."""
+    return (
+        b[r, n], b[r + 1, n], b[r + 2, n],
+        b[r + 6, n], b[r + 7, n], b[r + 8, n],
+        b[r + 12, n], b[r + 13, n], b[r + 14, n],
+    )  # fmt: skip
+
+
+@_inline
+def _rot(b, r, n):  # type: ignore[no-untyped-def]
+    """The rotation of a pose staged at row r, element n."""
+    return (
+        b[r, n], b[r + 1, n], b[r + 2, n],
+        b[r + 4, n], b[r + 5, n], b[r + 6, n],
+        b[r + 8, n], b[r + 9, n], b[r + 10, n],
+    )  # fmt: skip
+
+
+@_inline
+def _trans(b, r, n):  # type: ignore[no-untyped-def]
+    return (b[r + 3, n], b[r + 7, n], b[r + 11, n])
+
+
+@_inline
+def _put(b, r, n, x):  # type: ignore[no-untyped-def]
+    b[r, n], b[r + 1, n], b[r + 2, n] = x[0], x[1], x[2]
+    b[r + 6, n], b[r + 7, n], b[r + 8, n] = x[3], x[4], x[5]
+    b[r + 12, n], b[r + 13, n], b[r + 14, n] = x[6], x[7], x[8]
+
+
+@_inline
+def _store(b, n, R, t, W0, W1, W2):  # type: ignore[no-untyped-def]
+    """Stage the pose (R, t) and the covariance with blocks W0, W1 (W1ᵀ below), W2 at rows
+    _TO and _CO; W0 and W2 are made exactly symmetric."""
+    b[_TO, n], b[_TO + 1, n], b[_TO + 2, n], b[_TO + 3, n] = R[0], R[1], R[2], t[0]
+    b[_TO + 4, n], b[_TO + 5, n], b[_TO + 6, n], b[_TO + 7, n] = R[3], R[4], R[5], t[1]
+    b[_TO + 8, n], b[_TO + 9, n], b[_TO + 10, n], b[_TO + 11, n] = R[6], R[7], R[8], t[2]
+    _put(b, _CO, n, _sym(W0))
+    _put(b, _CO + 3, n, W1)
+    _put(b, _CO + 18, n, _tr(W1))
+    _put(b, _CO + 21, n, _sym(W2))
+
+
+@_inline
+def _stage_in(buf, row, X, rows, s, w):  # type: ignore[no-untyped-def]
+    """Copy entries (i < rows, all j) of elements s..s+w of planes X into buf from ``row``."""
+    c = X.shape[1]
+    for i in range(rows):
+        for j in range(c):
+            _copy(buf[row + c * i + j], X[i, j, s : s + w], w)
+
+
+@_inline
+def _stage_out(buf, To, Co, s, w):  # type: ignore[no-untyped-def]
+    """Copy the staged results of elements s..s+w into To (4, 4, N), Co (6, 6, N)."""
+    for i in range(3):
+        for j in range(4):
+            _copy(To[i, j, s : s + w], buf[_TO + 4 * i + j], w)
+    To[3, :3, s : s + w] = 0.0
+    To[3, 3, s : s + w] = 1.0
+    for i in range(6):
+        for j in range(6):
+            _copy(Co[i, j, s : s + w], buf[_CO + 6 * i + j], w)
+
+
+@_inline
+def _copy(dst, src, w):  # type: ignore[no-untyped-def]
+    """dst[:w] = src[:w] (unsigned indices: no negative-index wrapping, so it vectorizes)."""
+    for n in range(w):
+        k = np.uint64(n)
+        dst[k] = src[k]
+
+
+@_inline
+def _compound_chunk(buf):  # type: ignore[no-untyped-def]
+    """``a ⊕ b`` on a staged chunk: the whole chunk, a constant trip count, vectorizes."""
+    for n in range(_W):
+        R, t, _, W0, W1, W2 = _compound(
+            _rot(buf, _TA, n), _trans(buf, _TA, n), _rot(buf, _TB, n), _trans(buf, _TB, n),
+            _blk(buf, _CA, n), _blk(buf, _CA + 3, n), _blk(buf, _CA + 21, n),
+            _blk(buf, _CB, n), _blk(buf, _CB + 3, n), _blk(buf, _CB + 21, n),
+        )  # fmt: skip
+        _store(buf, n, R, t, W0, W1, W2)
+
+
+@_inline
+def _compound_cross_chunk(buf):  # type: ignore[no-untyped-def]
+    """``a ⊕ b`` with the cross terms (X staged at _XC) on a staged chunk."""
+    for n in range(_W):
+        ra = _rot(buf, _TA, n)
+        R, t, S, W0, W1, W2 = _compound(
+            ra, _trans(buf, _TA, n), _rot(buf, _TB, n), _trans(buf, _TB, n),
+            _blk(buf, _CA, n), _blk(buf, _CA + 3, n), _blk(buf, _CA + 21, n),
+            _blk(buf, _CB, n), _blk(buf, _CB + 3, n), _blk(buf, _CB + 21, n),
+        )  # fmt: skip
+        Y0, Y1, Y2 = _cross(
+            ra, S, _blk(buf, _XC, n), _blk(buf, _XC + 3, n),
+            _blk(buf, _XC + 18, n), _blk(buf, _XC + 21, n),
+        )  # fmt: skip
+        _store(buf, n, R, t, _add(W0, Y0), _add(W1, Y1), _add(W2, Y2))
+
+
+# kernels ------------------------------------------------------------------------------------
+
+
+def _compound_batched(Ta, Ca, Tb, Cb):  # type: ignore[no-untyped-def]
+    """``a ⊕ b`` over N elements: Ta, Tb (4, 4, N), Ca, Cb (6, 6, N) → new (4, 4, N),
+    (6, 6, N)."""
+    N = Ta.shape[2]
+    To = np.empty((4, 4, N))
+    Co = np.empty((6, 6, N))
+    buf = np.zeros((_ROWS, _W))  # zeros: the unused tail of a last chunk stays harmless
+    for s in range(0, N, _W):
+        w = min(_W, N - s)
+        _stage_in(buf, _TA, Ta, 3, s, w)
+        _stage_in(buf, _TB, Tb, 3, s, w)
+        _stage_in(buf, _CA, Ca, 6, s, w)
+        _stage_in(buf, _CB, Cb, 6, s, w)
+        _compound_chunk(buf)
+        _stage_out(buf, To, Co, s, w)
+    return To, Co
+
+
+def _compound_cross_batched(Ta, Ca, Tb, Cb, X):  # type: ignore[no-untyped-def]
+    """:func:`compound_batched` of a dependent pair, X (6, 6, N) = ``E[δa δbᵀ]``."""
+    N = Ta.shape[2]
+    To = np.empty((4, 4, N))
+    Co = np.empty((6, 6, N))
+    buf = np.zeros((_ROWS, _W))
+    for s in range(0, N, _W):
+        w = min(_W, N - s)
+        _stage_in(buf, _TA, Ta, 3, s, w)
+        _stage_in(buf, _TB, Tb, 3, s, w)
+        _stage_in(buf, _CA, Ca, 6, s, w)
+        _stage_in(buf, _CB, Cb, 6, s, w)
+        _stage_in(buf, _XC, X, 6, s, w)
+        _compound_cross_chunk(buf)
+        _stage_out(buf, To, Co, s, w)
+    return To, Co
+
+
+def _reverse_batched(T, C):  # type: ignore[no-untyped-def]
+    """``Aᴿ`` over N elements: T (4, 4, N), C (6, 6, N) → new (4, 4, N), (6, 6, N)."""
+    N = T.shape[2]
+    To = np.empty((4, 4, N))
+    Co = np.empty((6, 6, N))
+    buf = np.zeros((_ROWS, _W))
+    for s in range(0, N, _W):
+        w = min(_W, N - s)
+        _stage_in(buf, _TA, T, 3, s, w)
+        _stage_in(buf, _CA, C, 6, s, w)
+        for n in range(_W):
+            R, t, W0, W1, W2 = _reverse(
+                _rot(buf, _TA, n), _trans(buf, _TA, n),
+                _blk(buf, _CA, n), _blk(buf, _CA + 3, n), _blk(buf, _CA + 21, n),
+            )  # fmt: skip
+            _store(buf, n, R, t, W0, W1, W2)
+        _stage_out(buf, To, Co, s, w)
+    return To, Co
+
+
+@_inline
+def _blk2(X, i, j):  # type: ignore[no-untyped-def]
+    """The 3×3 block at (i, j) of one matrix."""
+    return (
+        X[i, j], X[i, j + 1], X[i, j + 2],
+        X[i + 1, j], X[i + 1, j + 1], X[i + 1, j + 2],
+        X[i + 2, j], X[i + 2, j + 1], X[i + 2, j + 2],
+    )  # fmt: skip
+
+
+@_inline
+def _put2(X, i, j, b):  # type: ignore[no-untyped-def]
+    X[i, j], X[i, j + 1], X[i, j + 2] = b[0], b[1], b[2]
+    X[i + 1, j], X[i + 1, j + 1], X[i + 1, j + 2] = b[3], b[4], b[5]
+    X[i + 2, j], X[i + 2, j + 1], X[i + 2, j + 2] = b[6], b[7], b[8]
+
+
+@_inline
+def _store2(R, t, W0, W1, W2):  # type: ignore[no-untyped-def]
+    """New (4, 4) and (6, 6) arrays, filled like :func:`_store`."""
+    To = np.empty((4, 4))
+    Co = np.empty((6, 6))
+    _put2(To, 0, 0, R)
+    To[0, 3], To[1, 3], To[2, 3] = t[0], t[1], t[2]
+    To[3, 0], To[3, 1], To[3, 2], To[3, 3] = 0.0, 0.0, 0.0, 1.0
+    _put2(Co, 0, 0, _sym(W0))
+    _put2(Co, 0, 3, W1)
+    _put2(Co, 3, 0, _tr(W1))
+    _put2(Co, 3, 3, _sym(W2))
+    return To, Co
+
+
+def _compound_one(Ta, Ca, Tb, Cb, X):  # type: ignore[no-untyped-def]
+    """One pair: Ta, Tb (4, 4), Ca, Cb (6, 6), X (6, 6) or None → new (4, 4), (6, 6)."""
+    ra = _blk2(Ta, 0, 0)
+    R, t, S, W0, W1, W2 = _compound(
+        ra, (Ta[0, 3], Ta[1, 3], Ta[2, 3]), _blk2(Tb, 0, 0), (Tb[0, 3], Tb[1, 3], Tb[2, 3]),
+        _blk2(Ca, 0, 0), _blk2(Ca, 0, 3), _blk2(Ca, 3, 3),
+        _blk2(Cb, 0, 0), _blk2(Cb, 0, 3), _blk2(Cb, 3, 3),
+    )  # fmt: skip
+    if X is not None:
+        Y0, Y1, Y2 = _cross(ra, S, _blk2(X, 0, 0), _blk2(X, 0, 3), _blk2(X, 3, 0), _blk2(X, 3, 3))
+        W0, W1, W2 = _add(W0, Y0), _add(W1, Y1), _add(W2, Y2)
+    return _store2(R, t, W0, W1, W2)
+
+
+def _reverse_one(T, C):  # type: ignore[no-untyped-def]
+    """One AT3: T (4, 4), C (6, 6) → new (4, 4), (6, 6)."""
+    R, t, W0, W1, W2 = _reverse(
+        _blk2(T, 0, 0), (T[0, 3], T[1, 3], T[2, 3]),
+        _blk2(C, 0, 0), _blk2(C, 0, 3), _blk2(C, 3, 3),
+    )  # fmt: skip
+    return _store2(R, t, W0, W1, W2)

@@ -1,0 +1,114 @@
+"""The numba kernels of relmap.at3 (relmap._at3_kernels) against its numpy path (RELMAP_NUMBA=0)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+import relmap as rm
+from relmap import _numba, at3
+from relmap.lie import se3
+
+from .helpers import random_covs
+
+pytestmark = pytest.mark.skipif(not _numba.enabled(), reason="numba kernels not in use")
+
+RTOL = 1e-13
+
+
+def random_at3s(
+    seed: int, shape: tuple[int, ...], *, angle: float | None = None, spread: float = 2.0
+) -> rm.AT3:
+    """Random AT3s of batch ``shape``: uniform rotations, or rotations of exactly ``angle`` about
+    random axes; Gaussian translations; dense random covariances."""
+    g = np.random.default_rng(seed)
+    n = int(np.prod(shape))
+    if angle is None:
+        rot = Rotation.random(n, random_state=seed).as_matrix()
+    else:
+        axis = g.normal(size=(n, 3))
+        axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
+        rot = Rotation.from_rotvec(angle * axis).as_matrix()
+    t = g.normal(scale=spread, size=(n, 3))
+    cov = random_covs(g, (n,), n=6, scale=0.05)
+    T = se3.from_parts(t, rot).reshape(*shape, 4, 4)
+    return rm.AT3._trusted(T, cov.reshape(*shape, 6, 6))
+
+
+def both_paths(monkeypatch: pytest.MonkeyPatch, fn: Callable[[], rm.AT3]) -> tuple[rm.AT3, rm.AT3]:
+    """``fn()`` with the numba kernels, then with the numpy path."""
+    with monkeypatch.context() as m:
+        m.setenv("RELMAP_NUMBA", "1")
+        assert at3._kernels() is not None
+        fast = fn()
+    with monkeypatch.context() as m:
+        m.setenv("RELMAP_NUMBA", "0")
+        assert at3._kernels() is None
+        slow = fn()
+    return fast, slow
+
+
+def assert_same(fast: rm.AT3, slow: rm.AT3) -> None:
+    """Equal to rounding (relative to each matrix's largest entry), exactly symmetric
+    covariances, read-only arrays of the same shapes."""
+    assert fast.mean.shape == slow.mean.shape and fast.cov.shape == slow.cov.shape
+    for x, y in ((fast.mean, slow.mean), (fast.cov, slow.cov)):
+        scale = np.abs(y).max(axis=(-2, -1), keepdims=True, initial=0.0)
+        assert (np.abs(x - y) <= RTOL * np.maximum(scale, 1e-300)).all()
+        assert not x.flags.writeable
+    assert np.array_equal(fast.cov, np.swapaxes(fast.cov, -1, -2))
+    assert (fast.mean[..., 3, :] == [0.0, 0.0, 0.0, 1.0]).all()
+
+
+SHAPES = [
+    ((), ()),
+    ((1,), ()),
+    ((), (7,)),
+    ((600,), (600,)),  # several chunks of the kernels, a ragged last one
+    ((3, 1, 2, 1), (1, 4, 1, 3)),
+    ((3, 1, 2, 1), ()),
+    ((0,), (0,)),
+]
+
+
+@pytest.mark.parametrize(("shape_a", "shape_b"), SHAPES)
+@pytest.mark.parametrize("angle", [None, 1e-9, 0.0, np.pi - 1e-9, np.pi])
+def test_compound_and_reverse_kernels_equal_the_numpy_path(monkeypatch, shape_a, shape_b, angle):
+    a = random_at3s(1, shape_a, angle=angle)
+    b = random_at3s(2, shape_b, angle=None if angle is None else np.pi - angle)
+    batch = np.broadcast_shapes(shape_a, shape_b)
+    X = np.random.default_rng(3).normal(scale=0.01, size=(*batch, 6, 6))
+    assert_same(*both_paths(monkeypatch, lambda: a @ b))
+    assert_same(*both_paths(monkeypatch, lambda: b @ a))
+    assert_same(*both_paths(monkeypatch, lambda: rm.compound(a, b, cross_cov=X)))
+    assert_same(*both_paths(monkeypatch, a.reverse))
+    assert_same(*both_paths(monkeypatch, b.reverse))
+
+
+def test_kernels_read_views_and_broadcast_cross_covariances(monkeypatch):
+    a, b = random_at3s(4, (40, 5)), random_at3s(5, (40, 5))
+    plain = rm.AT3._trusted(np.ascontiguousarray(a.mean), np.ascontiguousarray(a.cov))
+    X = np.random.default_rng(6).normal(scale=0.01, size=(5, 6, 6))  # broadcast over axis 0
+    for fn in (
+        lambda: a[::2, 2] @ b[1::2, 3],  # strided slices
+        lambda: a[3] @ b,  # one row against the batch
+        lambda: plain @ b,  # numpy's default layout
+        lambda: plain.reverse(),
+        lambda: a[:, 1].reverse(),
+        lambda: rm.compound(a, b, cross_cov=X),
+        lambda: rm.compound(a[0, 0], b[1, 1], cross_cov=X[0].T),  # a non-contiguous X
+    ):
+        assert_same(*both_paths(monkeypatch, fn))
+
+
+def test_kernels_keep_the_reversal_cross_covariance_identity(monkeypatch):
+    """A ⊕ Aᴿ with the cross-covariance ``C Jᵀ`` is exactly known (the identity, zero cov)."""
+    monkeypatch.setenv("RELMAP_NUMBA", "1")
+    a = random_at3s(7, (300,))
+    r, J = at3.reverse3(a, jacobian=True)
+    out = rm.compound(a, r, cross_cov=a.cov @ np.swapaxes(J, -1, -2))
+    np.testing.assert_allclose(out.mean, np.broadcast_to(np.eye(4), out.mean.shape), atol=1e-14)
+    assert np.abs(out.cov).max() <= 1e-14 * np.abs(a.cov).max() * 100
