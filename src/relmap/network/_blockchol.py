@@ -14,6 +14,9 @@ import numpy as np
 
 from relmap.typing import FloatArray, IntArray
 
+#: reassociation lets LLVM vectorize the dense dot products (NaN and infinity checks stay)
+_FAST = {"reassoc", "contract", "nsz"}
+
 __all__ = [
     "adjacency",
     "block_pairs",
@@ -460,3 +463,259 @@ def selected_inverse(
                 Z[jo + r * b + c] = v
                 Z[jo + c * b + r] = v
     return Z
+
+
+@numba.njit(cache=True)
+def supernodes(Lp: IntArray, Li: IntArray) -> IntArray:  # pragma: no cover
+    """First node of every fundamental supernode (then n): node j+1 joins j's supernode when
+    its structure is j's without j+1 (parent j+1, one row fewer)."""
+    n = len(Lp) - 1
+    starts = np.empty(n + 1, np.int64)
+    k = 0
+    for j in range(n):
+        joins = (
+            j > 0
+            and Lp[j] > Lp[j - 1]
+            and Li[Lp[j - 1]] == j
+            and Lp[j] - Lp[j - 1] == Lp[j + 1] - Lp[j] + 1
+        )
+        if not joins:
+            starts[k] = j
+            k += 1
+    starts[k] = n
+    return starts[: k + 1].copy()
+
+
+@numba.njit(cache=True)
+def panel_map(
+    indptr: IntArray,
+    indices: IntArray,
+    rank: IntArray,
+    b: int,
+    Lp: IntArray,
+    Li: IntArray,
+    starts: IntArray,
+    offset: IntArray,
+) -> tuple[IntArray, IntArray]:  # pragma: no cover
+    """For every CSC entry in a lower-triangle block, its index in the data (``src``) and in
+    the supernodal panels (``dst``). Supernode s (nodes f..l-1, w = l-f) stores a dense
+    row-major panel of (w + |R|)·b rows (nodes f..l-1, then its rows below, R) × w·b columns
+    at ``offset[s]``."""
+    size = len(indptr) - 1
+    n = len(Lp) - 1
+    S = len(starts) - 1
+    sn_of = np.empty(n, np.int64)
+    for s in range(S):
+        for v in range(starts[s], starts[s + 1]):
+            sn_of[v] = s
+    pos = np.full(n, -1, np.int64)
+    src = np.empty(len(indices), np.int64)
+    dst = np.empty(len(indices), np.int64)
+    t = 0
+    for c0 in range(0, size, b):
+        J = rank[c0 // b]
+        s = sn_of[J]
+        f, last = starts[s], starts[s + 1] - 1
+        w = last + 1 - f
+        for v in range(f, last + 1):
+            pos[v] = v - f
+        for p in range(Lp[last], Lp[last + 1]):
+            pos[Li[p]] = w + p - Lp[last]
+        u = J - f
+        cols = w * b
+        for c in range(c0, c0 + b):
+            for p in range(indptr[c], indptr[c + 1]):
+                r = indices[p]
+                row = rank[r // b]
+                if row >= J:
+                    src[t] = p
+                    dst[t] = offset[s] + (pos[row] * b + r % b) * cols + u * b + c % b
+                    t += 1
+    return src[:t], dst[:t]
+
+
+@numba.njit(cache=True, fastmath=_FAST)
+def factorize_supernodal(
+    Lp: IntArray,
+    Li: IntArray,
+    starts: IntArray,
+    offset: IntArray,
+    src: IntArray,
+    dst: IntArray,
+    data: FloatArray,
+    P: FloatArray,
+    X: FloatArray,
+    Dinv: FloatArray,
+    bt: tuple[int, ...],
+) -> int:  # pragma: no cover
+    """Left-looking supernodal Cholesky ``A = L Lᵀ`` in dense panels ``P`` (see
+    :func:`panel_map`), then the same factor as the block ``L D Lᵀ`` of :func:`factorize` in
+    ``X`` and ``Dinv`` (so :func:`solve` and :func:`selected_inverse` apply). Updates between
+    panels go through BLAS (``np.dot``) when large, through loops when small. Returns -1, or
+    a node whose pivot is not positive."""
+    b = len(bt)
+    bb = b * b
+    n = len(Lp) - 1
+    S = len(starts) - 1
+    P[:] = 0.0
+    for t in range(len(src)):
+        P[dst[t]] = data[src[t]]
+    sn_of = np.empty(n, np.int64)
+    for s in range(S):
+        for v in range(starts[s], starts[s + 1]):
+            sn_of[v] = s
+    relpos = np.zeros(n, np.int64)
+    head = np.full(S, -1, np.int64)
+    nxt = np.full(S, -1, np.int64)
+    ptr = np.zeros(S, np.int64)
+    for s in range(S):
+        f, last = starts[s], starts[s + 1] - 1
+        w = last + 1 - f
+        r0 = Lp[last]
+        m = w + Lp[last + 1] - r0
+        cols = w * b
+        so = offset[s]
+        for v in range(w):
+            relpos[f + v] = v
+        for p in range(r0, Lp[last + 1]):
+            relpos[Li[p]] = w + p - r0
+        d = head[s]
+        while d != -1:
+            d_next = nxt[d]
+            fd, ld = starts[d], starts[d + 1] - 1
+            wd = ld + 1 - fd
+            rd = Lp[ld]
+            md = wd + Lp[ld + 1] - rd
+            dcols = wd * b
+            do = offset[d]
+            p = ptr[d]  # rows p.. of d are at or below s's first node
+            p2 = p
+            while p2 < md and Li[rd + p2 - wd] <= last:
+                p2 += 1
+            if (md - p) * (p2 - p) * dcols * bb >= 2048:
+                A = P[do + p * b * dcols : do + md * b * dcols].reshape((md - p) * b, dcols)
+                B = P[do + p * b * dcols : do + p2 * b * dcols].reshape((p2 - p) * b, dcols)
+                C = np.dot(A, B.T)
+                for t1 in range(p, md):
+                    R = relpos[Li[rd + t1 - wd]]
+                    for t2 in range(p, min(t1 + 1, p2)):
+                        U = Li[rd + t2 - wd] - f
+                        for a in range(b):
+                            row = so + (R * b + a) * cols + U * b
+                            crow = (t1 - p) * b + a
+                            for c in range(b):
+                                P[row + c] -= C[crow, (t2 - p) * b + c]
+            else:
+                for t1 in range(p, md):
+                    R = relpos[Li[rd + t1 - wd]]
+                    for t2 in range(p, min(t1 + 1, p2)):
+                        U = Li[rd + t2 - wd] - f
+                        for a in range(b):
+                            ra = do + (t1 * b + a) * dcols
+                            row = so + (R * b + a) * cols + U * b
+                            for c in range(b):
+                                rc = do + (t2 * b + c) * dcols
+                                acc = 0.0
+                                for k in range(dcols):
+                                    acc += P[ra + k] * P[rc + k]
+                                P[row + c] -= acc
+            ptr[d] = p2
+            if p2 < md:
+                e = sn_of[Li[rd + p2 - wd]]
+                nxt[d] = head[e]
+                head[e] = d
+            d = d_next
+        if cols >= 24:  # a wide panel: LAPACK's Cholesky, then L21 = A21 L11⁻ᵀ through BLAS
+            D = P[so : so + cols * cols].reshape(cols, cols)
+            for r in range(cols):
+                for c in range(r):
+                    D[c, r] = D[r, c]
+                if not D[r, r] > 0.0:
+                    return f + r // b
+            L11 = np.linalg.cholesky(D)  # raises LinAlgError if not positive definite
+            D[:, :] = L11
+            if m > w:
+                Linv = np.zeros((cols, cols))  # L11⁻¹, row by row
+                for r in range(cols):
+                    Linv[r, r] = 1.0
+                    for k in range(r):
+                        x = L11[r, k]
+                        for c in range(k + 1):
+                            Linv[r, c] -= x * Linv[k, c]
+                    for c in range(r + 1):
+                        Linv[r, c] /= L11[r, r]
+                A21 = P[so + cols * cols : so + m * b * cols].reshape((m - w) * b, cols)
+                A21[:, :] = np.dot(A21, Linv.T)
+                ptr[s] = w
+                e = sn_of[Li[r0]]
+                nxt[s] = head[e]
+                head[e] = s
+            continue
+        # dense Cholesky of the diagonal block (rows 0..cols-1), lower triangle, in place
+        for r in range(cols):
+            ro = so + r * cols
+            for c in range(r + 1):
+                co = so + c * cols
+                acc = P[ro + c]
+                for k in range(c):
+                    acc -= P[ro + k] * P[co + k]
+                if r == c:
+                    if not acc > 0.0:
+                        return f + r // b
+                    P[ro + r] = np.sqrt(acc)
+                else:
+                    P[ro + c] = acc / P[co + c]
+        # the rows below: L21 = A21 L11⁻ᵀ, row by row
+        for r in range(cols, m * b):
+            ro = so + r * cols
+            for c in range(cols):
+                co = so + c * cols
+                acc = P[ro + c]
+                for k in range(c):
+                    acc -= P[ro + k] * P[co + k]
+                P[ro + c] = acc / P[co + c]
+        if m > w:
+            ptr[s] = w
+            e = sn_of[Li[r0]]
+            nxt[s] = head[e]
+            head[e] = s
+    # the block L D Lᵀ: L̃_IJ = L_IJ L_JJ⁻¹, D_J = L_JJ L_JJᵀ
+    Linv = np.empty((b, b))
+    for s in range(S):
+        f, last = starts[s], starts[s + 1] - 1
+        w = last + 1 - f
+        m = w + Lp[last + 1] - Lp[last]
+        cols = w * b
+        so = offset[s]
+        for u in range(w):
+            J = f + u
+            base = so + (u * b) * cols + u * b  # L_JJ
+            Linv[:, :] = 0.0
+            for c in range(b):
+                Linv[c, c] = 1.0 / P[base + c * cols + c]
+                for r in range(c + 1, b):
+                    acc = 0.0
+                    for k in range(c, r):
+                        acc -= P[base + r * cols + k] * Linv[k, c]
+                    Linv[r, c] = acc / P[base + r * cols + r]
+            jo = J * bb
+            for r in range(b):
+                for c in range(b):
+                    acc = 0.0
+                    dd = 0.0
+                    for k in range(max(r, c), b):
+                        acc += Linv[k, r] * Linv[k, c]
+                    for k in range(min(r, c) + 1):
+                        dd += P[base + r * cols + k] * P[base + c * cols + k]
+                    Dinv[jo + r * b + c] = acc
+                    X[jo + r * b + c] = dd
+            for t in range(u + 1, m):
+                bo = so + (t * b) * cols + u * b
+                lo = (n + Lp[J] + t - u - 1) * bb
+                for r in range(b):
+                    for c in range(b):
+                        acc = 0.0
+                        for k in range(c, b):
+                            acc += P[bo + r * cols + k] * Linv[k, c]
+                        X[lo + r * b + c] = acc
+    return -1

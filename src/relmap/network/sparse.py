@@ -833,17 +833,27 @@ class _BlockSymbolic:
         self.perm = (b * order[:, None] + np.arange(b)).reshape(-1)  # scalar new → old
         # lower-triangle entries (new block row >= new block column) → buffer positions
         self.src, self.dst = kernels.scatter_map(indptr, indices, rank, b, Lp, Li)
+        # fundamental supernodes and their dense panels (rows × columns, b² per node pair)
+        self.starts = kernels.supernodes(Lp, Li)
+        width = np.diff(self.starts)
+        rows = width + np.diff(Lp)[self.starts[1:] - 1]
+        self.offset = np.concatenate([[0], np.cumsum(rows * width * b * b)]).astype(np.int64)
+        self.panel_src, self.panel_dst = kernels.panel_map(
+            indptr, indices, rank, b, Lp, Li, self.starts, self.offset
+        )
         self.nnz_L = int(b * b * len(Li) + n * b * (b + 1) // 2)  #: scalars in L (one triangle)
 
 
 class _BlockNumeric:
     """One numerical block LDLᵀ factorization on a :class:`_BlockSymbolic` analysis."""
 
-    def __init__(self, sym: _BlockSymbolic) -> None:
+    def __init__(self, sym: _BlockSymbolic, supernodal: bool = True) -> None:
         self.sym = sym
         bb = sym.b * sym.b
         self.X = np.empty((sym.n + len(sym.Li)) * bb)
         self.Dinv = np.empty(sym.n * bb)
+        self.supernodal = supernodal
+        self._panels = np.empty(sym.offset[-1]) if supernodal else None
         self._bt = (0,) * sym.b  # its length specializes the kernels to b
 
     def factorize(self, data: FloatArray) -> None:
@@ -852,7 +862,23 @@ class _BlockNumeric:
 
         s = self.sym
         data = np.asarray(data, dtype=np.float64)
-        bad = kernels.factorize(s.Lp, s.Li, s.src, s.dst, data, self.X, self.Dinv, self._bt)
+        if self._panels is not None:
+            with _one_blas_thread():
+                bad = kernels.factorize_supernodal(
+                    s.Lp,
+                    s.Li,
+                    s.starts,
+                    s.offset,
+                    s.panel_src,
+                    s.panel_dst,
+                    data,
+                    self._panels,
+                    self.X,
+                    self.Dinv,
+                    self._bt,
+                )
+        else:
+            bad = kernels.factorize(s.Lp, s.Li, s.src, s.dst, data, self.X, self.Dinv, self._bt)
         if bad >= 0:
             raise np.linalg.LinAlgError("the matrix is not positive definite")
 
