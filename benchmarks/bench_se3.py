@@ -10,8 +10,14 @@
    - GTSAM compose with Jacobians only, no covariance products: GTSAM's floor in a Python loop.
 2. N reversals with covariance: ``a.reverse()`` vs ``Pose3.inverse(H)`` and ``H Σ Hᵀ``.
 3. Chains: B independent chains of L steps (B·L compounds), every intermediate kept: relmap
-   compounds the B chains one step at a time (L batched calls of width B); GTSAM loops over all.
-4. One pair per call (no batch): relmap's fixed overhead against GTSAM's.
+   compounds the B chains one step at a time (L batched calls of width B), and all prefixes in
+   one call (``relmap.at3.compound_chain3``); GTSAM loops over all.
+4. One pair per call (no batch): relmap's fixed overhead against GTSAM's, for a compound and
+   for a reversal.
+
+relmap runs its numba kernels (``relmap._at3_kernels``) when numba is available; set
+``RELMAP_NUMBA=0`` for its numpy path. Kernels are compiled on first use (tens of seconds once)
+and loaded from numba's disk cache after; they are warmed up before timing.
 
 A memory-bandwidth floor is printed with the pairs: one numpy pass that reads exactly the bytes
 a compound reads (two poses, two covariances) and writes the bytes it writes (a pose, a
@@ -40,6 +46,7 @@ import gtsam
 import numpy as np
 
 import relmap as rm
+from relmap.at3 import compound_chain3
 
 Timing = tuple[float, float]
 
@@ -223,21 +230,26 @@ def main() -> None:
     ours_all = rm.AT3.stack(ours, axis=1)  # (k, L), chain-major like GTSAM's
     print(f"\n{B:,} chains of {L} SE(3) steps ({B * L:,} compounds), every prefix kept")
     agreement(f"(first {k} chains)", ours_all, theirs)
-    t_rch, t_gch = timings(
+    agreement("compound_chain3", compound_chain3(steps[:k], axis=1), theirs)
+    t_rch, t_rcc, t_gch = timings(
         lambda: relmap_chains(steps),
+        lambda: compound_chain3(steps, axis=1),
         lambda: gtsam_chains(g_steps, g_covs),
         repeat=args.gtsam_repeat,
-        inner=(inner,),
+        inner=(inner, inner),
     )
     row(f"relmap  {L} batched a @ b of {B}", t_rch, B * L, "step")
+    row("relmap  compound_chain3 (one call)", t_rcc, B * L, "step")
     row("GTSAM loop", t_gch, B * L, "step")
-    print(f"  relmap vs GTSAM: {t_gch[0] / t_rch[0]:6.1f}x faster")
+    print(f"  relmap vs GTSAM, step by step: {t_gch[0] / t_rch[0]:6.1f}x faster")
+    print(f"  relmap vs GTSAM, one call:     {t_gch[0] / t_rcc[0]:6.1f}x faster")
 
     # --- 4. one pair per call
     reps = 2000
     a0, b0 = a[0], b[0]
     pa0, pb0, Sa0, Sb0 = pa[0], pb[0], Sa[0], Sb[0]
     H1, H2 = np.zeros((6, 6), order="F"), np.zeros((6, 6), order="F")
+    a0 @ b0, a0.reverse()  # warm-up: the single-pair kernels compile (or load) on first use
 
     def relmap_single() -> None:
         for _ in range(reps):
@@ -248,11 +260,25 @@ def main() -> None:
             pa0.compose(pb0, H1, H2)
             H1 @ Sa0 @ H1.T + H2 @ Sb0 @ H2.T
 
-    t_r1, t_g1 = timings(relmap_single, gtsam_single, repeat=args.repeat)
+    def relmap_single_reverse() -> None:
+        for _ in range(reps):
+            a0.reverse()
+
+    def gtsam_single_reverse() -> None:
+        for _ in range(reps):
+            pa0.inverse(H1)
+            H1 @ Sa0 @ H1.T
+
+    t_r1, t_g1, t_rr1, t_gr1 = timings(
+        relmap_single, gtsam_single, relmap_single_reverse, gtsam_single_reverse, repeat=args.repeat
+    )
     print("\none pair per call (no batch axis): fixed overhead")
     row("relmap  a @ b", t_r1, reps, "call")
     row("GTSAM compose(H1, H2) + H Σ Hᵀ", t_g1, reps, "call")
     print(f"  relmap / GTSAM: {t_r1[0] / t_g1[0]:5.1f}x the time")
+    row("relmap  a.reverse()", t_rr1, reps, "call")
+    row("GTSAM inverse(H) + H Σ Hᵀ", t_gr1, reps, "call")
+    print(f"  relmap / GTSAM: {t_rr1[0] / t_gr1[0]:5.1f}x the time")
 
 
 if __name__ == "__main__":

@@ -112,3 +112,41 @@ def test_kernels_keep_the_reversal_cross_covariance_identity(monkeypatch):
     out = rm.compound(a, r, cross_cov=a.cov @ np.swapaxes(J, -1, -2))
     np.testing.assert_allclose(out.mean, np.broadcast_to(np.eye(4), out.mean.shape), atol=1e-14)
     assert np.abs(out.cov).max() <= 1e-14 * np.abs(a.cov).max() * 100
+
+
+def _stepwise(steps: rm.AT3, axis: int) -> rm.AT3:
+    """Every prefix by one batched compound per step."""
+    index = (slice(None),) * (axis % steps.ndim)
+    acc = steps[(*index, 0)]
+    out = [acc]
+    for k in range(1, steps.batch_shape[axis]):
+        acc = acc @ steps[(*index, k)]
+        out.append(acc)
+    return rm.AT3.stack(out, axis=axis % steps.ndim)
+
+
+@pytest.mark.parametrize(
+    ("shape", "axis"),
+    [((5,), 0), ((1, 1), 1), ((3, 300), 1), ((300, 3), 0), ((300, 3), 1), ((40, 2, 50), 0)],
+)
+def test_chain_kernel_equals_compounding_step_by_step(monkeypatch, shape, axis):
+    """Both the vectorized path (≥ 32 chains) and the one-chain-at-a-time scan."""
+    steps = random_at3s(8, shape, spread=0.5)
+    fast, slow = both_paths(monkeypatch, lambda: at3.compound_chain3(steps, axis=axis))
+    assert_same(fast, slow)
+    monkeypatch.setenv("RELMAP_NUMBA", "1")
+    ref = _stepwise(steps, axis)
+    assert np.array_equal(fast.mean, ref.mean) and np.array_equal(fast.cov, ref.cov)
+    first = (slice(None),) * axis + (0,)
+    assert np.array_equal(fast.cov[first], steps.cov[first])  # prefix 0 is step 0
+
+
+def test_chain_edge_cases():
+    steps = random_at3s(9, (4, 3))
+    assert at3.compound_chain3(steps[:0], axis=1).batch_shape == (0, 3)
+    with pytest.raises(rm.errors.ShapeError):
+        at3.compound_chain3(steps[0, 0])
+    with pytest.raises(rm.errors.ShapeError):
+        at3.compound_chain3(steps, axis=2)
+    with pytest.raises(TypeError):
+        at3.compound_chain3(steps.mean)  # type: ignore[arg-type]

@@ -21,8 +21,8 @@ import numba
 import numpy as np
 from numba import types
 
-# The kernels (compound_batched, compound_cross_batched, reverse_batched, compound_one,
-# reverse_one) are module attributes made on first access: see __getattr__ below.
+# The kernels (compound_batched, compound_cross_batched, reverse_batched, compound_chain,
+# compound_one, reverse_one) are module attributes made on first access: see __getattr__ below.
 
 _inline = numba.njit(cache=True, fastmath=False, inline="always")
 
@@ -35,11 +35,14 @@ _A2 = types.Array(types.float64, 2, "A", readonly=True)
 _C3 = types.Array(types.float64, 3, "C", readonly=True)
 _P2 = types.UniTuple(types.float64[:, ::1], 2)
 _P3 = types.UniTuple(types.float64[:, :, ::1], 2)
+_C4 = types.Array(types.float64, 4, "C", readonly=True)
+_P4 = types.UniTuple(types.float64[:, :, :, ::1], 2)
 _X2 = types.optional(_A2)
 _SIGNATURES = {
     "compound_batched": [_P3(_C3, _C3, _C3, _C3)],
     "compound_cross_batched": [_P3(_C3, _C3, _C3, _C3, _C3)],
     "reverse_batched": [_P3(_C3, _C3)],
+    "compound_chain": [_P4(_C4, _C4)],
     "compound_one": [_P2(_A2, _A2, _A2, _A2, _X2)],
     "reverse_one": [_P2(_A2, _A2)],
 }
@@ -371,6 +374,73 @@ def _reverse_batched(T, C):  # type: ignore[no-untyped-def]
             )  # fmt: skip
             _store(buf, n, R, t, W0, W1, W2)
         _stage_out(buf, To, Co, s, w)
+    return To, Co
+
+
+def _compound_chain(T, C):  # type: ignore[no-untyped-def]
+    """Every prefix of M chains of L steps, step-major: T (4, 4, L, M), C (6, 6, L, M) → new
+    planes of the same shapes whose [..., k, m] is ``step[0, m] ⊕ … ⊕ step[k, m]``, compounded
+    in that order with the arithmetic of one batched compound per step (so the values are the
+    same; prefix 0 is step 0 as it is)."""
+    L, M = T.shape[2], T.shape[3]
+    To = np.empty((4, 4, L, M))
+    Co = np.empty((6, 6, L, M))
+    if M < _MIN_CHAINS:
+        _chain_scan(T, C, To, Co)
+        return To, Co
+    # _W chains at a time, one step of all of them at a time (contiguous, step-major): the
+    # running prefixes sit in the rows of a and the step in those of b, so the chunk vectorizes
+    # as in compound_batched
+    buf = np.zeros((_ROWS, _W))
+    for s in range(0, M, _W):
+        w = min(_W, M - s)
+        for k in range(L):
+            Tk, Ck, Tok, Cok = T[:, :, k], C[:, :, k], To[:, :, k], Co[:, :, k]
+            if k == 0:
+                _stage_in(buf, _TO, Tk, 3, s, w)
+                _stage_in(buf, _CO, Ck, 6, s, w)
+            else:
+                _stage_in(buf, _TB, Tk, 3, s, w)
+                _stage_in(buf, _CB, Ck, 6, s, w)
+                _compound_chunk(buf)
+            _stage_out(buf, Tok, Cok, s, w)
+            for r in range(12):  # the prefix becomes the next step's a
+                _copy(buf[_TA + r], buf[_TO + r], _W)
+            for r in range(36):
+                _copy(buf[_CA + r], buf[_CO + r], _W)
+    return To, Co
+
+
+_MIN_CHAINS = 32  # fewer chains than this are scanned one at a time (lanes would go unused)
+
+
+@_inline
+def _chain_scan(T, C, To, Co):  # type: ignore[no-untyped-def]
+    """:func:`compound_chain` one chain at a time, the running prefix in registers (a
+    sequential scan: not vectorized), each chain staged _W steps at a time."""
+    L, M = T.shape[2], T.shape[3]
+    buf = np.zeros((_ROWS, _W))
+    for m in range(M):
+        Tm, Cm, Tom, Com = T[:, :, :, m], C[:, :, :, m], To[:, :, :, m], Co[:, :, :, m]
+        R, t = _rot(buf, _TA, 0), _trans(buf, _TA, 0)  # (typed; set at step 0)
+        A, B, D = _blk(buf, _CA, 0), _blk(buf, _CA + 3, 0), _blk(buf, _CA + 21, 0)
+        for s in range(0, L, _W):
+            w = min(_W, L - s)
+            if s == 0:  # prefix 0 is step 0 as it is
+                _stage_in(buf, _TO, Tm, 3, 0, 1)
+                _stage_in(buf, _CO, Cm, 6, 0, 1)
+                R, t = _rot(buf, _TO, 0), _trans(buf, _TO, 0)
+                A, B, D = _blk(buf, _CO, 0), _blk(buf, _CO + 3, 0), _blk(buf, _CO + 21, 0)
+            _stage_in(buf, _TB, Tm, 3, s, w)
+            _stage_in(buf, _CB, Cm, 6, s, w)
+            for n in range(1 if s == 0 else 0, w):
+                R, t, _, W0, W1, W2 = _compound(
+                    R, t, _rot(buf, _TB, n), _trans(buf, _TB, n), A, B, D,
+                    _blk(buf, _CB, n), _blk(buf, _CB + 3, n), _blk(buf, _CB + 21, n),
+                )  # fmt: skip
+                A, B, D = _sym(W0), W1, _sym(W2)
+                _store(buf, n, R, t, A, B, D)
+            _stage_out(buf, Tom, Com, s, w)
     return To, Co
 
 

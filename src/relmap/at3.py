@@ -33,7 +33,7 @@ from relmap.lie import SE3, se3, so3
 from relmap.lie.so3 import ROTATION_ATOL
 from relmap.typing import ArrayLike, FloatArray, SeedLike
 
-__all__ = ["AT3", "compound3", "ellipsoid", "merge3", "reverse3"]
+__all__ = ["AT3", "compound3", "compound_chain3", "ellipsoid", "merge3", "reverse3"]
 
 
 def _rotation(rotation: ArrayLike, *, atol: float) -> FloatArray:
@@ -643,6 +643,47 @@ def compound3(a: AT3, b: AT3, *, cross_cov: ArrayLike | None = None) -> AT3:
         shapes = [a.batch_shape, b.batch_shape] + ([] if X is None else [X.shape[:-2]])
         raise ShapeError(f"batch shapes {shapes} do not broadcast") from None
     return _compound_batched(a, b, X, batch)
+
+
+def compound_chain3(steps: AT3, *, axis: int = -1) -> AT3:
+    """Every prefix ``A₁ ⊕ A₂ ⊕ … ⊕ A_k`` of the chains laid along batch ``axis`` of ``steps``.
+
+    Returns an AT3 of the same batch shape whose element k along ``axis`` is frame k in the
+    chain's first parent frame, for independent steps (Eq. 4's assumption): the same values as
+    compounding one step at a time, ``acc = acc @ step`` (to rounding; bitwise in the numba
+    kernel), in one call. With numba (:func:`relmap._numba.enabled`) one kernel pass scans all
+    chains with the running prefix in registers; otherwise one batched :func:`compound3` per
+    step along ``axis``.
+    """
+    if not isinstance(steps, AT3):
+        raise TypeError(f"expected an AT3, got {type(steps).__name__}")
+    if steps.ndim == 0:
+        raise ShapeError("compound_chain3 needs an AT3 with at least one batch axis (the chain)")
+    if not -steps.ndim <= axis < steps.ndim:
+        raise ShapeError(f"axis {axis} is out of range for batch shape {steps.batch_shape}")
+    axis %= steps.ndim
+    batch = steps.batch_shape
+    if 0 in batch:  # no elements: no prefixes either
+        return steps
+    kernels = _kernels()
+    if kernels is None:
+        out = [steps[(slice(None),) * axis + (0,)]]
+        for k in range(1, batch[axis]):
+            out.append(out[-1] @ steps[(slice(None),) * axis + (k,)])
+        return AT3.stack(out, axis=axis)
+    # step-major planes (4, 4, L, M), the chain axis first among the batch axes: a view for
+    # relmap's layout when the chain axis is the first batch axis; a copy otherwise
+    moved = (batch[axis], *batch[:axis], *batch[axis + 1 :])
+    L, M = moved[0], math.prod(moved[1:])
+    planes = []
+    for x in (steps._mean, steps._cov):
+        x = np.moveaxis(x, axis, 0)
+        nd = x.ndim
+        p = x.transpose(nd - 2, nd - 1, *range(nd - 2))
+        planes.append(np.ascontiguousarray(p).reshape(*p.shape[:2], L, M))
+    To, Co = kernels.compound_chain(*planes)
+    T, C = (np.moveaxis(_logical(p.reshape(*p.shape[:2], -1), moved), 0, axis) for p in (To, Co))
+    return AT3._trusted(T, C)
 
 
 @overload
