@@ -20,6 +20,7 @@ _FAST = {"reassoc", "contract", "nsz"}
 __all__ = [
     "adjacency",
     "block_pairs",
+    "block_pattern",
     "etree_postorder",
     "factorize",
     "scatter_map",
@@ -112,6 +113,78 @@ def structure(
                 fill[i] += 1
                 i = parent[i]
     return Lp, Li
+
+
+@numba.njit(cache=True)
+def block_pattern(
+    nodes: int, brow: IntArray, bcol: IntArray, b: int
+) -> tuple[IntArray, IntArray, IntArray]:  # pragma: no cover
+    """CSC ``(indices, indptr, position)`` of the dense b × b blocks at node pairs
+    ``(brow, bcol)`` (K,), exactly as :meth:`relmap.network.sparse.SymmetricPattern.from_blocks`
+    builds them: blocks sorted by (column, row), contribution ``[q = b·r + c][k]`` → its slot
+    (a negative node drops the block: slot nnz)."""
+    K = len(brow)
+    cstart = np.zeros(nodes + 1, np.int64)
+    for k in range(K):
+        if brow[k] >= 0 and bcol[k] >= 0:
+            cstart[bcol[k] + 1] += 1
+    for J in range(nodes):
+        cstart[J + 1] += cstart[J]
+    order = np.empty(cstart[nodes], np.int64)
+    fill = cstart[:-1].copy()
+    for k in range(K):
+        if brow[k] >= 0 and bcol[k] >= 0:
+            order[fill[bcol[k]]] = k
+            fill[bcol[k]] += 1
+    uid = np.full(K, -1, np.int64)
+    urow = np.empty(cstart[nodes], np.int64)
+    ucount = np.zeros(nodes, np.int64)
+    nu = 0
+    for J in range(nodes):
+        lo, hi = cstart[J], cstart[J + 1]
+        for t in range(lo + 1, hi):  # insertion sort by row (columns hold few blocks)
+            k = order[t]
+            u = t
+            while u > lo and brow[order[u - 1]] > brow[k]:
+                order[u] = order[u - 1]
+                u -= 1
+            order[u] = k
+        prev = -1
+        for t in range(lo, hi):
+            k = order[t]
+            if brow[k] != prev:
+                prev = brow[k]
+                urow[nu] = prev
+                nu += 1
+                ucount[J] += 1
+            uid[k] = nu - 1
+    ustart = np.zeros(nodes + 1, np.int64)
+    for J in range(nodes):
+        ustart[J + 1] = ustart[J] + ucount[J]
+    nnz = b * b * nu
+    indptr = np.empty(b * nodes + 1, np.int64)
+    indices = np.empty(nnz, np.int64)
+    for J in range(nodes):
+        for a in range(b):
+            start = b * b * ustart[J] + a * b * ucount[J]
+            indptr[J * b + a] = start
+            for u in range(ustart[J], ustart[J + 1]):
+                for r in range(b):
+                    indices[start + b * (u - ustart[J]) + r] = b * urow[u] + r
+    indptr[b * nodes] = nnz
+    position = np.empty(b * b * K, np.int64)
+    for k in range(K):
+        u = uid[k]
+        for q in range(b * b):
+            if u < 0:
+                position[q * K + k] = nnz
+            else:
+                J = bcol[k]
+                r, c = q // b, q % b
+                position[q * K + k] = (
+                    b * b * ustart[J] + c * b * ucount[J] + b * (u - ustart[J]) + r
+                )
+    return indices, indptr, position
 
 
 @numba.njit(cache=True)

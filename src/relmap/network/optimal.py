@@ -47,10 +47,11 @@ class Solved(NamedTuple):
 
 
 class _Weights(NamedTuple):
-    """Square-root information L (LᵀL = Σ⁻¹) of the soft ATs and of the dependent groups."""
+    """Information W = Σ⁻¹ of the soft ATs; square-root information L (LᵀL = Σ⁻¹) of the
+    dependent groups."""
 
     edges: IntArray  #: soft ATs not in a group
-    L: FloatArray  #: (k, dof, dof)
+    W: FloatArray  #: (k, dof, dof)
     groups: list[tuple[IntArray, FloatArray]]  #: (AT indices, L of the joint (dof·k, dof·k))
 
 
@@ -150,19 +151,23 @@ def _between_terms(pi: FloatArray, pj: FloatArray) -> tuple[FloatArray, FloatArr
     return d, c, s
 
 
-def _sqrt_information(cov: FloatArray, kind: IntArray) -> FloatArray:
-    """L with LᵀL = Σ⁻¹ (k, 3, 3); heading-exact ATs weight their position only."""
-    L = np.zeros_like(cov)
+def _information(cov: FloatArray, kind: IntArray) -> FloatArray:
+    """W = Σ⁻¹ (k, dof, dof), symmetrized; heading-exact ATs weight their position only.
+
+    One batched inverse (the covariances were checked positive definite when parameterized):
+    half the cost of inverting Cholesky factors and multiplying them out."""
+    W = np.zeros_like(cov)
     full = kind == 0
-    if full.any():
-        C = np.linalg.cholesky(cov[full])
-        L[full] = np.linalg.inv(C)
+    if full.all():
+        W = np.linalg.inv(cov)
+    elif full.any():
+        W[full] = np.linalg.inv(cov[full])
     head = kind == 1
     if head.any():
         block = np.zeros((int(head.sum()), 3, 3))
-        block[:, :2, :2] = np.linalg.inv(np.linalg.cholesky(cov[head][:, :2, :2]))
-        L[head] = block
-    return L
+        block[:, :2, :2] = np.linalg.inv(cov[head][:, :2, :2])
+        W[head] = block
+    return np.ascontiguousarray(0.5 * (W + np.swapaxes(W, -1, -2)))
 
 
 def _weights(p: Problem, param: Parameterization) -> _Weights:
@@ -176,7 +181,7 @@ def _weights(p: Problem, param: Parameterization) -> _Weights:
         C = np.linalg.cholesky(joint)
         groups.append((np.asarray(members), np.linalg.inv(C)))
     edges = param.soft[~in_group[param.soft]]
-    return _Weights(edges, _sqrt_information(p.cov[edges], param.kind[edges]), groups)
+    return _Weights(edges, _information(p.cov[edges], param.kind[edges]), groups)
 
 
 class _System:
@@ -212,8 +217,7 @@ class _System:
         # gradient scatter: parameters of frames i then j, component-major; fixed → a spare slot
         g_index = np.concatenate([param.col[i].T.reshape(-1), param.col[j].T.reshape(-1)])
         self.g_index = np.where(g_index >= 0, g_index, param.size)
-        # information W = Σ⁻¹ (LᵀL) of each soft AT
-        self.W = np.ascontiguousarray(np.swapaxes(w.L, -1, -2) @ w.L)
+        self.W = w.W  # information Σ⁻¹ of each soft AT
         self._z = np.ascontiguousarray(p.z[w.edges])
         m = len(i)  # the plain ATs' contribution slots, AT by AT (for the numba kernel)
         self._position = np.ascontiguousarray(self.pattern.position[: 36 * m].reshape(36, m).T)
@@ -430,7 +434,7 @@ class _LieSystem:
         )
         g_index = np.concatenate([param.col[self.i].T.reshape(-1), param.col[self.j].T.reshape(-1)])
         self.g_index = np.where(g_index >= 0, g_index, param.size)
-        self.W = np.ascontiguousarray(np.swapaxes(w.L, -1, -2) @ w.L)
+        self.W = w.W
         m = len(self.i)  # the plain ATs' contribution slots, AT by AT (for the numba kernel)
         self._position = np.ascontiguousarray(
             self.pattern.position[: 4 * b * b * m].reshape(b * b, 4, m).transpose(2, 0, 1)

@@ -78,6 +78,18 @@ class SymmetricPattern:
         K blocks rather than the block²·K scalars, so it costs a fraction of the general path.
         """
         b = block
+        from relmap import _numba
+
+        if _numba.enabled(nodes):
+            from relmap.network import _blockchol as kernels
+
+            indices, indptr, position = kernels.block_pattern(
+                nodes, np.asarray(brow, dtype=np.int64), np.asarray(bcol, dtype=np.int64), b
+            )
+            pattern = cls.__new__(cls)
+            pattern._setup(b * nodes, indices, indptr, position, np.repeat(np.arange(nodes), b))
+            pattern.block = b
+            return pattern
         keep = (brow >= 0) & (bcol >= 0)
         keys = bcol.astype(np.int64)[keep] * nodes + brow[keep]
         unique, inv = np.unique(keys, return_inverse=True)
@@ -129,11 +141,7 @@ class SymmetricPattern:
         self.diagonal_position = np.zeros(size, dtype=np.int64)
         self.diagonal_position[cols[on_diag]] = on_diag
         self.node = np.arange(size) if node is None else np.asarray(node)
-        self._upper = self.indices <= cols  # upper triangle (row <= col), for qdldl
-        self._upper_indices = self.indices[self._upper]
-        self._upper_indptr = np.concatenate(
-            [[0], np.cumsum(np.bincount(cols[self._upper], minlength=size))]
-        ).astype(np.int32)
+        self._upper_part: tuple[np.ndarray, IntArray, IntArray] | None = None  # for qdldl
         self._perm: IntArray | None = None
         self.block: int | None = None  #: parameters per node when nodes are uniform blocks
         self._supernodal: _Supernodal | None = None
@@ -162,9 +170,13 @@ class SymmetricPattern:
 
     def upper(self, data: FloatArray) -> _CSC:
         """The upper triangle in CSC (qdldl's input): a light stand-in for a SciPy matrix."""
-        return _CSC(
-            data[self._upper], self._upper_indices, self._upper_indptr, (self.size, self.size)
-        )
+        if self._upper_part is None:  # computed once, on first use
+            cols = np.repeat(np.arange(self.size), np.diff(self.indptr))
+            upper = self.indices <= cols  # row <= col
+            indptr = np.concatenate([[0], np.cumsum(np.bincount(cols[upper], minlength=self.size))])
+            self._upper_part = (upper, self.indices[upper], indptr.astype(np.int32))
+        upper, indices, indptr = self._upper_part
+        return _CSC(data[upper], indices, indptr, (self.size, self.size))
 
     @property
     def supernodal(self) -> _Supernodal:
