@@ -10,10 +10,20 @@ the §7 "poles" belong to Euler angles, which exist here only as a conversion
 (:meth:`AT3.to_euler`, :meth:`AT3.from_euler`) that detects them.
 
 Compounding, reversal and merging follow Eqs. (1)-(10) with the 3-D Jacobians; batch axes
-broadcast like numpy. Batches are stored entry-major (:mod:`relmap._layout`), and batched
-compounding and reversal work on 3×3 blocks of a chunk of the batch at a time, with the
-Jacobians' structure (a shear and a rotation) written out rather than 6×6 matrix products; a
-single pair (no batch axes) takes a path of a few numpy calls.
+broadcast like numpy. Batches are stored entry-major (:mod:`relmap._layout`). What runs:
+
+- with numba (:func:`relmap._numba.enabled`), compound (with or without ``cross_cov``),
+  reverse and :func:`compound_chain3` run fused kernels (:mod:`relmap._at3_kernels`): one pass
+  over the batch, the propagation in registers, vectorized across the batch; a single pair (no
+  batch axes) has its own kernel (about 3x less time per call than the numpy path). Kernels
+  compile on first use (seconds, once per machine; numba's disk cache after) and the first
+  call in a process pays numba's import and the cache load (about 1 s);
+- otherwise (``RELMAP_NUMBA=0``, no numba) the numpy kernels below: batched compounding and
+  reversal on 3×3 blocks of a chunk of the batch at a time, the Jacobians' structure (a shear
+  and a rotation) written out rather than 6×6 matrix products; a single pair a path of a few
+  numpy calls.
+
+Both give the same values to rounding (the batched kernels bitwise, in the cases tested).
 """
 
 from __future__ import annotations
@@ -617,7 +627,8 @@ def _reverse_one(T: FloatArray, C: FloatArray) -> AT3:
 def compound3(a: AT3, b: AT3, *, cross_cov: ArrayLike | None = None) -> AT3:
     """``a ⊕ b`` in 3-D: ``C = J_a C_a J_aᵀ + J_b C_b J_bᵀ`` (+ the cross terms of a dependent
     pair, ``cross_cov = E[δa δbᵀ]`` (..., 6, 6)), with ``J_a = [[I, -[R_a t_b]×], [0, I]]``,
-    ``J_b = blkdiag(R_a, R_a)`` (:func:`relmap.lie.se3.compose`)."""
+    ``J_b = blkdiag(R_a, R_a)`` (:func:`relmap.lie.se3.compose`). Runs the numba kernels when
+    enabled, else the numpy ones (module docstring)."""
     for i, x in enumerate((a, b)):
         if not isinstance(x, AT3):
             raise TypeError(f"argument {i} is a {type(x).__name__}, not an AT3")
@@ -651,9 +662,11 @@ def compound_chain3(steps: AT3, *, axis: int = -1) -> AT3:
     Returns an AT3 of the same batch shape whose element k along ``axis`` is frame k in the
     chain's first parent frame, for independent steps (Eq. 4's assumption): the same values as
     compounding one step at a time, ``acc = acc @ step`` (to rounding; bitwise in the numba
-    kernel), in one call. With numba (:func:`relmap._numba.enabled`) one kernel pass scans all
-    chains with the running prefix in registers; otherwise one batched :func:`compound3` per
-    step along ``axis``.
+    kernel), in one call. With numba (:func:`relmap._numba.enabled`) one kernel pass over the
+    steps, step-major: vectorized across the chains (32 or more; fewer are scanned one at a
+    time, the running prefix in registers). Step-major is relmap's storage when ``axis`` is the
+    first batch axis; for another axis the steps are first copied in that order (one more pass
+    over memory). Without numba, one batched :func:`compound3` per step along ``axis``.
     """
     if not isinstance(steps, AT3):
         raise TypeError(f"expected an AT3, got {type(steps).__name__}")
@@ -692,7 +705,8 @@ def reverse3(a: AT3, *, jacobian: Literal[False] = ...) -> AT3: ...
 def reverse3(a: AT3, *, jacobian: Literal[True]) -> tuple[AT3, FloatArray]: ...
 def reverse3(a: AT3, *, jacobian: bool = False) -> AT3 | tuple[AT3, FloatArray]:
     """``Aᴿ`` in 3-D: ``C' = J C Jᵀ`` with J the inverse's Jacobian (returned too with
-    ``jacobian=True``; A's cross-covariance with its reversal is then ``C Jᵀ``)."""
+    ``jacobian=True``; A's cross-covariance with its reversal is then ``C Jᵀ``). Runs the numba
+    kernels when enabled, else the numpy ones (module docstring); the Jacobian is numpy's."""
     if not isinstance(a, AT3):
         raise TypeError(f"expected an AT3, got {type(a).__name__}")
     if a._mean.ndim == 2:
