@@ -7,7 +7,12 @@ import pytest
 
 from relmap import _numba
 from relmap.io import read_graph, solve_graph
-from relmap.network.sparse import SymmetricFactor, SymmetricPattern, selected_inverse_blocks
+from relmap.network.sparse import (
+    SymmetricFactor,
+    SymmetricPattern,
+    _BlockNumeric,
+    selected_inverse_blocks,
+)
 
 pytestmark = pytest.mark.skipif(not _numba.enabled(), reason="numba not available")
 
@@ -50,28 +55,33 @@ def _dense_diagonal_blocks(dense: np.ndarray, b: int) -> np.ndarray:
 
 def _check(pattern: SymmetricPattern, data: np.ndarray, b: int) -> None:
     dense = pattern.matrix(data).toarray()
-    f = SymmetricFactor(pattern, "block")
-    f.factorize(data)
-    assert f.active == "block"
     rng = np.random.default_rng(7)
     rhs = rng.standard_normal(pattern.size)
     cols = rng.standard_normal((pattern.size, 5))
     scale = np.linalg.cond(dense)
-    np.testing.assert_allclose(
-        f.solve(rhs), np.linalg.solve(dense, rhs), rtol=0, atol=1e-13 * scale * np.abs(rhs).max()
-    )
     X_ref = np.linalg.solve(dense, cols)
-    np.testing.assert_allclose(
-        f.solve(cols), X_ref, rtol=0, atol=1e-13 * scale * np.abs(X_ref).max()
-    )
     ref = _dense_diagonal_blocks(dense, b)
-    for blocks in (
-        selected_inverse_blocks(pattern, data, block=b, factor=f),  # the factor's own numbers
-        selected_inverse_blocks(pattern, data, block=b),  # without it: SuperLU below LARGE nodes
-    ):
-        err = np.abs(blocks - ref).max() / np.abs(ref).max()
-        assert err < 1e-10
-        np.testing.assert_array_equal(blocks, np.swapaxes(blocks, 1, 2))
+    for supernodal in (False, True):  # both numeric kernels, whichever the pattern would pick
+        f = SymmetricFactor(pattern, "block")
+        f._block = _BlockNumeric(pattern.blockchol, supernodal=supernodal)
+        f.factorize(data)
+        assert f.active == "block"
+        np.testing.assert_allclose(
+            f.solve(rhs),
+            np.linalg.solve(dense, rhs),
+            rtol=0,
+            atol=1e-13 * scale * np.abs(rhs).max(),
+        )
+        np.testing.assert_allclose(
+            f.solve(cols), X_ref, rtol=0, atol=1e-13 * scale * np.abs(X_ref).max()
+        )
+        for blocks in (
+            selected_inverse_blocks(pattern, data, block=b, factor=f),  # the factor's numbers
+            selected_inverse_blocks(pattern, data, block=b),  # without: SuperLU below LARGE
+        ):
+            err = np.abs(blocks - ref).max() / np.abs(ref).max()
+            assert err < 1e-10
+            np.testing.assert_array_equal(blocks, np.swapaxes(blocks, 1, 2))
 
 
 @pytest.mark.parametrize("b", [3, 6])
@@ -88,6 +98,22 @@ def test_block_factor_solves_and_inverts_like_dense(nodes, edges, b):
     rhs = np.arange(pattern.size, dtype=float)
     dense = pattern.matrix(shifted).toarray()
     np.testing.assert_allclose(f.solve(rhs), np.linalg.solve(dense, rhs), rtol=1e-10)
+
+
+@pytest.mark.parametrize(("rows", "cols", "b"), [(20, 20, 3), (12, 12, 6)])
+def test_grid_patterns_with_wide_supernodes(rows, cols, b):
+    # grids order into wide supernodes with rows below them: LAPACK's Cholesky and BLAS
+    # updates in the supernodal kernel, not only its loops
+    idx = np.arange(rows * cols).reshape(rows, cols)
+    i = np.concatenate([idx[:, :-1].ravel(), idx[:-1, :].ravel()])
+    j = np.concatenate([idx[:, 1:].ravel(), idx[1:, :].ravel()])
+    pattern, data = _system(rows * cols, i, j, b, seed=5)
+    sym = pattern.blockchol
+    starts = sym.panels()[0]
+    width = np.diff(starts)
+    below = np.diff(sym.Lp)[starts[1:] - 1]
+    assert np.any((width * b >= 24) & (below > 0))
+    _check(pattern, data, b)
 
 
 @pytest.mark.parametrize("b", [3, 6])

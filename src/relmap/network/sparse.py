@@ -840,32 +840,58 @@ class _BlockSymbolic:
         order = order[post]  # new → original node
         rank[order] = np.arange(n)
         Lp, Li = kernels.structure(n, *kernels.adjacency(n, a, c, rank))
+        self.pattern = pattern
         self.n, self.b, self.Lp, self.Li = n, b, Lp, Li
         self.order = order
         self.perm = (b * order[:, None] + np.arange(b)).reshape(-1)  # scalar new → old
         # lower-triangle entries (new block row >= new block column) → buffer positions
         self.src, self.dst = kernels.scatter_map(indptr, indices, rank, b, Lp, Li)
-        # fundamental supernodes and their dense panels (rows × columns, b² per node pair)
-        self.starts = kernels.supernodes(Lp, Li)
-        width = np.diff(self.starts)
-        rows = width + np.diff(Lp)[self.starts[1:] - 1]
-        self.offset = np.concatenate([[0], np.cumsum(rows * width * b * b)]).astype(np.int64)
-        self.panel_src, self.panel_dst = kernels.panel_map(
-            indptr, indices, rank, b, Lp, Li, self.starts, self.offset
-        )
+        # The supernodal kernel pays for its dense panels where columns are long: when the
+        # work per entry of L (Σ count² / Σ count, in blocks) is 20 or more (measured: city10000
+        # 28 and sphere2500 34 gain from it, 23 against 27 ms and 31 against 74 ms;
+        # manhattanOlson3500 12 loses, 4.1 against 2.7 ms).
+        count = np.diff(Lp).astype(np.float64)
+        self.supernodal = bool(count.sum() and (count**2).sum() >= 20.0 * count.sum())
+        self._rank, self._panels = rank, None
         self.nnz_L = int(b * b * len(Li) + n * b * (b + 1) // 2)  #: scalars in L (one triangle)
+        if self.supernodal:
+            self.panels()
+
+    def panels(self) -> tuple[IntArray, IntArray, IntArray, IntArray]:
+        """Fundamental supernodes (first node of each, then n), the offsets of their dense
+        panels, and the map of the matrix's entries into them (src, dst); computed once."""
+        if self._panels is None:
+            from relmap.network import _blockchol as kernels
+
+            p, b, Lp, Li = self.pattern, self.b, self.Lp, self.Li
+            starts = kernels.supernodes(Lp, Li)
+            width = np.diff(starts)
+            rows = width + np.diff(Lp)[starts[1:] - 1]
+            offset = np.concatenate([[0], np.cumsum(rows * width * b * b)]).astype(np.int64)
+            src, dst = kernels.panel_map(
+                p.indptr.astype(np.int64),
+                p.indices.astype(np.int64),
+                self._rank,
+                b,
+                Lp,
+                Li,
+                starts,
+                offset,
+            )
+            self._panels = (starts, offset, src, dst)
+        return self._panels
 
 
 class _BlockNumeric:
     """One numerical block LDLᵀ factorization on a :class:`_BlockSymbolic` analysis."""
 
-    def __init__(self, sym: _BlockSymbolic, supernodal: bool = True) -> None:
+    def __init__(self, sym: _BlockSymbolic, supernodal: bool | None = None) -> None:
         self.sym = sym
         bb = sym.b * sym.b
         self.X = np.empty((sym.n + len(sym.Li)) * bb)
         self.Dinv = np.empty(sym.n * bb)
-        self.supernodal = supernodal
-        self._panels = np.empty(sym.offset[-1]) if supernodal else None
+        self.supernodal = sym.supernodal if supernodal is None else supernodal
+        self._panels = np.empty(sym.panels()[1][-1]) if self.supernodal else None
         self._bt = (0,) * sym.b  # its length specializes the kernels to b
 
     def factorize(self, data: FloatArray) -> None:
@@ -875,14 +901,15 @@ class _BlockNumeric:
         s = self.sym
         data = np.asarray(data, dtype=np.float64)
         if self._panels is not None:
+            starts, offset, src, dst = s.panels()
             with _one_blas_thread():
                 bad = kernels.factorize_supernodal(
                     s.Lp,
                     s.Li,
-                    s.starts,
-                    s.offset,
-                    s.panel_src,
-                    s.panel_dst,
+                    starts,
+                    offset,
+                    src,
+                    dst,
                     data,
                     self._panels,
                     self.X,
