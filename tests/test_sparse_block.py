@@ -75,6 +75,16 @@ def _check(pattern: SymmetricPattern, data: np.ndarray, b: int) -> None:
         np.testing.assert_allclose(
             f.solve(cols), X_ref, rtol=0, atol=1e-13 * scale * np.abs(X_ref).max()
         )
+        Z = np.linalg.inv(dense)
+        n = pattern.size // b
+        for nodes in ([n - 1], [0, n - 1], [n // 2, 0, n - 1][:n]):  # joint blocks of A⁻¹
+            idx = (b * np.array(nodes)[:, None] + np.arange(b)).reshape(-1)
+            if len(set(nodes)) == len(nodes):
+                sub = f.inverse_submatrix(idx)
+                assert np.abs(sub - Z[np.ix_(idx, idx)]).max() < 1e-10 * np.abs(Z).max()
+        idx = np.array([pattern.size - 1, 0])  # not whole nodes: column solves
+        sub = f.inverse_submatrix(idx)
+        assert np.abs(sub - Z[np.ix_(idx, idx)]).max() < 1e-10 * np.abs(Z).max()
         for blocks in (
             selected_inverse_blocks(pattern, data, block=b, factor=f),  # the factor's numbers
             selected_inverse_blocks(pattern, data, block=b),  # without: SuperLU below LARGE

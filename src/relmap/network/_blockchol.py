@@ -23,6 +23,7 @@ __all__ = [
     "block_pattern",
     "etree_postorder",
     "factorize",
+    "inverse_blocks",
     "scatter_map",
     "selected_inverse",
     "solve",
@@ -792,3 +793,68 @@ def factorize_supernodal(
                             acc += P[bo + r * cols + k] * Linv[k, c]
                         X[lo + r * b + c] = acc
     return -1
+
+
+@numba.njit(cache=True)
+def inverse_blocks(
+    Lp: IntArray,
+    Li: IntArray,
+    X: FloatArray,
+    Dinv: FloatArray,
+    nodes: IntArray,
+    bt: tuple[int, ...],
+) -> FloatArray:  # pragma: no cover
+    """The joint block ``(A⁻¹)[S, S]`` (k·b, k·b) of the nodes S (k,), in the factor's order.
+
+    With ``A = L D Lᵀ``, ``A⁻¹[S, S] = Yᵀ D⁻¹ Y`` for ``Y = L⁻¹ E_S``, and Y is nonzero only on
+    the elimination-tree paths from S to the root (a column's structure lies on its path): a
+    forward solve over those paths, not the whole factor."""
+    b = len(bt)
+    bb = b * b
+    n = len(Lp) - 1
+    k = len(nodes)
+    q = k * b
+    where = np.full(n, -1, np.int64)
+    path = np.empty(n, np.int64)
+    count = 0
+    for a in range(k):  # union of the paths to the root (parent = first row below)
+        v = nodes[a]
+        while v != -1 and where[v] == -1:
+            where[v] = 0
+            path[count] = v
+            count += 1
+            v = Li[Lp[v]] if Lp[v + 1] > Lp[v] else -1
+    path = np.sort(path[:count])
+    for t in range(count):
+        where[path[t]] = t
+    Y = np.zeros((count, b, q))
+    for a in range(k):
+        for r in range(b):
+            Y[where[nodes[a]], r, a * b + r] = 1.0
+    out = np.zeros((q, q))
+    tmp = np.empty((b, q))
+    for t in range(count):
+        j = path[t]
+        yj = Y[t]
+        for p in range(Lp[j], Lp[j + 1]):  # y_i -= L_ij y_j
+            lo = (n + p) * bb
+            yi = Y[where[Li[p]]]
+            for r in range(b):
+                for s in range(b):
+                    x = X[lo + r * b + s]
+                    for c in range(q):
+                        yi[r, c] -= x * yj[s, c]
+        io = j * bb
+        for r in range(b):  # out += y_jᵀ D_j⁻¹ y_j
+            for c in range(q):
+                acc = 0.0
+                for s in range(b):
+                    acc += Dinv[io + r * b + s] * yj[s, c]
+                tmp[r, c] = acc
+        for c1 in range(q):
+            for c2 in range(q):
+                acc = 0.0
+                for r in range(b):
+                    acc += yj[r, c1] * tmp[r, c2]
+                out[c1, c2] += acc
+    return out

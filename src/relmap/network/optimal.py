@@ -95,12 +95,7 @@ class Solution:
         free = flat >= 0
         P_params = np.zeros((b * k, b * k))
         if free.any() and self.factor is not None:
-            idx = flat[free]
-            E = np.zeros((self.param.size, len(idx)))
-            E[idx, np.arange(len(idx))] = 1.0
-            X = self.factor.solve(E)
-            sub = X[idx, :]
-            P_params[np.ix_(free, free)] = 0.5 * (sub + sub.T)
+            P_params[np.ix_(free, free)] = self.factor.inverse_submatrix(flat[free])
         J = np.zeros((b * k, b * k))
         for a in range(k):
             J[b * a : b * a + b, b * a : b * a + b] = Jf[a]

@@ -284,6 +284,25 @@ class SymmetricFactor:
         else:
             self._lu = _superlu(self.pattern, data)
 
+    def inverse_submatrix(self, idx: IntArray) -> FloatArray:
+        """``A⁻¹[idx][:, idx]`` (k, k) for parameter indices ``idx`` (k,), symmetrized.
+
+        The block factor forms it from the elimination-tree paths of the nodes when ``idx``
+        lists whole nodes (block by block, each in order); otherwise k column solves."""
+        idx = np.asarray(idx, dtype=np.int64)
+        b = self.pattern.block
+        if self._active == "block" and b is not None and len(idx) and len(idx) % b == 0:
+            groups = idx.reshape(-1, b)
+            whole = np.all(groups == groups[:, :1] + np.arange(b)) and np.all(groups[:, 0] % b == 0)
+            if whole and len(np.unique(groups[:, 0])) == len(groups):
+                assert self._block is not None
+                out = self._block.inverse_blocks(groups[:, 0] // b)
+                return 0.5 * (out + out.T)
+        E = np.zeros((self.pattern.size, len(idx)))
+        E[idx, np.arange(len(idx))] = 1.0
+        sub = self.solve(E)[idx, :]
+        return 0.5 * (sub + sub.T)
+
     def solve(self, b: FloatArray) -> FloatArray:
         """``A⁻¹ b`` for a vector ``(size,)`` or a matrix of columns ``(size, k)``."""
         if self._active == "block":
@@ -933,6 +952,16 @@ class _BlockNumeric:
         out = np.empty_like(Y)
         out[s.perm] = Y
         return out[:, 0] if vector else out
+
+    def inverse_blocks(self, nodes: IntArray) -> FloatArray:
+        """The joint block (k·b, k·b) of ``A⁻¹`` of the given nodes (k,), pattern's order."""
+        from relmap.network import _blockchol as kernels
+
+        s = self.sym
+        rank = np.empty(s.n, dtype=np.int64)
+        rank[s.order] = np.arange(s.n)
+        new = rank[np.asarray(nodes, dtype=np.int64)]
+        return kernels.inverse_blocks(s.Lp, s.Li, self.X, self.Dinv, new, self._bt)
 
     def diagonal_inverse_blocks(self) -> FloatArray:
         """The diagonal blocks of ``A⁻¹`` per node, in the pattern's node order, (n, b, b)."""
