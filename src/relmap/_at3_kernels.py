@@ -4,7 +4,7 @@ Imported by :mod:`relmap.at3` only when :func:`relmap._numba.enabled`; the numpy
 are the fallback and the reference. Per element the whole first-order propagation runs in
 registers (3×3 blocks as 9-tuples, row-major; the Jacobians' structure written out as in the
 numpy path: a shear by ``[u]×`` and a rotation) and each input and output is read or written
-once; batches go through in chunks staged in a small scratch array (see "loads and stores").
+once from memory; the loop over a batch is vectorized (see "loads and stores").
 
 Array conventions (relmap's storage, :mod:`relmap._layout`): the batched kernels take
 C-contiguous entry-major planes, poses ``(4, 4, N)`` and covariances ``(6, 6, N)``, and return
@@ -209,10 +209,11 @@ def _reverse(r, t, A, B, D):  # type: ignore[no-untyped-def]
 # slower (not vectorized, and many concurrent write streams); staging the inputs in buf as
 # well, ~1.35x slower.
 
-_W = 256  # elements per chunk: the scratch (~180 rows) stays in the L2 cache
+_W = 256  # elements per chunk: the scratch (48 rows, 96 kB) stays in the L2 cache
 # scratch rows: a pose's entries (i < 3, j < 4) at row + 4 i + j, a covariance's at row + 6 i + j
-_TA, _TB, _CA, _CB, _XC, _TO, _CO = 0, 12, 24, 60, 96, 132, 144
-_ROWS = 180
+_TO, _CO = 0, 12  # the results (the batched kernels' buf has these _ROWS rows only)
+_TB, _CB = 48, 60  # a staged step (the one-chain-at-a-time scan)
+_ROWS, _SCAN_ROWS = 48, 96
 
 
 @_inline
@@ -427,11 +428,11 @@ def _chain_scan(T, C, To, Co):  # type: ignore[no-untyped-def]
     """:func:`compound_chain` one chain at a time, the running prefix in registers (a
     sequential scan: not vectorized), each chain staged _W steps at a time."""
     L, M = T.shape[2], T.shape[3]
-    buf = np.zeros((_ROWS, _W))
+    buf = np.zeros((_SCAN_ROWS, _W))
     for m in range(M):
         Tm, Cm, Tom, Com = T[:, :, :, m], C[:, :, :, m], To[:, :, :, m], Co[:, :, :, m]
-        R, t = _rot(buf, _TA, 0), _trans(buf, _TA, 0)  # (typed; set at step 0)
-        A, B, D = _blk(buf, _CA, 0), _blk(buf, _CA + 3, 0), _blk(buf, _CA + 21, 0)
+        R, t = _rot(buf, _TO, 0), _trans(buf, _TO, 0)  # (typed; set at step 0)
+        A, B, D = _blk(buf, _CO, 0), _blk(buf, _CO + 3, 0), _blk(buf, _CO + 21, 0)
         for s in range(0, L, _W):
             w = min(_W, L - s)
             if s == 0:  # prefix 0 is step 0 as it is
