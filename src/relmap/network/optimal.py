@@ -9,7 +9,10 @@ where one step reaches the optimum.
 
 Planar problems assemble the normal equations from closed forms (:class:`_System`); 3-D ones
 (and any group) from the group's Jacobians (:class:`_LieSystem`); one Levenberg-Marquardt loop
-drives both.
+drives both. For large problems with numba (:func:`relmap._numba.enabled`), without dependent
+groups, one compiled pass (:mod:`relmap.network._linearize`) adds every AT's blocks straight
+into the normal matrix: on city10000 2.5 ms a linearization instead of 10, on sphere2500 the
+products and assembly 2.6 ms after the group's Jacobians (about 7 ms, numpy).
 
 Residuals, weights and exact components: see :mod:`relmap.network.problem`.
 """

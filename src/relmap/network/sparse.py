@@ -1,25 +1,40 @@
 """Sparse symmetric normal matrices: a pattern fixed once, refactorized every iteration.
 
 The pattern is assembled once (CSC, both triangles) with a map from every contribution to its
-slot, so each Gauss-Newton iteration fills the matrix with one ``np.bincount``. A fill-reducing
-ordering is computed once, on the *node* graph (the frames; a frame's three parameters stay
-together), with SuperLU's minimum-degree ordering.
+slot, so each Gauss-Newton iteration fills the matrix with one ``np.bincount`` (or, with numba,
+straight from the linearization kernel). A fill-reducing ordering is computed once, on the
+*node* graph (the frames; a frame's parameters stay together), with SuperLU's minimum-degree
+ordering.
 
-Factorizations, chosen by measurement (see the closing notes of the relational-map issue):
+Factorizations (:class:`SymmetricFactor`), chosen by measurement:
 
-- ``qdldl`` (Apache-2.0, a prebuilt wheel) when installed: sparse LDLᵀ that keeps its symbolic
-  analysis between refactorizations — about 4× faster than SuperLU on city10000;
-- ``supernodal`` (relmap's own, numpy and SciPy's LAPACK only), chosen for 6×6-block (3-D)
-  patterns: a multifrontal block Cholesky whose ordering, elimination tree, supernodes and index
-  maps are computed once per pattern; small supernodes are factorized in numpy batches, large
-  ones through LAPACK (``dpotrf``, ``dtrtri``, ``dsyrk``) with BLAS held to one thread
-  (threadpoolctl). On sphere2500 about 4× faster than qdldl and 2× faster than SuperLU; on 2-D
-  patterns qdldl stays faster, so it stays their choice;
+- ``block`` (relmap's own, numba; :mod:`relmap.network._blockchol`), the ``auto`` choice for
+  patterns of uniform node blocks (b = 3 in the plane, 6 in 3-D) of :data:`relmap._numba.LARGE`
+  nodes or more when numba is enabled: a block LDLᵀ whose symbolic analysis (ordering,
+  elimination tree in postorder, block pattern of L, scatter maps) runs once per pattern. The
+  numeric factorization is a left-looking supernodal Cholesky on dense panels (updates, pivot
+  blocks and triangular solves of wide panels through BLAS on one thread) where columns are
+  long, a left-looking block LDLᵀ in b × b loops where they are short; either ends as the block
+  LDLᵀ that the compiled solves and the block Takahashi recursion read. Joint covariances of a
+  few frames come from forward solves along their elimination-tree paths only;
+- ``qdldl`` (Apache-2.0, a prebuilt wheel) when installed, for the rest: sparse LDLᵀ that keeps
+  its symbolic analysis between refactorizations;
+- ``supernodal`` (numpy and SciPy's LAPACK only) for 6×6-block patterns without numba: a
+  multifrontal block Cholesky, small fronts in numpy batches, large ones through LAPACK;
 - otherwise SciPy's SuperLU in symmetric mode on the pre-ordered matrix (pure SciPy: nothing
   to compile, ever).
 
-Marginal covariances of many frames come from the block Takahashi recursion (selected
-inversion) on a factor whose pattern keeps each frame's 3×3 block together.
+Per factorization, measured on this 2-core machine while shared (5 runs, range and median):
+city10000 (30k parameters, 1.07M entries in L) block 25–77 ms (median 51; interleaved with its
+loop variant, process time: 23 against 27 ms), qdldl 46–87 (48), supernodal 61–101 (64),
+SuperLU 132–174 (137); sphere2500 (15k parameters, 1.34M entries) block 31–54 (41), supernodal
+55–143 (74), SuperLU 127–302 (186), qdldl 208–418 (368). Marginals of every frame (selected
+inversion) on city10000: block 65–87 ms, the SuperLU path 0.82–1.14 s.
+
+A matrix the block or supernodal Cholesky finds not positive definite is factorized by SuperLU
+instead (LDLᵀ-like, no failure on a semi-definite Gauss-Newton matrix). Marginal covariances of
+many frames come from the block Takahashi recursion (selected inversion) on a factor whose
+pattern keeps each frame's block together.
 """
 
 from __future__ import annotations
@@ -228,13 +243,13 @@ def node_ordering(node: IntArray, rows: IntArray, cols: IntArray) -> IntArray:
 class SymmetricFactor:
     """Factorization of a symmetric positive-definite matrix with a fixed pattern.
 
-    ``backend`` is ``"supernodal"``, ``"qdldl"``, ``"superlu"`` or ``"auto"``: the supernodal
-    Cholesky for patterns of uniform node blocks of 6 or more (3-D pose graphs in the standard
-    layout), else qdldl when installed, else SuperLU. Measured per factorization on sphere2500
-    (15k parameters, 1.3M entries in the factor): supernodal 0.085 s, SuperLU 0.15 s, qdldl
-    0.34 s; on planar graphs (3×3 blocks, thin fronts) qdldl wins: city10000 0.075 s against
-    0.115 s supernodal. A matrix the supernodal Cholesky finds not positive definite is factorized
-    by SuperLU instead (LDLᵀ-like, no failure on a semi-definite Gauss-Newton matrix).
+    ``backend`` is ``"block"``, ``"supernodal"``, ``"qdldl"``, ``"superlu"`` or ``"auto"``:
+    the numba block LDLᵀ for patterns of uniform node blocks with at least
+    :data:`relmap._numba.LARGE` nodes when numba is enabled; else the numpy supernodal Cholesky
+    for blocks of 6 or more (3-D pose graphs in the standard layout); else qdldl when
+    installed; else SuperLU. Timings: see the module notes. A matrix the block or supernodal
+    Cholesky finds not positive definite is factorized by SuperLU instead (:attr:`active`
+    says which holds the factorization).
     """
 
     def __init__(self, pattern: SymmetricPattern, backend: str = "auto") -> None:
@@ -322,7 +337,7 @@ class SymmetricFactor:
         return out
 
 
-BACKENDS = ("block", "supernodal", "qdldl", "superlu")
+BACKENDS = ("block", "supernodal", "qdldl", "superlu")  #: accepted by SymmetricFactor, with "auto"
 
 
 def _auto_backend(pattern: SymmetricPattern) -> str:
