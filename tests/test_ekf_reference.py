@@ -21,6 +21,15 @@ from relmap.lie import se2
 from relmap.sensors import RangeBearingSensor
 
 
+@pytest.fixture(autouse=True, params=["numba", "numpy"])
+def paths(request, monkeypatch):
+    """Every test twice: with relmap's numba kernels and with its numpy paths."""
+    if request.param == "numba":
+        pytest.importorskip("numba")
+    monkeypatch.setenv("RELMAP_NUMBA", "1" if request.param == "numba" else "0")
+    return request.param
+
+
 def reference(state, readings, sensor, landmarks, *, associate="mahalanobis",
               pairing="one_to_one", signatures=None, landmark_signatures=None, gate=0.99,
               valid=None):  # fmt: skip
@@ -339,14 +348,15 @@ def test_landmark_at_the_sensor_has_no_bearing():
         ekf.correct_landmarks(state, z, sensor, lm)
 
 
-def test_single_filter_path_equals_the_general_path(monkeypatch):
-    """One filter takes its own path (Python numbers); it must give what the general path gives
-    for a batch of one: same pairings and statuses, states and d² to 1e-12 — over gated,
-    unknown, NaN and negative readings, padding, signatures unique, permuted, shared or read
-    twice, and every noise model."""
+def test_single_filter_path_equals_the_general_path(monkeypatch, paths):
+    """One filter takes its own path (the numba kernel, or Python numbers); it must give what
+    the general path gives for a batch of one: same pairings and statuses, states and d² to
+    1e-12 — over gated, unknown, NaN and negative readings, padding, signatures unique,
+    permuted, shared or read twice, and every noise model."""
     rng = np.random.default_rng(11)
     taken: dict[int, list[bool]] = {k: [] for k in range(6)}
-    original = ekf._correct_one
+    name = "_compiled_one" if paths == "numba" else "_correct_one"
+    original = getattr(ekf, name)
     now = {"variant": 0}
 
     def counting(*args):
@@ -355,7 +365,7 @@ def test_single_filter_path_equals_the_general_path(monkeypatch):
         taken[5 if now["variant"] == 0 and not constant else now["variant"]].append(out is not None)
         return out
 
-    monkeypatch.setattr(ekf, "_correct_one", counting)
+    monkeypatch.setattr(ekf, name, counting)
     for trial in range(300):
         m, L = int(rng.integers(1, 13)), int(rng.integers(1, 25))
         state, z, sensor, lm, valid, signature = scenario(rng, (), m, L, dense=trial % 3 == 0)
@@ -395,10 +405,14 @@ def test_single_filter_path_equals_the_general_path(monkeypatch):
             scale = np.abs(slow.state.cov).max()
             assert np.abs(fast.state.cov - slow.state.cov).max() <= 1e-12 * scale
             assert not fast.state.mean.flags.writeable and not fast.state.cov.flags.writeable
-    # the single path served most calls: not those with a signature read twice or shared, nor
-    # nearest neighbours under range-dependent noise
-    assert np.mean(taken[0]) > 0.9 and min(np.mean(taken[k]) for k in (1, 2, 3)) > 0.3
-    assert not any(taken[5])
+    if paths == "numba":  # the kernel served nearly all calls (not ill-conditioned updates)
+        print({k: np.mean(v) for k, v in taken.items()})
+        assert min(np.mean(taken[k]) for k in range(6)) > 0.9
+    else:
+        # the single path served most calls: not those with a signature read twice or shared,
+        # nor nearest neighbours under range-dependent noise
+        assert np.mean(taken[0]) > 0.9 and min(np.mean(taken[k]) for k in (1, 2, 3)) > 0.3
+        assert not any(taken[5])
 
 
 def test_single_step_prediction_equals_the_general_path():

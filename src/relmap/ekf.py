@@ -71,7 +71,7 @@ from typing import Any, Literal, NamedTuple
 
 import numpy as np
 
-from relmap import gaussian
+from relmap import _numba, gaussian
 from relmap.at import AT, _compound_arrays, compound, merge
 from relmap.errors import ParameterError, ShapeError
 from relmap.lie import se2
@@ -167,7 +167,17 @@ def _compound_one(state: AT, delta: tuple[float, float, float], step: tuple[floa
 
 
 def _compound_batch(state: AT, delta: tuple[float, float, float], step: tuple[float, ...]) -> AT:
-    """:func:`_compound_one` for a batch of poses and one step (relmap.at's array path)."""
+    """:func:`_compound_one` for a batch of poses and one step: one numba kernel call with
+    numba, else relmap.at's array path."""
+    if _numba.enabled():
+        B = math.prod(state.batch_shape)
+        mean, cov = np.empty((3, B)), np.empty((3, 3, B))
+        _kernels().compound_batch(
+            state.mean.reshape(B, 3), state.cov.reshape(B, 3, 3), np.array([*delta, *step]),
+            mean, cov,
+        )  # fmt: skip
+        shape = state.batch_shape
+        return AT._trusted(mean.T.reshape(*shape, 3), np.moveaxis(cov, 2, 0).reshape(*shape, 3, 3))
     q00, q01, q02, q11, q12, q22 = step
     cov_b = np.array([[q00, q01, q02], [q01, q11, q12], [q02, q12, q22]])
     return AT._trusted(*_compound_arrays(state.mean, state.cov, np.array(delta), cov_b))
@@ -236,10 +246,17 @@ def correct_landmarks(
     marks padding; NaN readings are INVALID. The used pairs form one stacked update (Eqs. 26-28).
     """
     if _FAST_SINGLE and pairing == "one_to_one" and type(state) is AT and state.mean.ndim == 1:
-        fast = _correct_one(
-            state, readings, sensor, landmarks, associate, signatures, landmark_signatures,
-            gate, valid,
-        )  # fmt: skip
+        fast = None
+        if _numba.enabled():
+            fast = _compiled_one(
+                state, readings, sensor, landmarks, associate, signatures, landmark_signatures,
+                gate, valid,
+            )  # fmt: skip
+        if fast is None:
+            fast = _correct_one(
+                state, readings, sensor, landmarks, associate, signatures, landmark_signatures,
+                gate, valid,
+            )  # fmt: skip
         if fast is not None:
             return fast
     z = np.asarray(readings, dtype=np.float64)
@@ -275,6 +292,10 @@ def correct_landmarks(
             state, empty.astype(np.int64) - 1, empty + np.inf, empty.astype(np.int64) + ABSENT
         )
 
+    if batch and pairing == "one_to_one" and associate != "euclidean" and _numba.enabled():
+        compiled = _compiled_batch(state, z, batch, valid, signatures, lsig, sensor, lm, gate)
+        if compiled is not None:
+            return compiled
     job = _Job(state, z, batch, valid, signatures, lsig, sensor, lm, _gate2(float(gate)))
     if associate == "euclidean" or pairing == "per_landmark":
         out = job.general(associate, pairing)
@@ -1634,3 +1655,141 @@ def _inv3_stacked(M: FloatArray) -> FloatArray:
     r = 1.0 / (M[0] * C[0]).sum(axis=0)
     C *= r
     return C.transpose(1, 0, 2)
+
+
+# ------------------------------------------------------------------ compiled (numba)
+# With numba (relmap._numba.enabled()), correct_landmarks' one-to-one association by signatures
+# or Mahalanobis distance runs in relmap._ekf_kernels: one kernel call per correction, of one
+# filter or of a whole batch (the loop over filters inside). Those kernels compute what
+# _correct_one computes, formula by formula; anything they do not cover (Euclidean distance,
+# Eq. 21, a sensor without noise, non-integer signatures, broadcast shapes they do not take)
+# and anything they leave to numpy (a landmark at the sensor, an ill-conditioned update) takes
+# the paths above.
+
+_NOISE_MODELS = {"constant": 0.0, "proportional": 1.0, "quadratic": 2.0}
+_NO_BOOL = np.zeros(0, np.bool_)
+_NO_INT = np.zeros(0, np.int64)
+
+
+@functools.cache
+def _kernels() -> Any:
+    from relmap import _ekf_kernels  # imports numba: only when relmap._numba.enabled()
+
+    return _ekf_kernels
+
+
+def _kernel_sensor(sensor: RangeBearingSensor, gate: float) -> FloatArray | None:
+    """The kernels' parameters ``(mount x, y, θ, σr, σφ, noise model, χ²₂(gate))``, or None."""
+    if not isinstance(sensor, RangeBearingSensor):
+        return None
+    sr, sb = sensor.sigma_range, sensor.sigma_bearing
+    if not (sr > 0.0 and sb > 0.0) or not (isinstance(gate, float) and 0.0 < gate < 1.0):
+        return None
+    mx, my, mt = sensor.mount.tolist()
+    return np.array([mx, my, mt, sr, sb, _NOISE_MODELS[sensor.noise_model], _gate2(gate)])
+
+
+def _int_signatures(a: ArrayLike) -> np.ndarray | None:
+    """Signatures as int64 (None unless of an integer type int64 holds)."""
+    a = np.asarray(a)
+    if a.dtype.kind == "i" or (a.dtype.kind == "u" and a.dtype.itemsize < 8):
+        return a if a.dtype == np.int64 else a.astype(np.int64)
+    return None
+
+
+def _compiled_one(
+    state: AT,
+    readings: ArrayLike,
+    sensor: RangeBearingSensor,
+    landmarks: ArrayLike,
+    associate: str,
+    signatures: ArrayLike | None,
+    landmark_signatures: ArrayLike | None,
+    gate: float,
+    valid: ArrayLike | None,
+) -> LandmarkUpdate | None:
+    """:func:`correct_landmarks` of one filter in one kernel call, or None (see above)."""
+    if associate not in ("signatures", "mahalanobis"):
+        return None
+    par = _kernel_sensor(sensor, gate)
+    if par is None:
+        return None
+    z = np.asarray(readings, dtype=np.float64)
+    lm = np.asarray(landmarks, dtype=np.float64)
+    if z.ndim != 2 or z.shape[1] != 2 or lm.ndim != 2 or lm.shape[1] != 2:
+        return None
+    m, L = z.shape[0], lm.shape[0]
+    if m == 0 or L == 0:
+        return None
+    v = _NO_BOOL
+    if valid is not None:
+        v = np.asarray(valid, bool)
+        if v.shape != (m,):
+            return None
+    sig = lsig = _NO_INT
+    if signatures is not None or associate == "signatures":
+        if signatures is None or landmark_signatures is None:
+            return None
+        sig, lsig = _int_signatures(signatures), _int_signatures(landmark_signatures)  # type: ignore[assignment]
+        if sig is None or lsig is None or sig.shape != (m,) or lsig.shape != (L,):
+            return None
+    ints, d2, buf = np.empty(2 * m, np.int64), np.empty(m), np.empty(12)
+    code = _kernels().correct_one(state.mean, state.cov, z, v, sig, lm, lsig, par, ints, d2, buf)
+    if code == 1:  # FALLBACK
+        return None
+    new = state
+    if code == 0:  # UPDATED: buf holds (x, y, θ, Σ row by row), as AT._single builds it
+        buf.flags.writeable = False
+        new = object.__new__(AT)
+        object.__setattr__(new, "_mean", buf[:3])
+        object.__setattr__(new, "_cov", buf[3:].reshape(3, 3))
+    return LandmarkUpdate(new, ints[:m], d2, ints[m:])
+
+
+def _compiled_batch(
+    state: AT,
+    z: FloatArray,
+    batch: tuple[int, ...],
+    valid: ArrayLike | None,
+    signatures: ArrayLike | None,
+    lsig: np.ndarray | None,
+    sensor: RangeBearingSensor,
+    lm: FloatArray,
+    gate: float,
+) -> LandmarkUpdate | None:
+    """:func:`correct_landmarks` of a batch (inputs validated) in one kernel call, or None."""
+    if type(state) is not AT:
+        return None
+    par = _kernel_sensor(sensor, gate)
+    if par is None:
+        return None
+    B, m = math.prod(batch), z.shape[-2]
+    sig = _NO_INT
+    if lsig is not None:
+        sig_in = _int_signatures(signatures)  # type: ignore[arg-type]
+        lsig = _int_signatures(lsig)
+        if sig_in is None or lsig is None:
+            return None
+        sig = np.broadcast_to(sig_in, (*batch, m)).reshape(B, m)
+    else:
+        lsig = _NO_INT
+    v = np.broadcast_to(np.asarray(valid, bool), (*batch, m)).reshape(B, m) if valid is not None else None
+    mean, cov = state.mean, state.cov
+    if mean.shape[:-1] != batch:
+        mean = np.broadcast_to(mean, (*batch, 3))
+        cov = np.broadcast_to(cov, (*batch, 3, 3))
+    if z.shape[:-2] != batch:
+        z = np.broadcast_to(z, (*batch, m, 2))
+    out_lm, out_st = np.empty((B, m), np.int64), np.empty((B, m), np.int64)
+    out_d2, out_mean, out_cov = np.empty((B, m)), np.empty((3, B)), np.empty((3, 3, B))
+    code = _kernels().correct_batch(
+        mean.reshape(B, 3), cov.reshape(B, 3, 3), z.reshape(B, m, 2),
+        np.empty((B, 0), np.bool_) if v is None else v,
+        np.empty((B, 0), np.int64) if sig is _NO_INT else sig,
+        lm, lsig, par, out_lm, out_st, out_d2, out_mean, out_cov,
+    )  # fmt: skip
+    if code == 1:  # FALLBACK
+        return None
+    new = AT._trusted(out_mean.T.reshape(*batch, 3), np.moveaxis(out_cov, 2, 0).reshape(*batch, 3, 3))
+    shape = (*batch, m)
+    return LandmarkUpdate(new, out_lm.reshape(shape), out_d2.reshape(shape), out_st.reshape(shape))
