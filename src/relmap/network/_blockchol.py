@@ -24,6 +24,8 @@ __all__ = [
     "etree_postorder",
     "factorize",
     "inverse_blocks",
+    "panel_solve",
+    "panels_to_blocks",
     "scatter_map",
     "selected_inverse",
     "solve",
@@ -618,15 +620,13 @@ def factorize_supernodal(
     dst: IntArray,
     data: FloatArray,
     P: FloatArray,
-    X: FloatArray,
-    Dinv: FloatArray,
     bt: tuple[int, ...],
 ) -> int:  # pragma: no cover
     """Left-looking supernodal Cholesky ``A = L Lᵀ`` in dense panels ``P`` (see
-    :func:`panel_map`), then the same factor as the block ``L D Lᵀ`` of :func:`factorize` in
-    ``X`` and ``Dinv`` (so :func:`solve` and :func:`selected_inverse` apply). Updates between
-    panels go through BLAS (``np.dot``) when large, through loops when small. Returns -1, or
-    a node whose pivot is not positive."""
+    :func:`panel_map`); :func:`panel_solve` solves with it, :func:`panels_to_blocks` turns it
+    into the block ``L D Lᵀ`` of :func:`factorize`. Updates between panels go through BLAS
+    (``np.dot``) when large, through loops when small. Returns -1, or a node whose pivot is not
+    positive (LAPACK's Cholesky of a wide pivot block raises ``LinAlgError`` instead)."""
     b = len(bt)
     bb = b * b
     n = len(Lp) - 1
@@ -753,45 +753,6 @@ def factorize_supernodal(
             e = sn_of[Li[r0]]
             nxt[s] = head[e]
             head[e] = s
-    # the block L D Lᵀ: L̃_IJ = L_IJ L_JJ⁻¹, D_J = L_JJ L_JJᵀ
-    Linv = np.empty((b, b))
-    for s in range(S):
-        f, last = starts[s], starts[s + 1] - 1
-        w = last + 1 - f
-        m = w + Lp[last + 1] - Lp[last]
-        cols = w * b
-        so = offset[s]
-        for u in range(w):
-            J = f + u
-            base = so + (u * b) * cols + u * b  # L_JJ
-            Linv[:, :] = 0.0
-            for c in range(b):
-                Linv[c, c] = 1.0 / P[base + c * cols + c]
-                for r in range(c + 1, b):
-                    acc = 0.0
-                    for k in range(c, r):
-                        acc -= P[base + r * cols + k] * Linv[k, c]
-                    Linv[r, c] = acc / P[base + r * cols + r]
-            jo = J * bb
-            for r in range(b):
-                for c in range(b):
-                    acc = 0.0
-                    dd = 0.0
-                    for k in range(max(r, c), b):
-                        acc += Linv[k, r] * Linv[k, c]
-                    for k in range(min(r, c) + 1):
-                        dd += P[base + r * cols + k] * P[base + c * cols + k]
-                    Dinv[jo + r * b + c] = acc
-                    X[jo + r * b + c] = dd
-            for t in range(u + 1, m):
-                bo = so + (t * b) * cols + u * b
-                lo = (n + Lp[J] + t - u - 1) * bb
-                for r in range(b):
-                    for c in range(b):
-                        acc = 0.0
-                        for k in range(c, b):
-                            acc += P[bo + r * cols + k] * Linv[k, c]
-                        X[lo + r * b + c] = acc
     return -1
 
 
@@ -858,3 +819,119 @@ def inverse_blocks(
                     acc += yj[r, c1] * tmp[r, c2]
                 out[c1, c2] += acc
     return out
+
+
+@numba.njit(cache=True, fastmath=_FAST)
+def panels_to_blocks(
+    Lp: IntArray,
+    Li: IntArray,
+    starts: IntArray,
+    offset: IntArray,
+    P: FloatArray,
+    X: FloatArray,
+    Dinv: FloatArray,
+    bt: tuple[int, ...],
+) -> None:  # pragma: no cover
+    """The supernodal Cholesky factor in ``P`` as the block ``L D Lᵀ`` of :func:`factorize`
+    in ``X`` and ``Dinv`` (so :func:`solve`, :func:`selected_inverse` and
+    :func:`inverse_blocks` apply)."""
+    b = len(bt)
+    bb = b * b
+    n = len(Lp) - 1
+    S = len(starts) - 1
+    # the block L D Lᵀ: L̃_IJ = L_IJ L_JJ⁻¹, D_J = L_JJ L_JJᵀ
+    Linv = np.empty((b, b))
+    for s in range(S):
+        f, last = starts[s], starts[s + 1] - 1
+        w = last + 1 - f
+        m = w + Lp[last + 1] - Lp[last]
+        cols = w * b
+        so = offset[s]
+        for u in range(w):
+            J = f + u
+            base = so + (u * b) * cols + u * b  # L_JJ
+            Linv[:, :] = 0.0
+            for c in range(b):
+                Linv[c, c] = 1.0 / P[base + c * cols + c]
+                for r in range(c + 1, b):
+                    acc = 0.0
+                    for k in range(c, r):
+                        acc -= P[base + r * cols + k] * Linv[k, c]
+                    Linv[r, c] = acc / P[base + r * cols + r]
+            jo = J * bb
+            for r in range(b):
+                for c in range(b):
+                    acc = 0.0
+                    dd = 0.0
+                    for k in range(max(r, c), b):
+                        acc += Linv[k, r] * Linv[k, c]
+                    for k in range(min(r, c) + 1):
+                        dd += P[base + r * cols + k] * P[base + c * cols + k]
+                    Dinv[jo + r * b + c] = acc
+                    X[jo + r * b + c] = dd
+            for t in range(u + 1, m):
+                bo = so + (t * b) * cols + u * b
+                lo = (n + Lp[J] + t - u - 1) * bb
+                for r in range(b):
+                    for c in range(b):
+                        acc = 0.0
+                        for k in range(c, b):
+                            acc += P[bo + r * cols + k] * Linv[k, c]
+                        X[lo + r * b + c] = acc
+
+
+@numba.njit(cache=True, fastmath=_FAST)
+def panel_solve(
+    Lp: IntArray,
+    Li: IntArray,
+    starts: IntArray,
+    offset: IntArray,
+    P: FloatArray,
+    y: FloatArray,
+    bt: tuple[int, ...],
+) -> None:  # pragma: no cover
+    """``y ← A⁻¹ y`` in place (n·b,), factor's order, with the supernodal factor in ``P``."""
+    b = len(bt)
+    S = len(starts) - 1
+    for s in range(S):  # L y = rhs
+        f, last = starts[s], starts[s + 1] - 1
+        w = last + 1 - f
+        r0 = Lp[last]
+        m = w + Lp[last + 1] - r0
+        cols = w * b
+        so = offset[s]
+        y0 = f * b
+        for r in range(cols):
+            ro = so + r * cols
+            acc = y[y0 + r]
+            for k in range(r):
+                acc -= P[ro + k] * y[y0 + k]
+            y[y0 + r] = acc / P[ro + r]
+        for t in range(w, m):
+            io = Li[r0 + t - w] * b
+            for a in range(b):
+                ro = so + (t * b + a) * cols
+                acc = 0.0
+                for k in range(cols):
+                    acc += P[ro + k] * y[y0 + k]
+                y[io + a] -= acc
+    for s in range(S - 1, -1, -1):  # Lᵀ x = y
+        f, last = starts[s], starts[s + 1] - 1
+        w = last + 1 - f
+        r0 = Lp[last]
+        m = w + Lp[last + 1] - r0
+        cols = w * b
+        so = offset[s]
+        y0 = f * b
+        for t in range(w, m):
+            io = Li[r0 + t - w] * b
+            for a in range(b):
+                ro = so + (t * b + a) * cols
+                x = y[io + a]
+                for k in range(cols):
+                    y[y0 + k] -= P[ro + k] * x
+        for r in range(cols - 1, -1, -1):
+            x = y[y0 + r] / P[so + r * cols + r]
+            y[y0 + r] = x
+            for k in range(r):
+                y[y0 + k] -= P[so + r * cols + k] * x

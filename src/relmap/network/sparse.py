@@ -926,6 +926,7 @@ class _BlockNumeric:
         self.Dinv = np.empty(sym.n * bb)
         self.supernodal = sym.supernodal if supernodal is None else supernodal
         self._panels = np.empty(sym.panels()[1][-1]) if self.supernodal else None
+        self._blocks_ready = False
         self._bt = (0,) * sym.b  # its length specializes the kernels to b
 
     def factorize(self, data: FloatArray) -> None:
@@ -938,22 +939,26 @@ class _BlockNumeric:
             starts, offset, src, dst = s.panels()
             with _one_blas_thread():
                 bad = kernels.factorize_supernodal(
-                    s.Lp,
-                    s.Li,
-                    starts,
-                    offset,
-                    src,
-                    dst,
-                    data,
-                    self._panels,
-                    self.X,
-                    self.Dinv,
-                    self._bt,
+                    s.Lp, s.Li, starts, offset, src, dst, data, self._panels, self._bt
                 )
+            self._blocks_ready = False  # X, Dinv are formed from the panels when needed
         else:
             bad = kernels.factorize(s.Lp, s.Li, s.src, s.dst, data, self.X, self.Dinv, self._bt)
+            self._blocks_ready = True
         if bad >= 0:
             raise np.linalg.LinAlgError("the matrix is not positive definite")
+
+    def _blocks(self) -> None:
+        """The block L D Lᵀ (X, Dinv) from the supernodal panels, once per factorization."""
+        if not self._blocks_ready:
+            from relmap.network import _blockchol as kernels
+
+            s = self.sym
+            starts, offset, _, _ = s.panels()
+            kernels.panels_to_blocks(
+                s.Lp, s.Li, starts, offset, self._panels, self.X, self.Dinv, self._bt
+            )
+            self._blocks_ready = True
 
     def solve(self, rhs: FloatArray) -> FloatArray:
         """``A⁻¹ rhs`` for ``rhs`` (size,) or (size, k)."""
@@ -963,7 +968,12 @@ class _BlockNumeric:
         vector = rhs.ndim == 1
         Y = np.asarray(rhs, dtype=np.float64)[s.perm]
         Y = np.ascontiguousarray(Y[:, None] if vector else Y)
-        kernels.solve(s.Lp, s.Li, self.X, self.Dinv, Y, self._bt)
+        if vector and not self._blocks_ready:  # straight from the panels
+            starts, offset, _, _ = s.panels()
+            kernels.panel_solve(s.Lp, s.Li, starts, offset, self._panels, Y[:, 0], self._bt)
+        else:
+            self._blocks()
+            kernels.solve(s.Lp, s.Li, self.X, self.Dinv, Y, self._bt)
         out = np.empty_like(Y)
         out[s.perm] = Y
         return out[:, 0] if vector else out
@@ -972,6 +982,7 @@ class _BlockNumeric:
         """The joint block (k·b, k·b) of ``A⁻¹`` of the given nodes (k,), pattern's order."""
         from relmap.network import _blockchol as kernels
 
+        self._blocks()
         s = self.sym
         rank = np.empty(s.n, dtype=np.int64)
         rank[s.order] = np.arange(s.n)
@@ -982,6 +993,7 @@ class _BlockNumeric:
         """The diagonal blocks of ``A⁻¹`` per node, in the pattern's node order, (n, b, b)."""
         from relmap.network import _blockchol as kernels
 
+        self._blocks()
         s = self.sym
         Z = kernels.selected_inverse(s.Lp, s.Li, self.X, self.Dinv, self._bt)
         out = np.empty((s.n, s.b, s.b))
