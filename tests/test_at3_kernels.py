@@ -104,6 +104,20 @@ def test_kernels_read_views_and_broadcast_cross_covariances(monkeypatch):
         assert_same(*both_paths(monkeypatch, fn))
 
 
+def test_views_of_large_batches_go_through_the_kernels_in_slices(monkeypatch):
+    monkeypatch.setattr(at3, "_KERNEL_CHUNK", 64)  # several slices and a ragged last one
+    a, b = random_at3s(10, (2, 300)), random_at3s(11, (300,))
+    X = np.random.default_rng(12).normal(scale=0.01, size=(6, 6))
+    for fn in (
+        lambda: a[0, 0] @ b,  # one AT3 broadcast against the batch
+        lambda: a[1] @ b[0],
+        lambda: a[:, ::2] @ b[::2],  # strided slices
+        lambda: a[:, 1:].reverse(),
+        lambda: rm.compound(a[1], b, cross_cov=X),
+    ):
+        assert_same(*both_paths(monkeypatch, fn))
+
+
 def test_kernels_keep_the_reversal_cross_covariance_identity(monkeypatch):
     """A ⊕ Aᴿ with the cross-covariance ``C Jᵀ`` is exactly known (the identity, zero cov)."""
     monkeypatch.setenv("RELMAP_NUMBA", "1")

@@ -29,7 +29,7 @@ Both give the same values to rounding (the batched kernels bitwise, in the cases
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from types import ModuleType
 from typing import Literal, overload
 
@@ -476,18 +476,40 @@ def _kernels() -> ModuleType | None:
     return _KERNELS[0]
 
 
+_KERNEL_CHUNK = 8192  # elements per kernel call when inputs must be copied to C order
+
+
+def _run(
+    kernel: Callable[..., tuple[FloatArray, FloatArray]],
+    planes: tuple[FloatArray, ...],
+    N: int,
+) -> tuple[FloatArray, FloatArray]:
+    """A batched numba kernel on entry-major planes (r, c, N) → new (4, 4, N), (6, 6, N).
+
+    The kernels read C-contiguous planes (relmap's own layout). Other views (slices of a larger
+    batch, one AT3 broadcast against a batch) are copied to C order, in slices of
+    _KERNEL_CHUNK elements for a large batch so that the copies stay small."""
+    planes = tuple(np.asarray(p, dtype=np.float64) for p in planes)
+    if N <= _KERNEL_CHUNK or all(p.flags.c_contiguous for p in planes):
+        return kernel(*(np.ascontiguousarray(p) for p in planes))  # type: ignore[no-any-return]
+    To, Co = np.empty((4, 4, N)), np.empty((6, 6, N))
+    for s in range(0, N, _KERNEL_CHUNK):
+        e = min(N, s + _KERNEL_CHUNK)
+        To[..., s:e], Co[..., s:e] = kernel(*(np.ascontiguousarray(p[..., s:e]) for p in planes))
+    return To, Co
+
+
 def _compound_batched(a: AT3, b: AT3, X: FloatArray | None, batch: tuple[int, ...]) -> AT3:
     N = math.prod(batch)
     Ta, Ca = _planes(a._mean, batch, N), _planes(a._cov, batch, N)
     Tb, Cb = _planes(b._mean, batch, N), _planes(b._cov, batch, N)
     Xp = None if X is None else _planes(X, batch, N)
     kernels = _kernels()
-    if kernels is not None:  # C-contiguous planes: copies only of views (slices, broadcasts)
-        Ta, Ca, Tb, Cb = (np.ascontiguousarray(x) for x in (Ta, Ca, Tb, Cb))
+    if kernels is not None:
         if Xp is None:
-            To, Co = kernels.compound_batched(Ta, Ca, Tb, Cb)
+            To, Co = _run(kernels.compound_batched, (Ta, Ca, Tb, Cb), N)
         else:
-            To, Co = kernels.compound_cross_batched(Ta, Ca, Tb, Cb, np.ascontiguousarray(Xp))
+            To, Co = _run(kernels.compound_cross_batched, (Ta, Ca, Tb, Cb, Xp), N)
         return AT3._own(_logical(To, batch), _logical(Co, batch))
     To, Co = _new_pose_and_cov(N)
     m = min(N, _CHUNK)
@@ -537,7 +559,7 @@ def _reverse_batched(a: AT3) -> AT3:
     T, C = _planes(a._mean, batch, N), _planes(a._cov, batch, N)
     kernels = _kernels()
     if kernels is not None:
-        To, Co = kernels.reverse_batched(np.ascontiguousarray(T), np.ascontiguousarray(C))
+        To, Co = _run(kernels.reverse_batched, (T, C), N)
         return AT3._own(_logical(To, batch), _logical(Co, batch))
     To, Co = _new_pose_and_cov(N)
     m = min(N, _CHUNK)
