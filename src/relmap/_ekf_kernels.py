@@ -280,244 +280,324 @@ def _run(mean, cov, z, valid, sig, lm, lsig, par, out_lm, out_st, out_d2, out_me
             continue
         for l in range(L):
             col_taken[l] = False
-        # ---- phase 1: pairs inside the gate
-        disc_mode = model == 0 and sigmode != 1
-        k2 = gate2 * _SLACK
-        lam = max(h + math.sqrt(cbr * cbr + cbi * cbi), 0.0)
-        g2 = 2.0 * math.sqrt(gbr * gbr + gbi * gbi)
-        pb = p22 + sb * sb
-        tau2 = k2 * (lam + sr * sr)
-        tau = math.sqrt(tau2)
-        n = 0
-        for j in range(m):
-            if row_state[j] != 1:
-                continue
-            zr = z[f, j, 0]
-            ec, es = ecs[j, 0], ecs[j, 1]
-            nf = 0
-            if sigmode == 1:
-                if lid[j] >= 0:
-                    found[0] = lid[j]
-                    nf = 1
-            elif disc_mode:  # the landmarks in the reading's disc (by x, then by row)
-                px, py = sx + zr * ec, sy + zr * es
-                lo = zr - tau
-                disc = zr + zr + tau
-                disc *= disc
-                if lo > 0.0:
-                    near = tau2 + zr * k2 * (lam / lo + g2 + (zr + tau) * pb)
-                    if near < disc:
-                        disc = near
-                disc *= _DISC_GROW
-                R = math.sqrt(disc)
-                # the landmarks of x within px ± R: branchless bisections (first x ≥ px - R,
-                # first x > px + R)
-                first, last, v, w, k = 0, 0, px - R, px + R, L
-                while k > 1:
-                    half = k >> 1
-                    first = first + half if xs[first + half] < v else first
-                    last = last + half if xs[last + half] <= w else last
-                    k -= half
-                first += xs[first] < v
-                last += xs[last] <= w
-                for i in range(first, last):
-                    l = by_x[i]
-                    if sigmode == 2 and sig[f, j] != lsig[l]:
-                        continue
-                    qx, qy = lm[l, 0] - px, lm[l, 1] - py
-                    if qx * qx + qy * qy <= disc:
-                        k = nf
-                        while k > 0 and found[k - 1] > l:
-                            found[k] = found[k - 1]
-                            k -= 1
-                        found[k] = l
-                        nf += 1
-            else:
-                for l in range(L):
-                    if sigmode == 2 and sig[f, j] != lsig[l]:
-                        continue
-                    found[nf] = l
-                    nf += 1
-            for i in range(nf):
-                l = found[i]
-                ok, d2, ir, ux, uy, vr, vb, var_r, var_b = _terms(
-                    fr, lm[l, 0], lm[l, 1], zr, ec, es, sr, sb, model
-                )
-                if not ok:
-                    return -1
-                if d2 <= gate2:
-                    ej[n], el[n], ed[n] = j, l, d2
-                    et[n, 0], et[n, 1], et[n, 2], et[n, 3] = ir, ux, uy, vr
-                    et[n, 4], et[n, 5], et[n, 6] = vb, var_r, var_b
-                    n += 1
-        # the greedy pairing, cheapest first: entries are by reading, then landmark; when
-        # the readings' cheapest entries (the first of equal d²) name distinct landmarks, the
-        # greedy run takes exactly those; else a stable sort by d², then one scan
-        prev = -1
-        for e in range(n):
-            j = ej[e]
-            if j != prev:
-                used_at[j] = e
-                prev = j
-            elif ed[e] < ed[used_at[j]]:
-                used_at[j] = e
-        clash = False
-        prev = -1
-        for e in range(n):
-            j = ej[e]
-            if j != prev:
-                prev = j
-                l = el[used_at[j]]
-                if col_taken[l]:
-                    clash = True
-                    break
-                col_taken[l] = True
-        if not clash:
-            prev = -1
-            for e in range(n):
-                j = ej[e]
-                if j != prev:
-                    prev = j
-                    q = used_at[j]
-                    row_state[j] = 2
-                    out_lm[f, j], out_d2[f, j], out_st[f, j] = el[q], ed[q], USED
-        else:
-            prev = -1
-            for e in range(n):  # undo the marks of this pass
-                j = ej[e]
-                if j != prev:
-                    prev = j
-                    col_taken[el[used_at[j]]] = False
-            if n > _SMALL_SORT:  # the entries by d², ties in entry order (a stable sort)
-                eo[:n] = np.argsort(ed[:n], kind="mergesort")
-            else:
-                for i in range(n):
-                    k = i
-                    v = ed[i]
-                    while k > 0 and ed[eo[k - 1]] > v:
-                        eo[k] = eo[k - 1]
-                        k -= 1
-                    eo[k] = i
-            for i in range(n):
-                e = eo[i]
-                j, l = ej[e], el[e]
-                if row_state[j] != 1 or col_taken[l]:
-                    continue
-                row_state[j] = 2
-                col_taken[l] = True
-                used_at[j] = e
-                out_lm[f, j], out_d2[f, j], out_st[f, j] = l, ed[e], USED
-        # ---- the 3×3 update over the used pairs (ekf._update_one)
+        # ---- unique signatures: each reading has its one landmark; when no two readings
+        # name the same one, the greedy pairing takes every pair (USED inside the gate, GATED
+        # outside), in one pass; else the general pairing below
+        fused = sigmode == 1
         s_a = n1 = s2 = 0.0
         swr = swi = sur = sui = sdr = sdi = 0.0
         count = 0
-        for j in range(m):
-            if row_state[j] != 2:
-                continue
-            count += 1
-            e = used_at[j]
-            ir, ux, uy, vr, vb, var_r, var_b = et[e, 0], et[e, 1], et[e, 2], et[e, 3], et[e, 4], et[e, 5], et[e, 6]
-            w0, w1 = 1.0 / var_r, 1.0 / var_b
-            wq, e2 = w1 * ir * ir, w1 * vb
-            s_a += w0 + wq
-            n1 += w1
-            s2 += e2
-            q = w0 - wq
-            u2r, u2i = ux * ux - uy * uy, ux * uy + uy * ux
-            swr += q * u2r
-            swi += q * u2i
-            wr_ = w1 * ir
-            sur += wr_ * ux
-            sui += wr_ * uy
-            a_, b_ = w0 * vr, e2 * ir  # (a_ + i b_)·u
-            sdr += a_ * ux - b_ * uy
-            sdi += a_ * uy + b_ * ux
-        # ---- phase 2: the readings left, against the landmarks left
-        n = 0
-        for j in range(m):
-            if row_state[j] != 1:
-                continue
-            zr = z[f, j, 0]
-            ec, es = ecs[j, 0], ecs[j, 1]
-            best = np.inf
-            allowed = False
-            if sigmode == 1:
-                lo_l, hi_l = max(lid[j], 0), lid[j] + 1
-            else:
-                lo_l, hi_l = 0, L
-            for l in range(lo_l, hi_l):
-                if sigmode == 2 and sig[f, j] != lsig[l]:
+        if fused:
+            for j in range(m):
+                if row_state[j] != 1 or lid[j] < 0:
                     continue
-                ok, d2 = _terms(fr, lm[l, 0], lm[l, 1], zr, ec, es, sr, sb, model)[:2]
-                if not ok:
-                    return -1
-                allowed = True
-                if d2 < best:
-                    best = d2
-                if not col_taken[l]:
-                    if d2 <= gate2:
-                        return -1  # excluded by the disc bound: let numpy decide
-                    ej[n], el[n], ed[n] = j, l, d2
-                    n += 1
-            if allowed:
-                out_st[f, j] = LOST
-                out_d2[f, j] = best
-        # the greedy pairing, cheapest first: entries are by reading, then landmark; when
-        # the readings' cheapest entries (the first of equal d²) name distinct landmarks, the
-        # greedy run takes exactly those; else a stable sort by d², then one scan
-        prev = -1
-        for e in range(n):
-            j = ej[e]
-            if j != prev:
-                used_at[j] = e
-                prev = j
-            elif ed[e] < ed[used_at[j]]:
-                used_at[j] = e
-        clash = False
-        prev = -1
-        for e in range(n):
-            j = ej[e]
-            if j != prev:
-                prev = j
-                l = el[used_at[j]]
+                l = lid[j]
                 if col_taken[l]:
-                    clash = True
+                    fused = False
                     break
                 col_taken[l] = True
-        if not clash:
+                ok, d2, ir, ux, uy, vr, vb, var_r, var_b = _terms(
+                    fr, lm[l, 0], lm[l, 1], z[f, j, 0], ecs[j, 0], ecs[j, 1], sr, sb, model
+                )
+                if not ok:
+                    return -1
+                out_lm[f, j], out_d2[f, j] = l, d2
+                if not d2 <= gate2:
+                    out_st[f, j] = GATED
+                    row_state[j] = 3
+                    continue
+                out_st[f, j] = USED
+                row_state[j] = 2
+                count += 1
+                w0, w1 = 1.0 / var_r, 1.0 / var_b
+                wq, e2 = w1 * ir * ir, w1 * vb
+                s_a += w0 + wq
+                n1 += w1
+                s2 += e2
+                q = w0 - wq
+                swr += q * (ux * ux - uy * uy)
+                swi += q * (ux * uy + uy * ux)
+                wr_ = w1 * ir
+                sur += wr_ * ux
+                sui += wr_ * uy
+                a_, b_ = w0 * vr, e2 * ir  # (a_ + i b_)·u
+                sdr += a_ * ux - b_ * uy
+                sdi += a_ * uy + b_ * ux
+            if not fused:  # undone
+                for l in range(L):
+                    col_taken[l] = False
+                for j in range(m):
+                    if row_state[j] >= 2:
+                        row_state[j] = 1
+                        out_lm[f, j], out_d2[f, j], out_st[f, j] = -1, np.inf, UNKNOWN
+        if not fused:
+            # ---- phase 1: pairs inside the gate
+            disc_mode = model == 0 and sigmode != 1
+            k2 = gate2 * _SLACK
+            lam = max(h + math.sqrt(cbr * cbr + cbi * cbi), 0.0)
+            g2 = 2.0 * math.sqrt(gbr * gbr + gbi * gbi)
+            pb = p22 + sb * sb
+            tau2 = k2 * (lam + sr * sr)
+            tau = math.sqrt(tau2)
+            n = 0
+            clash = False
+            for j in range(m):
+                if row_state[j] != 1:
+                    continue
+                zr = z[f, j, 0]
+                ec, es = ecs[j, 0], ecs[j, 1]
+                nf = 0
+                if sigmode == 1:
+                    if lid[j] >= 0:
+                        found[0] = lid[j]
+                        nf = 1
+                elif disc_mode:  # the landmarks in the reading's disc (by x, then by row)
+                    px, py = sx + zr * ec, sy + zr * es
+                    lo = zr - tau
+                    disc = zr + zr + tau
+                    disc *= disc
+                    if lo > 0.0:
+                        near = tau2 + zr * k2 * (lam / lo + g2 + (zr + tau) * pb)
+                        if near < disc:
+                            disc = near
+                    disc *= _DISC_GROW
+                    R = math.sqrt(disc)
+                    # the landmarks of x within px ± R: branchless bisections (first x ≥ px - R,
+                    # first x > px + R)
+                    first, last, v, w, k = 0, 0, px - R, px + R, L
+                    while k > 1:
+                        half = k >> 1
+                        first = first + half if xs[first + half] < v else first
+                        last = last + half if xs[last + half] <= w else last
+                        k -= half
+                    first += xs[first] < v
+                    last += xs[last] <= w
+                    for i in range(first, last):
+                        l = by_x[i]
+                        if sigmode == 2 and sig[f, j] != lsig[l]:
+                            continue
+                        qx, qy = lm[l, 0] - px, lm[l, 1] - py
+                        if qx * qx + qy * qy <= disc:
+                            k = nf
+                            while k > 0 and found[k - 1] > l:
+                                found[k] = found[k - 1]
+                                k -= 1
+                            found[k] = l
+                            nf += 1
+                else:
+                    for l in range(L):
+                        if sigmode == 2 and sig[f, j] != lsig[l]:
+                            continue
+                        found[nf] = l
+                        nf += 1
+                be = -1
+                for i in range(nf):
+                    l = found[i]
+                    ok, d2, ir, ux, uy, vr, vb, var_r, var_b = _terms(
+                        fr, lm[l, 0], lm[l, 1], zr, ec, es, sr, sb, model
+                    )
+                    if not ok:
+                        return -1
+                    if d2 <= gate2:
+                        ej[n], el[n], ed[n] = j, l, d2
+                        et[n, 0], et[n, 1], et[n, 2], et[n, 3] = ir, ux, uy, vr
+                        et[n, 4], et[n, 5], et[n, 6] = vb, var_r, var_b
+                        if be < 0 or d2 < ed[be]:
+                            be = n
+                        n += 1
+                # the reading's cheapest pair inside the gate (the first of equal d²)
+                if be >= 0 and not clash:
+                    l = el[be]
+                    if col_taken[l]:
+                        clash = True
+                    else:
+                        col_taken[l] = True
+                        row_state[j] = 2
+                        used_at[j] = be
+                        out_lm[f, j], out_d2[f, j], out_st[f, j] = l, ed[be], USED
+            # The greedy pairing, cheapest first: when the readings' cheapest pairs name distinct
+            # landmarks, the greedy run takes exactly those (taken above); else, undone, a stable
+            # sort of the pairs (by reading, then landmark) by d², then one scan.
+            if clash:
+                for j in range(m):
+                    if row_state[j] == 2:
+                        row_state[j] = 1
+                        col_taken[out_lm[f, j]] = False
+                        out_lm[f, j], out_d2[f, j], out_st[f, j] = -1, np.inf, UNKNOWN
+                if n > _SMALL_SORT:  # the entries by d², ties in entry order (a stable sort)
+                    eo[:n] = np.argsort(ed[:n], kind="mergesort")
+                else:
+                    for i in range(n):
+                        k = i
+                        v = ed[i]
+                        while k > 0 and ed[eo[k - 1]] > v:
+                            eo[k] = eo[k - 1]
+                            k -= 1
+                        eo[k] = i
+                for i in range(n):
+                    e = eo[i]
+                    j, l = ej[e], el[e]
+                    if row_state[j] != 1 or col_taken[l]:
+                        continue
+                    row_state[j] = 2
+                    col_taken[l] = True
+                    used_at[j] = e
+                    out_lm[f, j], out_d2[f, j], out_st[f, j] = l, ed[e], USED
+            # ---- the 3×3 update over the used pairs (ekf._update_one)
+            s_a = n1 = s2 = 0.0
+            swr = swi = sur = sui = sdr = sdi = 0.0
+            count = 0
+            for j in range(m):
+                if row_state[j] != 2:
+                    continue
+                count += 1
+                e = used_at[j]
+                ir, ux, uy, vr, vb, var_r, var_b = et[e, 0], et[e, 1], et[e, 2], et[e, 3], et[e, 4], et[e, 5], et[e, 6]
+                w0, w1 = 1.0 / var_r, 1.0 / var_b
+                wq, e2 = w1 * ir * ir, w1 * vb
+                s_a += w0 + wq
+                n1 += w1
+                s2 += e2
+                q = w0 - wq
+                u2r, u2i = ux * ux - uy * uy, ux * uy + uy * ux
+                swr += q * u2r
+                swi += q * u2i
+                wr_ = w1 * ir
+                sur += wr_ * ux
+                sui += wr_ * uy
+                a_, b_ = w0 * vr, e2 * ir  # (a_ + i b_)·u
+                sdr += a_ * ux - b_ * uy
+                sdi += a_ * uy + b_ * ux
+            # ---- phase 2: the readings left, against the landmarks left
+            # One reading left (the usual case): its cheapest free landmark is its pair; d² is
+            # computed only where the range alone does not exclude it, d² ≥ v_r²/S_rr ≥
+            # v_r²/(λ + σr²) (Cauchy-Schwarz; λ the top eigenvalue of V)
+            n_left, jl = 0, -1
+            for j in range(m):
+                if row_state[j] == 1:
+                    n_left += 1
+                    jl = j
+            if n_left == 1 and sigmode != 1:
+                j = jl
+                zr = z[f, j, 0]
+                ec, es = ecs[j, 0], ecs[j, 1]
+                best = bfree = np.inf
+                lfree = -1
+                allowed = False
+                var_r = sr * sr
+                for l in range(L):
+                    if sigmode == 2 and sig[f, j] != lsig[l]:
+                        continue
+                    allowed = True
+                    qx, qy = lm[l, 0] - sx, lm[l, 1] - sy
+                    rl = math.sqrt(qx * qx + qy * qy)
+                    if model != 0:
+                        var_r = _variances(rl, sr, sb, model)[0]
+                    dv = zr - rl
+                    if dv * dv * (1.0 - 1e-9) > (best if col_taken[l] else bfree) * (lam + var_r):
+                        continue
+                    ok, d2 = _terms(fr, lm[l, 0], lm[l, 1], zr, ec, es, sr, sb, model)[:2]
+                    if not ok:
+                        return -1
+                    if d2 < best:
+                        best = d2
+                    if not col_taken[l]:
+                        if d2 <= gate2:
+                            return -1  # excluded by the disc bound: let numpy decide
+                        if d2 < bfree:
+                            bfree, lfree = d2, l
+                if lfree >= 0:
+                    col_taken[lfree] = True
+                    out_lm[f, j], out_d2[f, j], out_st[f, j] = lfree, bfree, GATED
+                elif allowed:
+                    out_st[f, j] = LOST
+                    out_d2[f, j] = best
+                row_state[j] = 4  # done
+            n = 0
+            for j in range(m):
+                if row_state[j] != 1:
+                    continue
+                zr = z[f, j, 0]
+                ec, es = ecs[j, 0], ecs[j, 1]
+                best = np.inf
+                allowed = False
+                if sigmode == 1:
+                    lo_l, hi_l = max(lid[j], 0), lid[j] + 1
+                else:
+                    lo_l, hi_l = 0, L
+                for l in range(lo_l, hi_l):
+                    if sigmode == 2 and sig[f, j] != lsig[l]:
+                        continue
+                    ok, d2 = _terms(fr, lm[l, 0], lm[l, 1], zr, ec, es, sr, sb, model)[:2]
+                    if not ok:
+                        return -1
+                    allowed = True
+                    if d2 < best:
+                        best = d2
+                    if not col_taken[l]:
+                        if d2 <= gate2:
+                            return -1  # excluded by the disc bound: let numpy decide
+                        ej[n], el[n], ed[n] = j, l, d2
+                        n += 1
+                if allowed:
+                    out_st[f, j] = LOST
+                    out_d2[f, j] = best
+            # the greedy pairing, cheapest first: entries are by reading, then landmark; when
+            # the readings' cheapest entries (the first of equal d²) name distinct landmarks, the
+            # greedy run takes exactly those; else a stable sort by d², then one scan
+            prev = -1
+            for e in range(n):
+                j = ej[e]
+                if j != prev:
+                    used_at[j] = e
+                    prev = j
+                elif ed[e] < ed[used_at[j]]:
+                    used_at[j] = e
+            clash = False
             prev = -1
             for e in range(n):
                 j = ej[e]
                 if j != prev:
                     prev = j
-                    q = used_at[j]
-                    row_state[j] = 3
-                    out_lm[f, j], out_d2[f, j], out_st[f, j] = el[q], ed[q], GATED
-        else:
-            prev = -1
-            for e in range(n):  # undo the marks of this pass
-                j = ej[e]
-                if j != prev:
-                    prev = j
-                    col_taken[el[used_at[j]]] = False
-            if n > _SMALL_SORT:  # the entries by d², ties in entry order (a stable sort)
-                eo[:n] = np.argsort(ed[:n], kind="mergesort")
+                    l = el[used_at[j]]
+                    if col_taken[l]:
+                        clash = True
+                        break
+                    col_taken[l] = True
+            if not clash:
+                prev = -1
+                for e in range(n):
+                    j = ej[e]
+                    if j != prev:
+                        prev = j
+                        q = used_at[j]
+                        row_state[j] = 3
+                        out_lm[f, j], out_d2[f, j], out_st[f, j] = el[q], ed[q], GATED
             else:
+                prev = -1
+                for e in range(n):  # undo the marks of this pass
+                    j = ej[e]
+                    if j != prev:
+                        prev = j
+                        col_taken[el[used_at[j]]] = False
+                if n > _SMALL_SORT:  # the entries by d², ties in entry order (a stable sort)
+                    eo[:n] = np.argsort(ed[:n], kind="mergesort")
+                else:
+                    for i in range(n):
+                        k = i
+                        v = ed[i]
+                        while k > 0 and ed[eo[k - 1]] > v:
+                            eo[k] = eo[k - 1]
+                            k -= 1
+                        eo[k] = i
                 for i in range(n):
-                    k = i
-                    v = ed[i]
-                    while k > 0 and ed[eo[k - 1]] > v:
-                        eo[k] = eo[k - 1]
-                        k -= 1
-                    eo[k] = i
-            for i in range(n):
-                e = eo[i]
-                j, l = ej[e], el[e]
-                if row_state[j] != 1 or col_taken[l]:
-                    continue
-                row_state[j] = 3
-                col_taken[l] = True
-                out_lm[f, j], out_d2[f, j], out_st[f, j] = l, ed[e], GATED
+                    e = eo[i]
+                    j, l = ej[e], el[e]
+                    if row_state[j] != 1 or col_taken[l]:
+                        continue
+                    row_state[j] = 3
+                    col_taken[l] = True
+                    out_lm[f, j], out_d2[f, j], out_st[f, j] = l, ed[e], GATED
         if count == 0:
             for i in range(3):
                 out_mean[i, f] = mean[f, i]
