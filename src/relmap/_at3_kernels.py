@@ -22,7 +22,8 @@ import numpy as np
 from numba import types
 
 # The kernels (compound_batched, compound_cross_batched, reverse_batched, compound_chain,
-# compound_one, reverse_one) are module attributes made on first access: see __getattr__ below.
+# compound_chain_scan, compound_one, reverse_one) are module attributes made on first
+# access: see __getattr__ below.
 
 _inline = numba.njit(cache=True, fastmath=False, inline="always")
 
@@ -43,6 +44,7 @@ _SIGNATURES = {
     "compound_cross_batched": [_P3(_C3, _C3, _C3, _C3, _C3)],
     "reverse_batched": [_P3(_C3, _C3)],
     "compound_chain": [_P4(_C4, _C4)],
+    "compound_chain_scan": [_P4(_C4, _C4)],
     "compound_one": [_P2(_A2, _A2, _A2, _A2, _X2)],
     "reverse_one": [_P2(_A2, _A2)],
 }
@@ -404,9 +406,6 @@ def _compound_chain(T, C):  # type: ignore[no-untyped-def]
     Co = np.empty((6, 6, L, M))
     To[:, :, 0] = T[:, :, 0]  # prefix 0 is step 0 as it is
     Co[:, :, 0] = C[:, :, 0]
-    if M < _MIN_CHAINS:
-        _chain_scan(T, C, To, Co)
-        return To, Co
     # _W chains at a time, one step of all of them at a time (contiguous, step-major): the
     # running prefixes sit in the rows of a and the step in those of b, so the chunk vectorizes
     # as in compound_batched
@@ -420,14 +419,13 @@ def _compound_chain(T, C):  # type: ignore[no-untyped-def]
     return To, Co
 
 
-_MIN_CHAINS = 32  # fewer chains than this are scanned one at a time (lanes would go unused)
-
-
-@_inline
-def _chain_scan(T, C, To, Co):  # type: ignore[no-untyped-def]
+def _compound_chain_scan(T, C):  # type: ignore[no-untyped-def]
     """:func:`compound_chain` one chain at a time, the running prefix in registers (a
-    sequential scan: not vectorized), each chain staged _W steps at a time."""
+    sequential scan: not vectorized), each chain staged _W steps at a time: for fewer chains
+    than lanes worth vectorizing across (relmap.at3 chooses)."""
     L, M = T.shape[2], T.shape[3]
+    To = np.empty((4, 4, L, M))
+    Co = np.empty((6, 6, L, M))
     buf = np.zeros((_SCAN_ROWS, _W))
     for m in range(M):
         Tm, Cm, Tom, Com = T[:, :, :, m], C[:, :, :, m], To[:, :, :, m], Co[:, :, :, m]

@@ -678,6 +678,9 @@ def compound3(a: AT3, b: AT3, *, cross_cov: ArrayLike | None = None) -> AT3:
     return _compound_batched(a, b, X, batch)
 
 
+_SCAN_BELOW = 32  # chains: fewer than this are scanned one at a time (lanes would go unused)
+
+
 def compound_chain3(steps: AT3, *, axis: int = -1) -> AT3:
     """Every prefix ``A₁ ⊕ A₂ ⊕ … ⊕ A_k`` of the chains laid along batch ``axis`` of ``steps``.
 
@@ -716,7 +719,9 @@ def compound_chain3(steps: AT3, *, axis: int = -1) -> AT3:
         nd = x.ndim
         p = x.transpose(nd - 2, nd - 1, *range(nd - 2))
         planes.append(np.ascontiguousarray(p).reshape(*p.shape[:2], L, M))
-    To, Co = kernels.compound_chain(*planes)
+    # vectorized across the chains; fewer than _SCAN_BELOW are scanned one at a time
+    chain = kernels.compound_chain if M >= _SCAN_BELOW else kernels.compound_chain_scan
+    To, Co = chain(*planes)
     T, C = (np.moveaxis(_logical(p.reshape(*p.shape[:2], -1), moved), 0, axis) for p in (To, Co))
     return AT3._trusted(T, C)
 
