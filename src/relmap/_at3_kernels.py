@@ -406,9 +406,8 @@ def _compound_chain(T, C):  # type: ignore[no-untyped-def]
     Co = np.empty((6, 6, L, M))
     To[:, :, 0] = T[:, :, 0]  # prefix 0 is step 0 as it is
     Co[:, :, 0] = C[:, :, 0]
-    # _W chains at a time, one step of all of them at a time (contiguous, step-major): the
-    # running prefixes sit in the rows of a and the step in those of b, so the chunk vectorizes
-    # as in compound_batched
+    # _W chains at a time, one step of all of them at a time (contiguous, step-major),
+    # vectorized across the chains as in compound_batched
     buf = np.empty((_ROWS, _W))
     for s in range(0, M, _W):
         w = min(_W, M - s)
