@@ -878,8 +878,6 @@ class _BlockSymbolic:
         self.n, self.b, self.Lp, self.Li = n, b, Lp, Li
         self.order = order
         self.perm = (b * order[:, None] + np.arange(b)).reshape(-1)  # scalar new → old
-        # lower-triangle entries (new block row >= new block column) → buffer positions
-        self.src, self.dst = kernels.scatter_map(indptr, indices, rank, b, Lp, Li)
         # The supernodal kernel pays for its dense panels where columns are long: when the
         # work per entry of L (Σ count² / Σ count, in blocks) is 20 or more (measured: city10000
         # 28 and sphere2500 34 gain from it, 23 against 27 ms and 31 against 74 ms;
@@ -887,9 +885,21 @@ class _BlockSymbolic:
         count = np.diff(Lp).astype(np.float64)
         self.supernodal = bool(count.sum() and (count**2).sum() >= 20.0 * count.sum())
         self._rank, self._panels = rank, None
+        self._map: tuple[IntArray, IntArray] | None = None
         self.nnz_L = int(b * b * len(Li) + n * b * (b + 1) // 2)  #: scalars in L (one triangle)
         if self.supernodal:
             self.panels()
+
+    def block_map(self) -> tuple[IntArray, IntArray]:
+        """The lower-triangle entries of the matrix (new block row >= new block column): their
+        indices in the data and in the block buffer (src, dst); computed once."""
+        if self._map is None:
+            from relmap.network import _blockchol as kernels
+
+            p = self.pattern
+            indptr, indices = p.indptr.astype(np.int64), p.indices.astype(np.int64)
+            self._map = kernels.scatter_map(indptr, indices, self._rank, self.b, self.Lp, self.Li)
+        return self._map
 
     def panels(self) -> tuple[IntArray, IntArray, IntArray, IntArray]:
         """Fundamental supernodes (first node of each, then n), the offsets of their dense
@@ -943,7 +953,8 @@ class _BlockNumeric:
                 )
             self._blocks_ready = False  # X, Dinv are formed from the panels when needed
         else:
-            bad = kernels.factorize(s.Lp, s.Li, s.src, s.dst, data, self.X, self.Dinv, self._bt)
+            src, dst = s.block_map()
+            bad = kernels.factorize(s.Lp, s.Li, src, dst, data, self.X, self.Dinv, self._bt)
             self._blocks_ready = True
         if bad >= 0:
             raise np.linalg.LinAlgError("the matrix is not positive definite")
