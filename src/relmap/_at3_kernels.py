@@ -8,9 +8,9 @@ once from memory; the loop over a batch is vectorized (see "loads and stores").
 
 Array conventions (relmap's storage, :mod:`relmap._layout`): the batched kernels take
 C-contiguous entry-major planes, poses ``(4, 4, N)`` and covariances ``(6, 6, N)``, and return
-new C-contiguous planes of the same shapes; the ``*_one`` kernels take a single ``(4, 4)`` pose
-and ``(6, 6)`` covariance of any strides and return new ones. Output covariances are exactly
-symmetric (their diagonal blocks are averaged with their transposes, as in the numpy path). The
+new C-contiguous planes of the same shapes (a single pair stays on the numpy path: a kernel
+would save microseconds and cost numba's start-up, :mod:`relmap._numba`). Output covariances
+are exactly symmetric (their diagonal blocks are averaged with their transposes, as in the numpy path). The
 operations and their order follow the numpy path, without ``fastmath``, so results agree with
 it to rounding (the batched kernels' are bitwise equal in the cases measured).
 """
@@ -22,31 +22,24 @@ import numpy as np
 from numba import types
 
 # The kernels (compound_batched, compound_cross_batched, reverse_batched, compound_chain,
-# compound_chain_scan, compound_one, reverse_one) are module attributes made on first
-# access: see __getattr__ below.
+# compound_chain_scan) are module attributes made on first access: see __getattr__ below.
 
 _inline = numba.njit(cache=True, fastmath=False, inline="always")
 
-# Compiled signatures, of read-only arrays (AT3's; writable ones convert to them): the batched
-# kernels take C-contiguous planes (relmap's own layout; at3 copies other views first) and the
-# single-pair ones any strides (layout "A": a batch's element is a strided view), so nothing is
+# Compiled signatures, of read-only arrays (AT3's; writable ones convert to them): the kernels
+# take C-contiguous planes (relmap's own layout; at3 copies other views first), so nothing is
 # compiled at call time. A kernel is compiled, or loaded from numba's on-disk cache, the first
 # time it is looked up here (module ``__getattr__``), not at import.
-_A2 = types.Array(types.float64, 2, "A", readonly=True)
 _C3 = types.Array(types.float64, 3, "C", readonly=True)
-_P2 = types.UniTuple(types.float64[:, ::1], 2)
 _P3 = types.UniTuple(types.float64[:, :, ::1], 2)
 _C4 = types.Array(types.float64, 4, "C", readonly=True)
 _P4 = types.UniTuple(types.float64[:, :, :, ::1], 2)
-_X2 = types.optional(_A2)
 _SIGNATURES = {
     "compound_batched": [_P3(_C3, _C3, _C3, _C3)],
     "compound_cross_batched": [_P3(_C3, _C3, _C3, _C3, _C3)],
     "reverse_batched": [_P3(_C3, _C3)],
     "compound_chain": [_P4(_C4, _C4)],
     "compound_chain_scan": [_P4(_C4, _C4)],
-    "compound_one": [_P2(_A2, _A2, _A2, _A2, _X2)],
-    "reverse_one": [_P2(_A2, _A2)],
 }
 
 
@@ -448,58 +441,3 @@ def _compound_chain_scan(T, C):  # type: ignore[no-untyped-def]
                 _store(buf, n, R, t, A, B, D)
             _stage_out(buf, Tom, Com, s, w)
     return To, Co
-
-
-@_inline
-def _blk2(X, i, j):  # type: ignore[no-untyped-def]
-    """The 3×3 block at (i, j) of one matrix."""
-    return (
-        X[i, j], X[i, j + 1], X[i, j + 2],
-        X[i + 1, j], X[i + 1, j + 1], X[i + 1, j + 2],
-        X[i + 2, j], X[i + 2, j + 1], X[i + 2, j + 2],
-    )  # fmt: skip
-
-
-@_inline
-def _put2(X, i, j, b):  # type: ignore[no-untyped-def]
-    X[i, j], X[i, j + 1], X[i, j + 2] = b[0], b[1], b[2]
-    X[i + 1, j], X[i + 1, j + 1], X[i + 1, j + 2] = b[3], b[4], b[5]
-    X[i + 2, j], X[i + 2, j + 1], X[i + 2, j + 2] = b[6], b[7], b[8]
-
-
-@_inline
-def _store2(R, t, W0, W1, W2):  # type: ignore[no-untyped-def]
-    """New (4, 4) and (6, 6) arrays, filled like :func:`_store`."""
-    To = np.empty((4, 4))
-    Co = np.empty((6, 6))
-    _put2(To, 0, 0, R)
-    To[0, 3], To[1, 3], To[2, 3] = t[0], t[1], t[2]
-    To[3, 0], To[3, 1], To[3, 2], To[3, 3] = 0.0, 0.0, 0.0, 1.0
-    _put2(Co, 0, 0, _sym(W0))
-    _put2(Co, 0, 3, W1)
-    _put2(Co, 3, 0, _tr(W1))
-    _put2(Co, 3, 3, _sym(W2))
-    return To, Co
-
-
-def _compound_one(Ta, Ca, Tb, Cb, X):  # type: ignore[no-untyped-def]
-    """One pair: Ta, Tb (4, 4), Ca, Cb (6, 6), X (6, 6) or None → new (4, 4), (6, 6)."""
-    ra = _blk2(Ta, 0, 0)
-    R, t, S, W0, W1, W2 = _compound(
-        ra, (Ta[0, 3], Ta[1, 3], Ta[2, 3]), _blk2(Tb, 0, 0), (Tb[0, 3], Tb[1, 3], Tb[2, 3]),
-        _blk2(Ca, 0, 0), _blk2(Ca, 0, 3), _blk2(Ca, 3, 3),
-        _blk2(Cb, 0, 0), _blk2(Cb, 0, 3), _blk2(Cb, 3, 3),
-    )  # fmt: skip
-    if X is not None:
-        Y0, Y1, Y2 = _cross(ra, S, _blk2(X, 0, 0), _blk2(X, 0, 3), _blk2(X, 3, 0), _blk2(X, 3, 3))
-        W0, W1, W2 = _add(W0, Y0), _add(W1, Y1), _add(W2, Y2)
-    return _store2(R, t, W0, W1, W2)
-
-
-def _reverse_one(T, C):  # type: ignore[no-untyped-def]
-    """One AT3: T (4, 4), C (6, 6) → new (4, 4), (6, 6)."""
-    R, t, W0, W1, W2 = _reverse(
-        _blk2(T, 0, 0), (T[0, 3], T[1, 3], T[2, 3]),
-        _blk2(C, 0, 0), _blk2(C, 0, 3), _blk2(C, 3, 3),
-    )  # fmt: skip
-    return _store2(R, t, W0, W1, W2)

@@ -12,13 +12,14 @@ the §7 "poles" belong to Euler angles, which exist here only as a conversion
 Compounding, reversal and merging follow Eqs. (1)-(10) with the 3-D Jacobians; batch axes
 broadcast like numpy. Batches are stored entry-major (:mod:`relmap._layout`). What runs:
 
-- with numba (:func:`relmap._numba.enabled`), compound (with or without ``cross_cov``),
-  reverse and :func:`compound_chain3` run fused kernels (:mod:`relmap._at3_kernels`): one pass
-  over the batch, the propagation in registers, vectorized across the batch; a single pair (no
-  batch axes) has its own kernel (about 3x less time per call than the numpy path). Kernels
-  compile on first use (seconds, once per machine; numba's disk cache after) and the first
-  call in a process pays numba's import and the cache load (about 1 s);
-- otherwise (``RELMAP_NUMBA=0``, no numba) the numpy kernels below: batched compounding and
+- for batches of :data:`relmap._numba.LARGE` elements or more, with numba
+  (:func:`relmap._numba.enabled`), compound (with or without ``cross_cov``), reverse and
+  :func:`compound_chain3` run fused kernels (:mod:`relmap._at3_kernels`): one pass over the
+  batch, the propagation in registers, vectorized across the batch. Kernels compile on first
+  use (seconds, once per machine; numba's disk cache after) and the first call in a process
+  pays numba's import and the cache load (about 1 s);
+- otherwise (smaller batches, a single pair, ``RELMAP_NUMBA=0``, no numba) the numpy kernels
+  below: batched compounding and
   reversal on 3×3 blocks of a chunk of the batch at a time, the Jacobians' structure (a shear
   and a rotation) written out rather than 6×6 matrix products; a single pair a path of a few
   numpy calls.
@@ -464,10 +465,10 @@ def _rotate(top: FloatArray, D: FloatArray, R: FloatArray, Z: FloatArray, W: Flo
 _KERNELS: list[ModuleType] = []  # relmap._at3_kernels once imported (numba's import is ~0.3 s)
 
 
-def _kernels() -> ModuleType | None:
-    """The fused numba kernels (:mod:`relmap._at3_kernels`) when they run
-    (:func:`relmap._numba.enabled`), else None (the numpy kernels here run)."""
-    if not _numba.enabled():
+def _kernels(size: int) -> ModuleType | None:
+    """The fused numba kernels (:mod:`relmap._at3_kernels`) when they run for a batch of
+    ``size`` elements (:func:`relmap._numba.enabled`), else None (the numpy kernels here run)."""
+    if not _numba.enabled(size):
         return None
     if not _KERNELS:
         from relmap import _at3_kernels
@@ -504,7 +505,7 @@ def _compound_batched(a: AT3, b: AT3, X: FloatArray | None, batch: tuple[int, ..
     Ta, Ca = _planes(a._mean, batch, N), _planes(a._cov, batch, N)
     Tb, Cb = _planes(b._mean, batch, N), _planes(b._cov, batch, N)
     Xp = None if X is None else _planes(X, batch, N)
-    kernels = _kernels()
+    kernels = _kernels(N)
     if kernels is not None:
         if Xp is None:
             To, Co = _run(kernels.compound_batched, (Ta, Ca, Tb, Cb), N)
@@ -557,7 +558,7 @@ def _reverse_batched(a: AT3) -> AT3:
     batch = a.batch_shape
     N = math.prod(batch)
     T, C = _planes(a._mean, batch, N), _planes(a._cov, batch, N)
-    kernels = _kernels()
+    kernels = _kernels(N)
     if kernels is not None:
         To, Co = _run(kernels.reverse_batched, (T, C), N)
         return AT3._own(_logical(To, batch), _logical(Co, batch))
@@ -662,9 +663,6 @@ def compound3(a: AT3, b: AT3, *, cross_cov: ArrayLike | None = None) -> AT3:
         gaussian.check_finite(X, "cross_cov")
     Ta, Tb = a._mean, b._mean
     if Ta.ndim == 2 and Tb.ndim == 2 and (X is None or X.ndim == 2):
-        kernels = _kernels()
-        if kernels is not None:
-            return AT3._own(*kernels.compound_one(Ta, a._cov, Tb, b._cov, X))
         return _compound_one(Ta, a._cov, Tb, b._cov, X)
     batch = Ta.shape[:-2]
     try:
@@ -691,7 +689,8 @@ def compound_chain3(steps: AT3, *, axis: int = -1) -> AT3:
     steps, step-major: vectorized across the chains (32 or more; fewer are scanned one at a
     time, the running prefix in registers). Step-major is relmap's storage when ``axis`` is the
     first batch axis; for another axis the steps are first copied in that order (one more pass
-    over memory). Without numba, one batched :func:`compound3` per step along ``axis``.
+    over memory). Without numba (or for fewer than :data:`relmap._numba.LARGE` elements), one
+    batched :func:`compound3` per step along ``axis``.
     """
     if not isinstance(steps, AT3):
         raise TypeError(f"expected an AT3, got {type(steps).__name__}")
@@ -703,7 +702,7 @@ def compound_chain3(steps: AT3, *, axis: int = -1) -> AT3:
     batch = steps.batch_shape
     if 0 in batch:  # no elements: no prefixes either
         return steps
-    kernels = _kernels()
+    kernels = _kernels(math.prod(batch))
     if kernels is None:
         out = [steps[(slice(None),) * axis + (0,)]]
         for k in range(1, batch[axis]):
@@ -736,15 +735,7 @@ def reverse3(a: AT3, *, jacobian: bool = False) -> AT3 | tuple[AT3, FloatArray]:
     kernels when enabled, else the numpy ones (module docstring); the Jacobian is numpy's."""
     if not isinstance(a, AT3):
         raise TypeError(f"expected an AT3, got {type(a).__name__}")
-    if a._mean.ndim == 2:
-        kernels = _kernels()
-        out = (
-            _reverse_one(a._mean, a._cov)
-            if kernels is None
-            else AT3._own(*kernels.reverse_one(a._mean, a._cov))
-        )
-    else:
-        out = _reverse_batched(a)
+    out = _reverse_one(a._mean, a._cov) if a._mean.ndim == 2 else _reverse_batched(a)
     if jacobian:
         return out, se3.inverse(a._mean, jacobians=True)[1]
     return out
