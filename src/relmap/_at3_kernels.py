@@ -1,4 +1,5 @@
-"""Fused numba kernels for :mod:`relmap.at3`: compound (optionally with cross-covariance), reversal.
+"""Fused numba kernels for :mod:`relmap.at3`: compound (with or without cross-covariance),
+reversal, chains.
 
 Imported by :mod:`relmap.at3` only when :func:`relmap._numba.enabled`; the numpy kernels there
 are the fallback and the reference. Per element the whole first-order propagation runs in
@@ -10,9 +11,9 @@ Array conventions (relmap's storage, :mod:`relmap._layout`): the batched kernels
 C-contiguous entry-major planes, poses ``(4, 4, N)`` and covariances ``(6, 6, N)``, and return
 new C-contiguous planes of the same shapes (a single pair stays on the numpy path: a kernel
 would save microseconds and cost numba's start-up, :mod:`relmap._numba`). Output covariances
-are exactly symmetric (their diagonal blocks are averaged with their transposes, as in the numpy path). The
-operations and their order follow the numpy path, without ``fastmath``, so results agree with
-it to rounding (the batched kernels' are bitwise equal in the cases measured).
+are exactly symmetric (their diagonal blocks are averaged with their transposes, as in the
+numpy path). The operations and their order follow the numpy path, without ``fastmath``, so
+results agree with it to rounding (bitwise in the cases measured).
 """
 
 from __future__ import annotations
