@@ -7,6 +7,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from relmap import __version__
 from relmap.demo import fig1
@@ -63,3 +64,16 @@ def test_import_stays_light():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert out.stdout.strip() == "[]", out.stdout
+
+
+def test_one_shot_commands_raise_the_compiled_kernels_size_only_while_they_run(monkeypatch):
+    from relmap import _numba, cli
+
+    seen = []
+    monkeypatch.setattr(_numba, "LARGE", 2000)
+    with cli._one_shot():
+        seen.append(_numba.LARGE)
+    assert seen == [cli.ONE_SHOT_LARGE] and _numba.LARGE == 2000
+    with pytest.raises(RuntimeError), cli._one_shot():
+        raise RuntimeError
+    assert _numba.LARGE == 2000
