@@ -25,7 +25,9 @@ random order. Each step is a prediction (Eq. 13) and a correction with all readi
    the landmarks in view vary as over the single filter's 5000 steps), both associations; the
    batch's first filter is checked equal to that filter run alone.
 
-Timings are the best of interleaved repeats (this machine is noisy). Run:
+relmap runs its numba kernels when numba is installed (``RELMAP_NUMBA=0``: its numpy paths);
+the first lines printed say which. Timings are the best of interleaved repeats (this machine is
+noisy). Run:
 ``python benchmarks/bench_ekf.py [--steps 5000] [--batch 1000] [--repeat 3]``.
 """
 
@@ -251,6 +253,9 @@ def main() -> None:
     ) / sum(u.sum() for u in maha_used)
     same = np.mean([np.array_equal(u, v) for u, v in zip(used, maha_used, strict=True)])
     n_used = np.mean([u.sum() for u in used])
+    from relmap import _numba
+
+    print("relmap paths:", "numba kernels" if _numba.enabled() else "numpy (RELMAP_NUMBA=0)")
     print(
         f"scenario: {args.steps} steps, {L} landmarks, {n_read:.1f} readings per step "
         f"({n_used:.1f} used after the gate)"

@@ -10,19 +10,28 @@ Per filter (:func:`_run`, the loop over filters inside):
 
 1. Readings: ABSENT (``valid`` false), INVALID (range not in (0, ∞), bearing not finite), the
    others usable (UNKNOWN until paired).
-2. Phase 1, pairs inside the gate: each usable reading against its allowed landmarks (with
-   unique landmark signatures the one of its signature, found by bisection; with shared ones
-   every landmark of equal signature; without signatures all), skipping, for constant sensor
-   noise, landmarks outside the reading's disc (ekf.py's single-filter notes: no landmark
-   outside it can be inside the gate). Pairs with ``d² ≤ χ²`` are paired greedily, cheapest
-   first, ties to the lowest reading then landmark (a stable sort, then one scan).
-3. Phase 2, the readings left: their full rows against the allowed landmarks not taken, paired
-   greedily the same way (GATED); the others LOST if some landmark was allowed, else UNKNOWN;
-   d² to the paired or nearest allowed landmark. This is the greedy run over the whole
-   reading×landmark matrix going on after the pairs inside the gate (which come first).
-4. The 3×3 update over the used pairs (``_update_one``).
+2. Unique landmark signatures (each reading's one landmark from a table of the signatures, or
+   by bisection): when no two readings name the same landmark, every pair is taken in one
+   pass, USED inside the gate and GATED outside. Otherwise:
+3. Phase 1, pairs inside the gate: each usable reading against its allowed landmarks (with
+   shared signatures every landmark of equal signature, without signatures all), skipping, for
+   constant sensor noise, landmarks outside the reading's disc (ekf.py's single-filter notes:
+   no landmark outside it can be inside the gate). When the readings' cheapest pairs inside
+   the gate name distinct landmarks, those are the greedy pairing (cheapest first, ties to the
+   lowest reading then landmark); else a stable sort by d², then one scan.
+4. Phase 2, the readings left, against the allowed landmarks not taken, paired the same way
+   (GATED); the others LOST if some landmark was allowed, else UNKNOWN; d² to the paired or
+   nearest allowed landmark. This is the greedy run over the whole reading×landmark matrix
+   going on after the pairs inside the gate (which come first). A single reading left skips
+   the landmarks its range alone puts farther than the best so far (d² ≥ v_r²/(λ + σr²)).
+5. The 3×3 update over the used pairs (``_update_one``).
 
-A filter returns ``FALLBACK`` when the numpy path must decide (a landmark at the sensor, an
+sin, cos and the innovations' atan are fdlibm's polynomials (compiled with FMAs), accurate to
+an ulp or two, cheaper than libm's calls; everything else is the plain arithmetic of ekf.py's
+formulas, without FMAs (those moved the states of ill-conditioned random updates by up to 7e-12
+from the numpy paths, more than the tests' 1e-12).
+
+A filter returns FALLBACK when the numpy path must decide (a landmark at the sensor, an
 innovation covariance not positive definite, an ill-conditioned update, a phase-2 pair inside
 the gate, which the disc bound excludes); the caller then runs the numpy path.
 """
@@ -90,7 +99,7 @@ _AT = (
 _A0, _A1, _A2, _A3, _A4, _A5, _A6, _A7, _A8, _A9, _A10 = _AT
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, fastmath={"contract"})  # FMAs: the polynomials' latency halved
 def atan2(y, x):
     """math.atan2, faster for the small angles of innovations: atan(y/x) by fdlibm's
     polynomial when x > 0 and |y/x| < 7/16 (math.atan2 otherwise)."""
@@ -116,7 +125,7 @@ _PIO2_1, _PIO2_1T = 1.57079632673412561417e00, 6.07710050650619224932e-11
 _PIO2_2, _PIO2_2T = 6.07710050630396597660e-11, 2.02226624879595063154e-21
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, fastmath={"contract"})  # FMAs: the polynomials' latency halved
 def sincos(a):
     """``(sin a, cos a)``: fdlibm's kernels for |a| < 10⁵ (math.sin, math.cos otherwise)."""
     if not -1e5 < a < 1e5:
@@ -278,8 +287,8 @@ def _run(mean, cov, z, valid, sig, lm, lsig, par, out_lm, out_st, out_d2, out_me
                 for k in range(3):
                     out_cov[i, k, f] = cov[f, i, k]
             continue
-        for l in range(L):
-            col_taken[l] = False
+        for lk in range(L):
+            col_taken[lk] = False
         # ---- unique signatures: each reading has its one landmark; when no two readings
         # name the same one, the greedy pairing takes every pair (USED inside the gate, GATED
         # outside), in one pass; else the general pairing below
@@ -291,17 +300,17 @@ def _run(mean, cov, z, valid, sig, lm, lsig, par, out_lm, out_st, out_d2, out_me
             for j in range(m):
                 if row_state[j] != 1 or lid[j] < 0:
                     continue
-                l = lid[j]
-                if col_taken[l]:
+                lk = lid[j]
+                if col_taken[lk]:
                     fused = False
                     break
-                col_taken[l] = True
+                col_taken[lk] = True
                 ok, d2, ir, ux, uy, vr, vb, var_r, var_b = _terms(
-                    fr, lm[l, 0], lm[l, 1], z[f, j, 0], ecs[j, 0], ecs[j, 1], sr, sb, model
+                    fr, lm[lk, 0], lm[lk, 1], z[f, j, 0], ecs[j, 0], ecs[j, 1], sr, sb, model
                 )
                 if not ok:
                     return -1
-                out_lm[f, j], out_d2[f, j] = l, d2
+                out_lm[f, j], out_d2[f, j] = lk, d2
                 if not d2 <= gate2:
                     out_st[f, j] = GATED
                     row_state[j] = 3
@@ -324,8 +333,8 @@ def _run(mean, cov, z, valid, sig, lm, lsig, par, out_lm, out_st, out_d2, out_me
                 sdr += a_ * ux - b_ * uy
                 sdi += a_ * uy + b_ * ux
             if not fused:  # undone
-                for l in range(L):
-                    col_taken[l] = False
+                for lk in range(L):
+                    col_taken[lk] = False
                 for j in range(m):
                     if row_state[j] >= 2:
                         row_state[j] = 1
@@ -373,33 +382,33 @@ def _run(mean, cov, z, valid, sig, lm, lsig, par, out_lm, out_st, out_d2, out_me
                     first += xs[first] < v
                     last += xs[last] <= w
                     for i in range(first, last):
-                        l = by_x[i]
-                        if sigmode == 2 and sig[f, j] != lsig[l]:
+                        lk = by_x[i]
+                        if sigmode == 2 and sig[f, j] != lsig[lk]:
                             continue
-                        qx, qy = lm[l, 0] - px, lm[l, 1] - py
+                        qx, qy = lm[lk, 0] - px, lm[lk, 1] - py
                         if qx * qx + qy * qy <= disc:
                             k = nf
-                            while k > 0 and found[k - 1] > l:
+                            while k > 0 and found[k - 1] > lk:
                                 found[k] = found[k - 1]
                                 k -= 1
-                            found[k] = l
+                            found[k] = lk
                             nf += 1
                 else:
-                    for l in range(L):
-                        if sigmode == 2 and sig[f, j] != lsig[l]:
+                    for lk in range(L):
+                        if sigmode == 2 and sig[f, j] != lsig[lk]:
                             continue
-                        found[nf] = l
+                        found[nf] = lk
                         nf += 1
                 be = -1
                 for i in range(nf):
-                    l = found[i]
+                    lk = found[i]
                     ok, d2, ir, ux, uy, vr, vb, var_r, var_b = _terms(
-                        fr, lm[l, 0], lm[l, 1], zr, ec, es, sr, sb, model
+                        fr, lm[lk, 0], lm[lk, 1], zr, ec, es, sr, sb, model
                     )
                     if not ok:
                         return -1
                     if d2 <= gate2:
-                        ej[n], el[n], ed[n] = j, l, d2
+                        ej[n], el[n], ed[n] = j, lk, d2
                         et[n, 0], et[n, 1], et[n, 2], et[n, 3] = ir, ux, uy, vr
                         et[n, 4], et[n, 5], et[n, 6] = vb, var_r, var_b
                         if be < 0 or d2 < ed[be]:
@@ -407,14 +416,14 @@ def _run(mean, cov, z, valid, sig, lm, lsig, par, out_lm, out_st, out_d2, out_me
                         n += 1
                 # the reading's cheapest pair inside the gate (the first of equal d²)
                 if be >= 0 and not clash:
-                    l = el[be]
-                    if col_taken[l]:
+                    lk = el[be]
+                    if col_taken[lk]:
                         clash = True
                     else:
-                        col_taken[l] = True
+                        col_taken[lk] = True
                         row_state[j] = 2
                         used_at[j] = be
-                        out_lm[f, j], out_d2[f, j], out_st[f, j] = l, ed[be], USED
+                        out_lm[f, j], out_d2[f, j], out_st[f, j] = lk, ed[be], USED
             # The greedy pairing, cheapest first: when the readings' cheapest pairs name distinct
             # landmarks, the greedy run takes exactly those (taken above); else, undone, a stable
             # sort of the pairs (by reading, then landmark) by d², then one scan.
@@ -436,13 +445,13 @@ def _run(mean, cov, z, valid, sig, lm, lsig, par, out_lm, out_st, out_d2, out_me
                         eo[k] = i
                 for i in range(n):
                     e = eo[i]
-                    j, l = ej[e], el[e]
-                    if row_state[j] != 1 or col_taken[l]:
+                    j, lk = ej[e], el[e]
+                    if row_state[j] != 1 or col_taken[lk]:
                         continue
                     row_state[j] = 2
-                    col_taken[l] = True
+                    col_taken[lk] = True
                     used_at[j] = e
-                    out_lm[f, j], out_d2[f, j], out_st[f, j] = l, ed[e], USED
+                    out_lm[f, j], out_d2[f, j], out_st[f, j] = lk, ed[e], USED
             # ---- the 3×3 update over the used pairs (ekf._update_one)
             s_a = n1 = s2 = 0.0
             swr = swi = sur = sui = sdr = sdi = 0.0
@@ -452,7 +461,8 @@ def _run(mean, cov, z, valid, sig, lm, lsig, par, out_lm, out_st, out_d2, out_me
                     continue
                 count += 1
                 e = used_at[j]
-                ir, ux, uy, vr, vb, var_r, var_b = et[e, 0], et[e, 1], et[e, 2], et[e, 3], et[e, 4], et[e, 5], et[e, 6]
+                ir, ux, uy, vr = et[e, 0], et[e, 1], et[e, 2], et[e, 3]
+                vb, var_r, var_b = et[e, 4], et[e, 5], et[e, 6]
                 w0, w1 = 1.0 / var_r, 1.0 / var_b
                 wq, e2 = w1 * ir * ir, w1 * vb
                 s_a += w0 + wq
@@ -485,27 +495,27 @@ def _run(mean, cov, z, valid, sig, lm, lsig, par, out_lm, out_st, out_d2, out_me
                 lfree = -1
                 allowed = False
                 var_r = sr * sr
-                for l in range(L):
-                    if sigmode == 2 and sig[f, j] != lsig[l]:
+                for lk in range(L):
+                    if sigmode == 2 and sig[f, j] != lsig[lk]:
                         continue
                     allowed = True
-                    qx, qy = lm[l, 0] - sx, lm[l, 1] - sy
+                    qx, qy = lm[lk, 0] - sx, lm[lk, 1] - sy
                     rl = math.sqrt(qx * qx + qy * qy)
                     if model != 0:
                         var_r = _variances(rl, sr, sb, model)[0]
                     dv = zr - rl
-                    if dv * dv * (1.0 - 1e-9) > (best if col_taken[l] else bfree) * (lam + var_r):
+                    if dv * dv * (1.0 - 1e-9) > (best if col_taken[lk] else bfree) * (lam + var_r):
                         continue
-                    ok, d2 = _terms(fr, lm[l, 0], lm[l, 1], zr, ec, es, sr, sb, model)[:2]
+                    ok, d2 = _terms(fr, lm[lk, 0], lm[lk, 1], zr, ec, es, sr, sb, model)[:2]
                     if not ok:
                         return -1
                     if d2 < best:
                         best = d2
-                    if not col_taken[l]:
+                    if not col_taken[lk]:
                         if d2 <= gate2:
                             return -1  # excluded by the disc bound: let numpy decide
                         if d2 < bfree:
-                            bfree, lfree = d2, l
+                            bfree, lfree = d2, lk
                 if lfree >= 0:
                     col_taken[lfree] = True
                     out_lm[f, j], out_d2[f, j], out_st[f, j] = lfree, bfree, GATED
@@ -525,19 +535,19 @@ def _run(mean, cov, z, valid, sig, lm, lsig, par, out_lm, out_st, out_d2, out_me
                     lo_l, hi_l = max(lid[j], 0), lid[j] + 1
                 else:
                     lo_l, hi_l = 0, L
-                for l in range(lo_l, hi_l):
-                    if sigmode == 2 and sig[f, j] != lsig[l]:
+                for lk in range(lo_l, hi_l):
+                    if sigmode == 2 and sig[f, j] != lsig[lk]:
                         continue
-                    ok, d2 = _terms(fr, lm[l, 0], lm[l, 1], zr, ec, es, sr, sb, model)[:2]
+                    ok, d2 = _terms(fr, lm[lk, 0], lm[lk, 1], zr, ec, es, sr, sb, model)[:2]
                     if not ok:
                         return -1
                     allowed = True
                     if d2 < best:
                         best = d2
-                    if not col_taken[l]:
+                    if not col_taken[lk]:
                         if d2 <= gate2:
                             return -1  # excluded by the disc bound: let numpy decide
-                        ej[n], el[n], ed[n] = j, l, d2
+                        ej[n], el[n], ed[n] = j, lk, d2
                         n += 1
                 if allowed:
                     out_st[f, j] = LOST
@@ -559,11 +569,11 @@ def _run(mean, cov, z, valid, sig, lm, lsig, par, out_lm, out_st, out_d2, out_me
                 j = ej[e]
                 if j != prev:
                     prev = j
-                    l = el[used_at[j]]
-                    if col_taken[l]:
+                    lk = el[used_at[j]]
+                    if col_taken[lk]:
                         clash = True
                         break
-                    col_taken[l] = True
+                    col_taken[lk] = True
             if not clash:
                 prev = -1
                 for e in range(n):
@@ -592,12 +602,12 @@ def _run(mean, cov, z, valid, sig, lm, lsig, par, out_lm, out_st, out_d2, out_me
                         eo[k] = i
                 for i in range(n):
                     e = eo[i]
-                    j, l = ej[e], el[e]
-                    if row_state[j] != 1 or col_taken[l]:
+                    j, lk = ej[e], el[e]
+                    if row_state[j] != 1 or col_taken[lk]:
                         continue
                     row_state[j] = 3
-                    col_taken[l] = True
-                    out_lm[f, j], out_d2[f, j], out_st[f, j] = l, ed[e], GATED
+                    col_taken[lk] = True
+                    out_lm[f, j], out_d2[f, j], out_st[f, j] = lk, ed[e], GATED
         if count == 0:
             for i in range(3):
                 out_mean[i, f] = mean[f, i]
@@ -695,10 +705,10 @@ def _prepare(lm, lsig, has_sig):
     order = np.empty(L, np.int64)
     xs = np.empty(L)
     by_x = np.argsort(lm[:, 0], kind="mergesort")
-    for l in range(L):
-        if not (np.isfinite(lm[l, 0]) and np.isfinite(lm[l, 1])):
+    for lk in range(L):
+        if not (np.isfinite(lm[lk, 0]) and np.isfinite(lm[lk, 1])):
             return False, 0, keys, order, xs, by_x
-        xs[l] = lm[by_x[l], 0]
+        xs[lk] = lm[by_x[lk], 0]
     sigmode = signature_mode(lsig, keys, order) if has_sig else 0
     return True, sigmode, keys, order, xs, by_x
 

@@ -59,6 +59,21 @@ m×L innovations, greedy one-to-one pairing over them, a 2k×2k stacked update �
   the 3×3 matrices are stacked as (3, 3, B) arrays (a few numpy calls per product). When
   ``tr(AΣ⁻) > 10⁵`` (a reading far more precise than the prior: A then holds too few digits
   of the prior's information) and for a sensor without noise (no R⁻¹), the 2k×2k solve.
+
+Which path runs:
+
+- With numba (``relmap._numba.enabled()``: numba importable and ``RELMAP_NUMBA`` not ``0``),
+  :func:`correct_landmarks` with one-to-one pairing by signatures or Mahalanobis distance is
+  one call of a compiled kernel (``relmap._ekf_kernels``), for one filter or for a whole batch
+  (the loop over filters is inside the kernel), and the batch's :func:`predict` is one too.
+  The kernels compute the single-filter path's formulas (below) reading by reading: candidate
+  landmarks from the signature table or the reading's disc, pairs inside the gate taken
+  greedily, the leftover readings against the landmarks left, the 3×3 update.
+- Otherwise, and for what the kernels do not take (Euclidean distance, the lecture's Eq. 21,
+  a sensor without noise, non-integer signatures) or leave to numpy (an ill-conditioned update,
+  a landmark at the sensor): a single filter takes the path on Python floats described at
+  ``_correct_one``, a batch the numpy algebra above. All paths give the same pairings and
+  statuses and the same states to rounding (``tests/test_ekf_reference.py`` runs on both).
 """
 
 from __future__ import annotations
@@ -127,7 +142,10 @@ def predict(
     integration: Integration = "midpoint",
     drive: DiffDrive | None = None,
 ) -> AT:
-    """The prediction step (Eq. 13) for a step ``(Δs, Δθ)`` — or wheel increments with ``drive``."""
+    """The prediction step (Eq. 13) for a step ``(Δs, Δθ)`` — or wheel increments with ``drive``.
+
+    One step for a batch of filters is one numba kernel call when numba is enabled (see the
+    module notes)."""
     if type(state) is AT:  # one step (Python floats) for one filter or a batch
         step = _step_single(motion, noise, integration, drive)
         if step is not None:
@@ -244,6 +262,10 @@ def correct_landmarks(
     ``"per_landmark"`` is the lecture's Eq. 21 (each landmark takes its nearest reading, which may
     serve two landmarks). Pairs whose ``d² > χ²₂(gate)`` are GATED (Eq. 25). ``valid`` (..., m)
     marks padding; NaN readings are INVALID. The used pairs form one stacked update (Eqs. 26-28).
+
+    With numba, one-to-one association by signatures or Mahalanobis distance runs as one
+    compiled kernel call (one filter or the whole batch); the rest, and everything without
+    numba, on the numpy / Python-float paths — same results to rounding (see the module notes).
     """
     if _FAST_SINGLE and pairing == "one_to_one" and type(state) is AT and state.mean.ndim == 1:
         fast = None
@@ -1662,9 +1684,9 @@ def _inv3_stacked(M: FloatArray) -> FloatArray:
 # or Mahalanobis distance runs in relmap._ekf_kernels: one kernel call per correction, of one
 # filter or of a whole batch (the loop over filters inside). Those kernels compute what
 # _correct_one computes, formula by formula; anything they do not cover (Euclidean distance,
-# Eq. 21, a sensor without noise, non-integer signatures, broadcast shapes they do not take)
-# and anything they leave to numpy (a landmark at the sensor, an ill-conditioned update) takes
-# the paths above.
+# Eq. 21, a sensor without noise, signatures that are not integers int64 holds) and anything
+# they leave to numpy (a landmark at the sensor, an ill-conditioned update, an innovation
+# covariance not positive definite) takes the paths above.
 
 _NOISE_MODELS = {"constant": 0.0, "proportional": 1.0, "quadratic": 2.0}
 _NO_BOOL = np.zeros(0, np.bool_)
@@ -1773,7 +1795,9 @@ def _compiled_batch(
         sig = np.broadcast_to(sig_in, (*batch, m)).reshape(B, m)
     else:
         lsig = _NO_INT
-    v = np.broadcast_to(np.asarray(valid, bool), (*batch, m)).reshape(B, m) if valid is not None else None
+    v = None
+    if valid is not None:
+        v = np.broadcast_to(np.asarray(valid, bool), (*batch, m)).reshape(B, m)
     mean, cov = state.mean, state.cov
     if mean.shape[:-1] != batch:
         mean = np.broadcast_to(mean, (*batch, 3))
@@ -1790,6 +1814,7 @@ def _compiled_batch(
     )  # fmt: skip
     if code == 1:  # FALLBACK
         return None
-    new = AT._trusted(out_mean.T.reshape(*batch, 3), np.moveaxis(out_cov, 2, 0).reshape(*batch, 3, 3))
+    cov_out = np.moveaxis(out_cov, 2, 0).reshape(*batch, 3, 3)
+    new = AT._trusted(out_mean.T.reshape(*batch, 3), cov_out)
     shape = (*batch, m)
     return LandmarkUpdate(new, out_lm.reshape(shape), out_d2.reshape(shape), out_st.reshape(shape))
