@@ -1711,6 +1711,16 @@ def _kernel_sensor(sensor: RangeBearingSensor, gate: float) -> FloatArray | None
     return np.array([mx, my, mt, sr, sb, _NOISE_MODELS[sensor.noise_model], _gate2(gate)])
 
 
+def _read_only_c(a: np.ndarray) -> np.ndarray:
+    """``a`` C-contiguous and read-only (a copy if it is not): the kernels are compiled once per
+    type of their arguments (layout and writability included), so a few types are kept."""
+    if a.flags.c_contiguous and not a.flags.writeable:
+        return a
+    out = np.array(a, order="C")
+    out.flags.writeable = False
+    return out
+
+
 def _int_signatures(a: ArrayLike) -> np.ndarray | None:
     """Signatures as int64 (None unless of an integer type int64 holds)."""
     a = np.asarray(a)
@@ -1756,7 +1766,11 @@ def _compiled_one(
         if sig is None or lsig is None or sig.shape != (m,) or lsig.shape != (L,):
             return None
     ints, d2, buf = np.empty(2 * m, np.int64), np.empty(m), np.empty(12)
-    code = _kernels().correct_one(state.mean, state.cov, z, v, sig, lm, lsig, par, ints, d2, buf)
+    c = np.ascontiguousarray
+    code = _kernels().correct_one(
+        _read_only_c(state.mean), _read_only_c(state.cov), c(z), c(v), c(sig), c(lm), c(lsig),
+        par, ints, d2, buf,
+    )  # fmt: skip
     if code == 1:  # FALLBACK
         return None
     new = state
@@ -1807,10 +1821,11 @@ def _compiled_batch(
     out_lm, out_st = np.empty((B, m), np.int64), np.empty((B, m), np.int64)
     out_d2, out_mean, out_cov = np.empty((B, m)), np.empty((3, B)), np.empty((3, 3, B))
     code = _kernels().correct_batch(
-        mean.reshape(B, 3), cov.reshape(B, 3, 3), z.reshape(B, m, 2),
-        np.empty((B, 0), np.bool_) if v is None else v,
-        np.empty((B, 0), np.int64) if sig is _NO_INT else sig,
-        lm, lsig, par, out_lm, out_st, out_d2, out_mean, out_cov,
+        mean.reshape(B, 3), cov.reshape(B, 3, 3), np.ascontiguousarray(z.reshape(B, m, 2)),
+        np.empty((B, 0), np.bool_) if v is None else np.ascontiguousarray(v),
+        np.empty((B, 0), np.int64) if sig is _NO_INT else np.ascontiguousarray(sig),
+        np.ascontiguousarray(lm), np.ascontiguousarray(lsig), par, out_lm, out_st, out_d2,
+        out_mean, out_cov,
     )  # fmt: skip
     if code == 1:  # FALLBACK
         return None
