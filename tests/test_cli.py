@@ -66,14 +66,14 @@ def test_import_stays_light():
     assert out.stdout.strip() == "[]", out.stdout
 
 
-def test_one_shot_commands_raise_the_compiled_kernels_size_only_while_they_run(monkeypatch):
-    from relmap import _numba, cli
+def test_one_shot_raises_the_compiled_kernels_size_only_while_it_runs(monkeypatch):
+    from relmap import _numba
 
-    seen = []
-    monkeypatch.setattr(_numba, "LARGE", 2000)
-    with cli._one_shot():
-        seen.append(_numba.LARGE)
-    assert seen == [cli.ONE_SHOT_LARGE] and _numba.LARGE == 2000
-    with pytest.raises(RuntimeError), cli._one_shot():
+    monkeypatch.setenv("RELMAP_NUMBA", "1")
+    assert _numba.enabled() and _numba.enabled(_numba.LARGE)
+    with _numba.one_shot():
+        assert not _numba.enabled() and not _numba.enabled(_numba.LARGE)
+        assert _numba.enabled(_numba.ONE_SHOT_LARGE)
+    with pytest.raises(RuntimeError), _numba.one_shot():
         raise RuntimeError
-    assert _numba.LARGE == 2000
+    assert _numba.enabled() and not _numba.enabled(_numba.LARGE - 1)

@@ -9,28 +9,49 @@ modules that import numba at their top and are imported lazily, only when ``enab
 disk (``cache=True``): later processes load them instead of compiling.
 
 Loading numba is not free: its import and the first call of any kernel in a process (numba's
-CPU target, which imports ``scipy.linalg``) cost about 0.5-0.8 s of CPU here (measured). So
-kernels serve large problems only (:data:`LARGE` items or more), where they repay that cost
-on their first use; small maps and short runs stay on numpy, and a command on them starts
-as fast as before.
+CPU target, which imports ``scipy.linalg``) cost about 0.5-1 s here (measured). So kernels
+serve large problems (:data:`LARGE` items or more, where they repay that cost on first use)
+and repeated work (an EKF's steps: callers that pass no size); small maps stay on numpy. A
+one-shot command runs inside :func:`one_shot`, which raises the size to
+:data:`ONE_SHOT_LARGE` and keeps repeated work on numpy: it solves once, and repays the
+start-up only on far larger problems (measured on city10000, 10 000 poses: ``relmap query``
+2.0-2.3 s with the kernels, 1.2-1.8 s without).
 """
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
+from collections.abc import Iterator
 
-__all__ = ["LARGE", "enabled"]
+__all__ = ["LARGE", "ONE_SHOT_LARGE", "enabled", "one_shot"]
 
 LARGE = 2000  #: problem size (ATs, frames, poses) from which the compiled kernels are used
+ONE_SHOT_LARGE = 50_000  #: the same inside :func:`one_shot`
+_one_shot = [False]
 
 
 def enabled(size: int | None = None) -> bool:
     """Whether numba kernels run (numba importable, ``RELMAP_NUMBA`` not ``0``) — for a
-    problem of ``size`` items, only when it is at least :data:`LARGE`."""
+    problem of ``size`` items, only when it is at least :data:`LARGE` (inside
+    :func:`one_shot`: :data:`ONE_SHOT_LARGE`, and never for repeated work, ``size=None``)."""
+    if _one_shot[0] and (size is None or size < ONE_SHOT_LARGE):
+        return False
     if size is not None and size < LARGE:
         return False
     return os.environ.get("RELMAP_NUMBA", "1") != "0" and _importable()
+
+
+@contextlib.contextmanager
+def one_shot() -> Iterator[None]:
+    """Within: the choices of :func:`enabled` for work done once in a short process."""
+    before = _one_shot[0]
+    _one_shot[0] = True
+    try:
+        yield
+    finally:
+        _one_shot[0] = before
 
 
 @functools.cache

@@ -3,34 +3,15 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
 import sys
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
+from relmap import _numba
 from relmap.errors import RelmapError
 
 if TYPE_CHECKING:
     from relmap.at3 import AT3
-
-# A one-shot command solves once, so numba's start-up (~1 s) is repaid only on far larger
-# problems than in a long-lived process (measured on city10000, 10 000 poses: `relmap query`
-# 2.0-2.3 s with the compiled kernels, 1.2-1.8 s without; sphere2500 alike either way).
-ONE_SHOT_LARGE = 50_000
-
-
-@contextlib.contextmanager
-def _one_shot() -> Iterator[None]:
-    """The size from which compiled kernels run (:data:`relmap._numba.LARGE`) raised to
-    :data:`ONE_SHOT_LARGE` while a command runs."""
-    from relmap import _numba
-
-    before = _numba.LARGE
-    _numba.LARGE = max(before, ONE_SHOT_LARGE)
-    try:
-        yield
-    finally:
-        _numba.LARGE = before
 
 
 def _demo(args: argparse.Namespace) -> int:
@@ -47,12 +28,13 @@ def _demo(args: argparse.Namespace) -> int:
         raise ParameterError(f"--data {args.data}: no landmarks/mrclam6 folder in it")
     bar = TerminalProgress("relmap demo")
     try:
-        demo = run(
-            seed=args.seed,
-            samples=args.samples,
-            data=args.data,
-            progress=lambda text: bar.update(text, force=True),
-        )
+        with _numba.one_shot():  # small problems, run once: numba's start-up would not pay
+            demo = run(
+                seed=args.seed,
+                samples=args.samples,
+                data=args.data,
+                progress=lambda text: bar.update(text, force=True),
+            )
         index = write_report(demo, args.out, progress=lambda text: bar.update(text, force=True))
     finally:
         bar.close()
@@ -148,7 +130,7 @@ def _query(args: argparse.Namespace) -> int:
     from relmap.at3 import AT3
     from relmap.io import load_map
 
-    with _one_shot():
+    with _numba.one_shot():
         g = load_map(args.map)
         src, dst = _frame(g, args.src), _frame(g, args.dst)
         est = g.query(src, dst, method=args.method, on_irreducible=args.on_irreducible)
@@ -245,7 +227,7 @@ def _solve(args: argparse.Namespace) -> int:
         )
     bar = TerminalProgress(f"solving {args.graph}")
     try:
-        with _one_shot():
+        with _numba.one_shot():
             sol = solve_graph(
                 graph,
                 progress=lambda k, err: bar.update(f"iteration {k}, error {err:.6g}", force=True),

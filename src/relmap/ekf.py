@@ -62,7 +62,8 @@ m×L innovations, greedy one-to-one pairing over them, a 2k×2k stacked update �
 
 Which path runs:
 
-- With numba (``relmap._numba.enabled()``: numba importable and ``RELMAP_NUMBA`` not ``0``),
+- With numba (``relmap._numba.enabled()``: numba importable, ``RELMAP_NUMBA`` not ``0``, and
+  not inside ``relmap._numba.one_shot()``, where a few steps would not repay numba's start-up),
   :func:`correct_landmarks` with one-to-one pairing by signatures or Mahalanobis distance is
   one call of a compiled kernel (``relmap._ekf_kernels``), for one filter or for a whole batch
   (the loop over filters is inside the kernel), and the batch's :func:`predict` is one too.
