@@ -239,3 +239,22 @@ def test_sqrt_psd():
     c = random_covs(RNG, (6,))
     L = gaussian.sqrt_psd(c)
     np.testing.assert_allclose(L @ np.swapaxes(L, -1, -2), c, atol=1e-14)
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 4, 6])
+def test_inverse_pd_equals_lapack_on_badly_scaled_matrices(n):
+    rng = np.random.default_rng(n)
+    A = rng.normal(size=(500, n, n))
+    C = A @ np.swapaxes(A, -1, -2) + 1e-3 * np.eye(n)
+    scale = 10.0 ** rng.uniform(-6, 6, size=(500, n))
+    C = C * scale[:, :, None] * scale[:, None, :]  # units from µm² to km²
+    inv = gaussian.inverse_pd(C)
+    np.testing.assert_array_equal(inv, np.swapaxes(inv, -1, -2))
+    # the inverse of the correlation matrix, unscaled: compare in that frame
+    s = scale
+    unit = inv * s[:, :, None] * s[:, None, :]
+    ref = np.linalg.inv(C / (s[:, :, None] * s[:, None, :]))
+    cond = np.linalg.cond(C / (s[:, :, None] * s[:, None, :]))
+    err = np.abs(unit - ref).max(axis=(1, 2)) / np.abs(ref).max(axis=(1, 2))
+    assert (err <= 50 * cond * np.finfo(float).eps).all()
+    assert gaussian.inverse_pd(C[0]).shape == (n, n)

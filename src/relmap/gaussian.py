@@ -42,6 +42,7 @@ __all__ = [
     "ellipse",
     "fuse",
     "generalized_inverse",
+    "inverse_pd",
     "mahalanobis2",
     "probability_inside",
     "rotated_covariance",
@@ -136,6 +137,42 @@ def validate_covariance(
                 f"of its correlation matrix is {lowest[index]:.3g} (tolerance -{rtol:g})"
             ) from None
     return sym
+
+
+def inverse_pd(mats: FloatArray) -> FloatArray:
+    """Inverses of positive definite matrices ``(..., n, n)``, symmetrized.
+
+    Computed on the correlation matrix ``D^-1/2 A D^-1/2`` (so units and scales do not matter)
+    and, for n ≤ 3, in closed form (cofactors; ten times faster than LAPACK on a large batch
+    of 3×3 matrices, whose per-matrix overhead dominates). The matrices must be known positive
+    definite (e.g. checked by :func:`validate_covariance` or a Cholesky factorization).
+    """
+    n = mats.shape[-1]
+    s = 1.0 / np.sqrt(np.diagonal(mats, axis1=-2, axis2=-1))
+    scale = s[..., :, None] * s[..., None, :]
+    corr = mats * scale
+    if n == 1:
+        inv = 1.0 / corr
+    elif n == 2:
+        b = corr[..., 0, 1]
+        det = 1.0 - b * b  # the diagonal of corr is 1
+        inv = np.empty_like(corr)
+        inv[..., 0, 0] = inv[..., 1, 1] = 1.0 / det
+        inv[..., 0, 1] = inv[..., 1, 0] = -b / det
+    elif n == 3:
+        b, c, e = corr[..., 0, 1], corr[..., 0, 2], corr[..., 1, 2]
+        a00, a11, a22 = 1.0 - e * e, 1.0 - c * c, 1.0 - b * b
+        a01, a02, a12 = c * e - b, b * e - c, b * c - e
+        det = a00 + b * a01 + c * a02
+        inv = np.empty_like(corr)
+        inv[..., 0, 0], inv[..., 1, 1], inv[..., 2, 2] = a00 / det, a11 / det, a22 / det
+        inv[..., 0, 1] = inv[..., 1, 0] = a01 / det
+        inv[..., 0, 2] = inv[..., 2, 0] = a02 / det
+        inv[..., 1, 2] = inv[..., 2, 1] = a12 / det
+    else:
+        inv = np.linalg.inv(corr)
+        inv = 0.5 * (inv + np.swapaxes(inv, -1, -2))
+    return inv * scale
 
 
 def generalized_inverse(

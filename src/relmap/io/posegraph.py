@@ -389,8 +389,7 @@ def _inverse_pd(mats: FloatArray) -> _Inverse:
                 f"({kind}): the smallest eigenvalue of its correlation matrix is "
                 f"{lowest[k]:.3g} (must exceed {_SINGULAR:g})",
             )
-    inv = np.linalg.inv(corr) / (s[:, :, None] * s[:, None, :])
-    return _Inverse(0.5 * (inv + np.swapaxes(inv, -1, -2)), None, "")
+    return _Inverse(gaussian.inverse_pd(mats), None, "")
 
 
 def _file_covariance(path: Path, tag: str, info: FloatArray, lines: Sequence[int]) -> FloatArray:

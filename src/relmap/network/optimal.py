@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 from relmap import _numba
+from relmap.gaussian import inverse_pd
 from relmap.at import AT
 from relmap.at3 import AT3
 from relmap.errors import SolverError
@@ -152,20 +153,20 @@ def _between_terms(pi: FloatArray, pj: FloatArray) -> tuple[FloatArray, FloatArr
 def _information(cov: FloatArray, kind: IntArray) -> FloatArray:
     """W = Σ⁻¹ (k, dof, dof), symmetrized; heading-exact ATs weight their position only.
 
-    One batched inverse (the covariances were checked positive definite when parameterized):
-    half the cost of inverting Cholesky factors and multiplying them out."""
+    One batched inverse (:func:`relmap.gaussian.inverse_pd`: the covariances were checked
+    positive definite when parameterized)."""
     W = np.zeros_like(cov)
     full = kind == 0
     if full.all():
-        W = np.linalg.inv(cov)
+        W = inverse_pd(cov)
     elif full.any():
-        W[full] = np.linalg.inv(cov[full])
+        W[full] = inverse_pd(cov[full])
     head = kind == 1
     if head.any():
         block = np.zeros((int(head.sum()), 3, 3))
-        block[:, :2, :2] = np.linalg.inv(cov[head][:, :2, :2])
+        block[:, :2, :2] = inverse_pd(cov[head][:, :2, :2])
         W[head] = block
-    return np.ascontiguousarray(0.5 * (W + np.swapaxes(W, -1, -2)))
+    return np.ascontiguousarray(W)
 
 
 def _weights(p: Problem, param: Parameterization) -> _Weights:
