@@ -25,10 +25,10 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 from relmap import _numba
-from relmap.gaussian import inverse_pd
 from relmap.at import AT
 from relmap.at3 import AT3
 from relmap.errors import SolverError
+from relmap.gaussian import inverse_pd
 from relmap.lie import SE2, Group, se2, so3
 from relmap.network.problem import Parameterization, Problem, parameterize
 from relmap.network.sparse import SymmetricFactor, SymmetricPattern, selected_inverse_blocks
