@@ -1245,19 +1245,12 @@ def _correct_one(
         return None
     if not (sensor.sigma_range > 0.0 and sensor.sigma_bearing > 0.0):
         return None
-    z = np.asarray(readings, dtype=np.float64)
-    lm = np.asarray(landmarks, dtype=np.float64)
-    if z.ndim != 2 or z.shape[1] != 2 or lm.ndim != 2 or lm.shape[1] != 2:
+    inputs = _single_inputs(readings, landmarks, valid)
+    if inputs is None:
         return None
-    m, L = z.shape[0], lm.shape[0]
-    if m == 0 or L == 0:
-        return None
-    present = None
-    if valid is not None:
-        v = np.asarray(valid, bool)
-        if v.shape != (m,):
-            return None
-        present = v.tolist()
+    z, lm, v = inputs
+    m, L = len(z), len(lm)
+    present = None if v is None else v.tolist()
     lmap = _landmark_map(lm)
     if lmap is None:
         return None
@@ -1730,6 +1723,25 @@ def _int_signatures(a: ArrayLike) -> np.ndarray | None:
     return None
 
 
+def _single_inputs(
+    readings: ArrayLike, landmarks: ArrayLike, valid: ArrayLike | None
+) -> tuple[FloatArray, FloatArray, np.ndarray | None] | None:
+    """Readings (m, 2), landmarks (L, 2) and the mask of present readings (m,) or None, of a
+    single-filter call that the fast paths take (m, L ≥ 1); None when they do not take it."""
+    z = np.asarray(readings, dtype=np.float64)
+    lm = np.asarray(landmarks, dtype=np.float64)
+    if z.ndim != 2 or z.shape[1] != 2 or lm.ndim != 2 or lm.shape[1] != 2:
+        return None
+    if len(z) == 0 or len(lm) == 0:
+        return None
+    v = None
+    if valid is not None:
+        v = np.asarray(valid, bool)
+        if v.shape != (len(z),):
+            return None
+    return z, lm, v
+
+
 def _compiled_one(
     state: AT,
     readings: ArrayLike,
@@ -1747,18 +1759,13 @@ def _compiled_one(
     par = _kernel_sensor(sensor, gate)
     if par is None:
         return None
-    z = np.asarray(readings, dtype=np.float64)
-    lm = np.asarray(landmarks, dtype=np.float64)
-    if z.ndim != 2 or z.shape[1] != 2 or lm.ndim != 2 or lm.shape[1] != 2:
+    inputs = _single_inputs(readings, landmarks, valid)
+    if inputs is None:
         return None
-    m, L = z.shape[0], lm.shape[0]
-    if m == 0 or L == 0:
-        return None
-    v = _NO_BOOL
-    if valid is not None:
-        v = np.asarray(valid, bool)
-        if v.shape != (m,):
-            return None
+    z, lm, v = inputs
+    m, L = len(z), len(lm)
+    if v is None:
+        v = _NO_BOOL
     sig = lsig = _NO_INT
     if signatures is not None or associate == "signatures":
         if signatures is None or landmark_signatures is None:
