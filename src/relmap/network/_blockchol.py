@@ -1,4 +1,5 @@
-"""numba kernels of the block LDLᵀ factorization (:class:`relmap.network.sparse.BlockFactor`).
+"""numba kernels of the block LDLᵀ factorization (the ``block`` backend of
+:class:`relmap.network.sparse.SymmetricFactor`).
 
 Matrices of ``n × n`` dense ``b × b`` blocks (a node's parameters together), the nodes already
 in their fill-reducing order. L is stored by block columns: ``Lp`` (n+1) pointers, ``Li``
