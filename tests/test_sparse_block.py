@@ -14,7 +14,9 @@ from relmap.network.sparse import (
     selected_inverse_blocks,
 )
 
-pytestmark = pytest.mark.skipif(not _numba.enabled(), reason="numba not available")
+pytestmark = pytest.mark.skipif(
+    not _numba.enabled(), reason="numba kernels off (RELMAP_NUMBA=0) or numba missing"
+)
 
 
 def _system(nodes: int, i: np.ndarray, j: np.ndarray, b: int, seed: int):
