@@ -43,10 +43,10 @@ import math
 import numba
 import numpy as np
 
+from relmap._numba_math import wrap as _wrap
+
 UPDATED, FALLBACK, UNCHANGED = 0, 1, 2
 USED, GATED, UNKNOWN, INVALID, ABSENT, LOST = 0, 1, 2, 3, 4, 5
-_PI = math.pi
-_TWO_PI = 2.0 * math.pi
 _SLACK = 1.0 + 1e-6  # as ekf._SLACK
 _DISC_GROW = 1.0 + 1e-9  # as 1 + ekf._DISC_SLACK
 _ILL_CONDITIONED = 1e5  # as ekf._ILL_CONDITIONED
@@ -54,14 +54,19 @@ _SMALL_SORT = 24
 
 
 @numba.njit(cache=True, inline="always")
-def _wrap(a):
-    """se2.wrap_angle of one angle."""
-    if -_PI <= a < _PI:
-        return a
-    w = (a + _PI) % _TWO_PI - _PI
-    if w >= _PI:
-        w -= _TWO_PI
-    return w
+def _stable_order(ed, n, eo):
+    """``eo[:n]`` ← the entries 0..n-1 ordered by ``ed``, ties in entry order (a stable sort;
+    insertion sort below _SMALL_SORT entries)."""
+    if n > _SMALL_SORT:
+        eo[:n] = np.argsort(ed[:n], kind="mergesort")
+    else:
+        for i in range(n):
+            k = i
+            v = ed[i]
+            while k > 0 and ed[eo[k - 1]] > v:
+                eo[k] = eo[k - 1]
+                k -= 1
+            eo[k] = i
 
 
 @numba.njit(cache=True)
@@ -433,16 +438,7 @@ def _run(mean, cov, z, valid, sig, lm, lsig, par, out_lm, out_st, out_d2, out_me
                         row_state[j] = 1
                         col_taken[out_lm[f, j]] = False
                         out_lm[f, j], out_d2[f, j], out_st[f, j] = -1, np.inf, UNKNOWN
-                if n > _SMALL_SORT:  # the entries by d², ties in entry order (a stable sort)
-                    eo[:n] = np.argsort(ed[:n], kind="mergesort")
-                else:
-                    for i in range(n):
-                        k = i
-                        v = ed[i]
-                        while k > 0 and ed[eo[k - 1]] > v:
-                            eo[k] = eo[k - 1]
-                            k -= 1
-                        eo[k] = i
+                _stable_order(ed, n, eo)  # the entries by d², ties in entry order
                 for i in range(n):
                     e = eo[i]
                     j, lk = ej[e], el[e]
@@ -590,16 +586,7 @@ def _run(mean, cov, z, valid, sig, lm, lsig, par, out_lm, out_st, out_d2, out_me
                     if j != prev:
                         prev = j
                         col_taken[el[used_at[j]]] = False
-                if n > _SMALL_SORT:  # the entries by d², ties in entry order (a stable sort)
-                    eo[:n] = np.argsort(ed[:n], kind="mergesort")
-                else:
-                    for i in range(n):
-                        k = i
-                        v = ed[i]
-                        while k > 0 and ed[eo[k - 1]] > v:
-                            eo[k] = eo[k - 1]
-                            k -= 1
-                        eo[k] = i
+                _stable_order(ed, n, eo)  # the entries by d², ties in entry order
                 for i in range(n):
                     e = eo[i]
                     j, lk = ej[e], el[e]

@@ -10,23 +10,10 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from relmap._numba_math import wrap as _wrap
 from relmap.typing import FloatArray, IntArray
 
 __all__ = ["hessian_blocks", "planar"]
-
-_PI = np.pi
-_TWO_PI = 2.0 * np.pi
-
-
-@numba.njit(cache=True, inline="always")
-def _wrap(x: float) -> float:  # pragma: no cover
-    """An angle wrapped to [-π, π), as :func:`relmap.lie.se2.wrap_angle`."""
-    if -_PI <= x < _PI:
-        return x
-    w = (x + _PI) % _TWO_PI - _PI
-    if w >= _PI:
-        w -= _TWO_PI
-    return w
 
 
 @numba.njit(cache=True)
