@@ -13,6 +13,7 @@ same code on that group.
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Hashable, Iterable, Iterator, Sequence
 from typing import TYPE_CHECKING, NamedTuple
 
@@ -222,8 +223,8 @@ class RelationalMap:
         else:
             names = [str(nm) for nm in names]
             if len(set(names)) < m:
-                seen: set[str] = set()
-                dup = next(nm for nm in names if nm in seen or seen.add(nm))  # type: ignore[func-returns-value]
+                count = Counter(names)
+                dup = next(nm for nm in names if count[nm] > 1)
                 raise ValueError(f"an AT named {dup!r} is already in the map")
         edges = g._edges
         incident = g._incident
