@@ -93,7 +93,7 @@ from typing import Literal, NamedTuple, TypeVar
 import numpy as np
 import numpy.typing as npt
 
-from relmap import gaussian
+from relmap import _numba, gaussian
 from relmap.at import AT
 from relmap.at3 import AT3
 from relmap.errors import (
@@ -260,15 +260,21 @@ def _group(path: Path, text: str) -> tuple[_Spec, dict[str, _Records]]:
             group = groups[head[0]] = _Records([], [])
         group.lines.append(number)
         group.rests.append(head[1] if len(head) > 1 else "")
-    if not groups:
+    return _classify(path, {tag: group.lines[0] for tag, group in groups.items()}), groups
+
+
+def _classify(path: Path, first_line: dict[str, int]) -> _Spec:
+    """The format named by the first record's tag, given every tag's first line; raises for an
+    unknown tag or for 2-D and 3-D records mixed."""
+    if not first_line:
         raise FileFormatError(path, "no records: expected a g2o or TORO pose graph")
-    first = sorted(groups, key=lambda tag: groups[tag].lines[0])
+    first = sorted(first_line, key=first_line.__getitem__)
     kind = _KIND_OF_TAG.get(first[0])
     if kind is None:
         raise FileFormatError(
             path,
             f"unknown record tag {first[0]!r} (expected {', '.join(_KIND_OF_TAG)})",
-            line=groups[first[0]].lines[0],
+            line=first_line[first[0]],
         )
     fmt = kind[0]
     # The dimension: that of the first record of this format that has one (2-D if none does).
@@ -283,14 +289,54 @@ def _group(path: Path, text: str) -> tuple[_Spec, dict[str, _Records]]:
         if other is not None and other[0] == fmt:
             message = (
                 f"mixed 2-D and 3-D records: {tag} is {other[1]}-D, but the file's first "
-                f"{dim}-D record ({sized[0][0]}, line {groups[sized[0][0]].lines[0]}) makes it a "
+                f"{dim}-D record ({sized[0][0]}, line {first_line[sized[0][0]]}) makes it a "
                 f"{dim}-D {fmt} pose graph"
             )
         else:
             what = f"3-D {fmt}" if dim == 3 else fmt
             message = f"unknown record tag {tag!r} in a {what} file (expected {', '.join(known)})"
-        raise FileFormatError(path, message, line=groups[tag].lines[0])
-    return spec, groups
+        raise FileFormatError(path, message, line=first_line[tag])
+    return spec
+
+
+class _Table(NamedTuple):
+    lines: list[int]  # 1-based line numbers
+    ids: IntArray  # (k, n_ids)
+    values: FloatArray  # (k, n_values)
+
+
+def _read_fast(path: Path, text: str) -> tuple[_Spec, _Table, _Table] | None:
+    """The format, the vertex records and the edge records of a large file, read by the numba
+    kernels of :mod:`relmap.io._text_kernels` in one pass each over its bytes — or None, and the
+    general path reads it: numba off, a small file, a ``FIX`` record, or anything the kernels do
+    not take (the general path then names the error). Both paths give identical arrays."""
+    n_lines = text.count("\n") + 1
+    if not _numba.enabled(n_lines):
+        return None
+    from relmap.io import _text_kernels as kernels
+
+    buf = np.frombuffer(text.encode("utf-8"), dtype=np.uint8)
+    start, end, first, n_lines = kernels.tags(buf)
+    if n_lines < 0:
+        return None
+    first_line = {
+        buf[s:e].tobytes().decode("ascii"): int(f)
+        for s, e, f in zip(start, end, first, strict=True)
+    }
+    spec = _classify(path, first_line)
+    if not set(first_line) <= {spec.vertex, spec.edge}:
+        return None
+    tables = []
+    n_edge_values = spec.measurement_size + len(spec.info_order)
+    for tag, n_ids, n_values in ((spec.vertex, 1, spec.pose_size), (spec.edge, 2, n_edge_values)):
+        word = np.frombuffer(tag.encode("ascii"), dtype=np.uint8)
+        lines, ids, values, slow, bad = kernels.records(buf, word, n_ids, n_values, n_lines)
+        if bad >= 0:
+            return None
+        for row, col, s, e in slow.tolist():  # numbers beyond the exact fast path
+            values[row, col] = float(buf[s:e].tobytes())
+        tables.append(_Table(lines.tolist(), ids, values))
+    return spec, tables[0], tables[1]
 
 
 def _parse(
@@ -520,23 +566,31 @@ def read_graph(path: str | os.PathLike[str]) -> PoseGraph:
         raise FileFormatError(p, f"cannot read: {exc.strerror}") from None
     except UnicodeDecodeError as exc:
         raise FileFormatError(p, f"not a text file (UTF-8): {exc.reason}") from None
-    spec, groups = _group(p, text)
-    empty = _Records([], [])
-
-    vtx = groups.get(spec.vertex, empty)
-    vertex_ids, poses = _parse(p, spec.vertex, vtx, 1, spec.pose_size, spec.vertex_fields)
-    vertex_ids = vertex_ids[:, 0]
-    edg = groups.get(spec.edge, empty)
-    n_edge_values = spec.measurement_size + len(spec.info_order)
-    edge_ids, edge_values = _parse(p, spec.edge, edg, 2, n_edge_values, spec.edge_fields)
     fixed_list: list[int] = []
     fixed_lines: list[int] = []
-    for line, rest in zip(*groups.get(spec.fix or "", empty), strict=True):
-        if not rest.split():
-            raise FileFormatError(p, "FIX needs at least one vertex id", line=line)
-        for tok in rest.split():
-            fixed_list.append(_int(p, "FIX", tok, line))
-            fixed_lines.append(line)
+    fast = _read_fast(p, text)
+    if fast is not None:
+        spec, vtx, edg = fast
+    else:
+        spec, groups = _group(p, text)
+        empty = _Records([], [])
+        records = groups.get(spec.vertex, empty)
+        vtx = _Table(
+            records.lines, *_parse(p, spec.vertex, records, 1, spec.pose_size, spec.vertex_fields)
+        )
+        records = groups.get(spec.edge, empty)
+        n_edge_values = spec.measurement_size + len(spec.info_order)
+        edg = _Table(
+            records.lines, *_parse(p, spec.edge, records, 2, n_edge_values, spec.edge_fields)
+        )
+        for line, rest in zip(*groups.get(spec.fix or "", empty), strict=True):
+            if not rest.split():
+                raise FileFormatError(p, "FIX needs at least one vertex id", line=line)
+            for tok in rest.split():
+                fixed_list.append(_int(p, "FIX", tok, line))
+                fixed_lines.append(line)
+    vertex_ids, poses = vtx.ids[:, 0], vtx.values
+    edge_ids, edge_values = edg.ids, edg.values
     fixed = np.array(fixed_list, dtype=np.int64)
 
     for tag, values, lines in (
