@@ -55,6 +55,16 @@ def _dense_diagonal_blocks(dense: np.ndarray, b: int) -> np.ndarray:
     return np.array([Z[b * k : b * k + b, b * k : b * k + b] for k in range(n)])
 
 
+def _check_joint_blocks(f: SymmetricFactor, Z: np.ndarray, b: int) -> None:
+    """Joint blocks of A⁻¹ of a few nodes (the first, the last, one between) against Z = A⁻¹."""
+    n = f.pattern.size // b
+    for nodes in ([n - 1], [0, n - 1], [n // 2, 0, n - 1][:n]):
+        idx = (b * np.array(nodes)[:, None] + np.arange(b)).reshape(-1)
+        if len(set(nodes)) == len(nodes):
+            sub = f.inverse_submatrix(idx)
+            assert np.abs(sub - Z[np.ix_(idx, idx)]).max() < 1e-10 * np.abs(Z).max()
+
+
 def _check(pattern: SymmetricPattern, data: np.ndarray, b: int) -> None:
     dense = pattern.matrix(data).toarray()
     rng = np.random.default_rng(7)
@@ -68,6 +78,8 @@ def _check(pattern: SymmetricPattern, data: np.ndarray, b: int) -> None:
         f._block = _BlockNumeric(pattern.blockchol, supernodal=supernodal)
         f.factorize(data)
         assert f.active == "block"
+        Z = np.linalg.inv(dense)
+        _check_joint_blocks(f, Z, b)  # supernodal: straight from the panels
         np.testing.assert_allclose(
             f.solve(rhs),
             np.linalg.solve(dense, rhs),
@@ -77,13 +89,7 @@ def _check(pattern: SymmetricPattern, data: np.ndarray, b: int) -> None:
         np.testing.assert_allclose(
             f.solve(cols), X_ref, rtol=0, atol=1e-13 * scale * np.abs(X_ref).max()
         )
-        Z = np.linalg.inv(dense)
-        n = pattern.size // b
-        for nodes in ([n - 1], [0, n - 1], [n // 2, 0, n - 1][:n]):  # joint blocks of A⁻¹
-            idx = (b * np.array(nodes)[:, None] + np.arange(b)).reshape(-1)
-            if len(set(nodes)) == len(nodes):
-                sub = f.inverse_submatrix(idx)
-                assert np.abs(sub - Z[np.ix_(idx, idx)]).max() < 1e-10 * np.abs(Z).max()
+        _check_joint_blocks(f, Z, b)  # from the block L D Lᵀ
         idx = np.array([pattern.size - 1, 0])  # not whole nodes: column solves
         sub = f.inverse_submatrix(idx)
         assert np.abs(sub - Z[np.ix_(idx, idx)]).max() < 1e-10 * np.abs(Z).max()

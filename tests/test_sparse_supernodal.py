@@ -77,3 +77,29 @@ def test_a_matrix_that_is_not_positive_definite_falls_back_to_superlu():
     np.testing.assert_allclose(
         f.solve(rhs), np.linalg.solve(dense - shift * np.eye(pattern.size), rhs), rtol=1e-6
     )
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_minimum_degree_from_the_incomplete_lu_is_superlus_complete_one(seed):
+    """The ordering is SuperLU's MMD, taken from an ILU that drops everything: the complete LU
+    orders its columns the same way (the ordering precedes the factorization)."""
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import splu
+
+    from relmap.network.sparse import _minimum_degree
+
+    rng = np.random.default_rng(seed)
+    k = 300
+    a = np.concatenate([np.arange(k - 1), rng.integers(0, k, 200)])
+    b = np.concatenate([np.arange(1, k), rng.integers(0, k, 200)])
+    keep = a != b
+    a, b = a[keep], b[keep]
+    G = sp.csc_matrix(
+        (np.full(2 * len(a), -1.0), (np.concatenate([a, b]), np.concatenate([b, a]))),
+        shape=(k, k),
+    )
+    G.sum_duplicates()
+    G.data[:] = -1.0
+    G.setdiag(np.asarray(abs(G).sum(axis=0)).ravel() + 1.0)
+    lu = splu(G, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+    np.testing.assert_array_equal(_minimum_degree(k, a, b), np.argsort(lu.perm_c))

@@ -25,6 +25,7 @@ __all__ = [
     "etree_postorder",
     "factorize",
     "inverse_blocks",
+    "panel_inverse_blocks",
     "panel_solve",
     "panels_to_blocks",
     "scatter_map",
@@ -819,6 +820,73 @@ def inverse_blocks(
                 for r in range(b):
                     acc += yj[r, c1] * tmp[r, c2]
                 out[c1, c2] += acc
+    return out
+
+
+@numba.njit(cache=True, fastmath=_FAST)
+def panel_inverse_blocks(
+    Lp: IntArray,
+    Li: IntArray,
+    starts: IntArray,
+    offset: IntArray,
+    P: FloatArray,
+    nodes: IntArray,
+    bt: tuple[int, ...],
+) -> FloatArray:  # pragma: no cover
+    """:func:`inverse_blocks` straight from the supernodal factor ``A = L Lᵀ`` in ``P``:
+    ``A⁻¹[S, S] = Yᵀ Y`` for ``Y = L⁻¹ E_S``, a forward solve over the elimination-tree paths
+    from S to the root only (on each supernode, from the first of its nodes on a path: the
+    rows above are zero in Y)."""
+    b = len(bt)
+    n = len(Lp) - 1
+    k = len(nodes)
+    q = k * b
+    on_path = np.zeros(n, np.bool_)
+    for a in range(k):  # union of the paths to the root (parent = first row below)
+        v = nodes[a]
+        while v != -1 and not on_path[v]:
+            on_path[v] = True
+            v = Li[Lp[v]] if Lp[v + 1] > Lp[v] else -1
+    Y = np.zeros((n * b, q)) if k else np.zeros((0, 0))
+    for a in range(k):
+        for r in range(b):
+            Y[nodes[a] * b + r, a * b + r] = 1.0
+    out = np.zeros((q, q))
+    for s in range(len(starts) - 1):
+        f, last = starts[s], starts[s + 1] - 1
+        if not on_path[last]:  # a path through the supernode leaves it from its last node
+            continue
+        u0 = f
+        while not on_path[u0]:
+            u0 += 1
+        w = last + 1 - f
+        r0 = Lp[last]
+        m = w + Lp[last + 1] - r0
+        cols = w * b
+        so = offset[s]
+        y0 = f * b
+        c0 = (u0 - f) * b
+        for r in range(c0, cols):  # the diagonal block, from the path's first row
+            ro = so + r * cols
+            for c in range(q):
+                acc = Y[y0 + r, c]
+                for t in range(c0, r):
+                    acc -= P[ro + t] * Y[y0 + t, c]
+                Y[y0 + r, c] = acc / P[ro + r]
+        for t in range(w, m):  # the rows below
+            io = Li[r0 + t - w] * b
+            for a in range(b):
+                ro = so + (t * b + a) * cols
+                for c in range(q):
+                    acc = 0.0
+                    for j in range(c0, cols):
+                        acc += P[ro + j] * Y[y0 + j, c]
+                    Y[io + a, c] -= acc
+        for r in range(y0 + c0, y0 + cols):  # out += yᵀ y over the supernode's path rows
+            for c1 in range(q):
+                x = Y[r, c1]
+                for c2 in range(q):
+                    out[c1, c2] += x * Y[r, c2]
     return out
 
 

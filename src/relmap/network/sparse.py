@@ -220,21 +220,13 @@ def node_ordering(node: IntArray, rows: IntArray, cols: IntArray) -> IntArray:
     """Minimum-degree ordering of parameters grouped by node (new → old).
 
     The node graph (an edge wherever two nodes' parameters meet in the matrix) is ordered by
-    SuperLU's multiple minimum degree on AᵀA+... in symmetric mode (no pivoting, so its column
-    permutation is a symmetric ordering), then each node's parameters follow in order.
+    :func:`_minimum_degree`, then each node's parameters follow in order.
     """
-    import scipy.sparse as sp
-    from scipy.sparse.linalg import splu
-
     labels, node_index = np.unique(node, return_inverse=True)
     k = len(labels)
     a, b = node_index[rows], node_index[cols]
-    G = sp.csc_matrix((np.full(len(a), -1.0), (a, b)), shape=(k, k))
-    G.sum_duplicates()
-    G.data[:] = -1.0
-    G.setdiag(np.asarray(abs(G).sum(axis=0)).ravel() + 1.0)  # diagonally dominant: no pivoting
-    lu = splu(G, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
-    node_order = np.argsort(lu.perm_c)  # perm_c[i] = new position of node i
+    off = a != b
+    node_order = _minimum_degree(k, a[off], b[off]) if off.any() else np.arange(k)
     rank = np.empty(k, dtype=np.int64)
     rank[node_order] = np.arange(k)
     return np.lexsort((np.arange(len(node)), rank[node_index]))
@@ -515,9 +507,13 @@ def _node_graph(pattern: SymmetricPattern) -> tuple[IntArray, IntArray, IntArray
 
 
 def _minimum_degree(k: int, a: IntArray, b: IntArray) -> IntArray:
-    """Multiple minimum degree ordering of a graph of k nodes (new → old), by SuperLU."""
+    """Multiple minimum degree ordering of a graph of k nodes with edges (a, b) (new → old), by
+    SuperLU (MMD on AᵀA+... in symmetric mode, no pivoting, so its column permutation is a
+    symmetric ordering). SuperLU orders the columns before it factorizes, so an incomplete LU
+    that drops every off-diagonal entry yields the same ordering as the complete one at half
+    the cost (city10000: 13.5 against 27.9 ms)."""
     import scipy.sparse as sp
-    from scipy.sparse.linalg import splu
+    from scipy.sparse.linalg import spilu
 
     G = sp.csc_matrix(
         (np.full(2 * len(a), -1.0), (np.concatenate([a, b]), np.concatenate([b, a]))),
@@ -526,7 +522,14 @@ def _minimum_degree(k: int, a: IntArray, b: IntArray) -> IntArray:
     G.sum_duplicates()
     G.data[:] = -1.0
     G.setdiag(np.asarray(abs(G).sum(axis=0)).ravel() + 1.0)  # diagonally dominant: no pivoting
-    lu = splu(G, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+    lu = spilu(
+        G,
+        drop_tol=1e10,
+        fill_factor=1.0,
+        permc_spec="MMD_AT_PLUS_A",
+        diag_pivot_thresh=0.0,
+        options={"SymmetricMode": True},
+    )
     return np.argsort(lu.perm_c)  # perm_c[i] = new position of node i
 
 
@@ -993,11 +996,15 @@ class _BlockNumeric:
         """The joint block (k·b, k·b) of ``A⁻¹`` of the given nodes (k,), pattern's order."""
         from relmap.network import _blockchol as kernels
 
-        self._blocks()
         s = self.sym
         rank = np.empty(s.n, dtype=np.int64)
         rank[s.order] = np.arange(s.n)
         new = rank[np.asarray(nodes, dtype=np.int64)]
+        if not self._blocks_ready:  # straight from the panels
+            starts, offset, _, _ = s.panels()
+            return kernels.panel_inverse_blocks(
+                s.Lp, s.Li, starts, offset, self._panels, new, self._bt
+            )
         return kernels.inverse_blocks(s.Lp, s.Li, self.X, self.Dinv, new, self._bt)
 
     def diagonal_inverse_blocks(self) -> FloatArray:
