@@ -681,6 +681,20 @@ def factorize_supernodal(
                             crow = (t1 - p) * b + a
                             for c in range(b):
                                 P[row + c] -= C[crow, (t2 - p) * b + c]
+            elif wd == 1:  # a one-node descendant: b×b blocks, loops of fixed length
+                for t1 in range(p, md):
+                    R = relpos[Li[rd + t1 - 1]]
+                    for t2 in range(p, min(t1 + 1, p2)):
+                        U = Li[rd + t2 - 1] - f
+                        for a in range(b):
+                            ra = do + (t1 * b + a) * b
+                            row = so + (R * b + a) * cols + U * b
+                            for c in range(b):
+                                rc = do + (t2 * b + c) * b
+                                acc = 0.0
+                                for k in range(b):
+                                    acc += P[ra + k] * P[rc + k]
+                                P[row + c] -= acc
             else:
                 for t1 in range(p, md):
                     R = relpos[Li[rd + t1 - wd]]
@@ -741,15 +755,25 @@ def factorize_supernodal(
                     P[ro + r] = np.sqrt(acc)
                 else:
                     P[ro + c] = acc / P[co + c]
-        # the rows below: L21 = A21 L11⁻ᵀ, row by row
-        for r in range(cols, m * b):
-            ro = so + r * cols
-            for c in range(cols):
-                co = so + c * cols
-                acc = P[ro + c]
-                for k in range(c):
-                    acc -= P[ro + k] * P[co + k]
-                P[ro + c] = acc / P[co + c]
+        # the rows below: L21 = A21 L11⁻ᵀ, row by row (one node: loops of fixed length)
+        if w == 1:
+            for r in range(b, m * b):
+                ro = so + r * b
+                for c in range(b):
+                    co = so + c * b
+                    acc = P[ro + c]
+                    for k in range(c):
+                        acc -= P[ro + k] * P[co + k]
+                    P[ro + c] = acc / P[co + c]
+        else:
+            for r in range(cols, m * b):
+                ro = so + r * cols
+                for c in range(cols):
+                    co = so + c * cols
+                    acc = P[ro + c]
+                    for k in range(c):
+                        acc -= P[ro + k] * P[co + k]
+                    P[ro + c] = acc / P[co + c]
         if m > w:
             ptr[s] = w
             e = sn_of[Li[r0]]
