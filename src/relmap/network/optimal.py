@@ -547,8 +547,10 @@ def optimize(
         def linearize(x: object) -> tuple[float, FloatArray, FloatArray, FloatArray]:
             return planar.linearize(*x)  # type: ignore[misc]
 
+        move = param.stepper()
+
         def step(x: object, delta: FloatArray) -> object:
-            return param.step(*x, delta)  # type: ignore[misc]
+            return move(*x, delta)  # type: ignore[misc]
     else:
         system = _LieSystem(p, param, w)
         state, pattern = np.array(p.guess, dtype=np.float64), system.pattern

@@ -26,6 +26,7 @@ planar-only).
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
@@ -103,16 +104,30 @@ class Parameterization(NamedTuple):
         self, xy: FloatArray, theta: FloatArray, delta: FloatArray
     ) -> tuple[FloatArray, FloatArray]:
         """The state moved by the parameter step ``delta`` (size,)."""
-        xy = xy.copy()
-        theta = theta.copy()
+        return self.stepper()(xy, theta, delta)
+
+    def stepper(
+        self,
+    ) -> Callable[[FloatArray, FloatArray, FloatArray], tuple[FloatArray, FloatArray]]:
+        """:meth:`step` with the index work done once, for repeated steps."""
         free_xy = self.col[:, 0] >= 0
         roots = np.flatnonzero(free_xy & (self.root == np.arange(len(self.root))))
-        xy[roots, 0] += delta[self.col[roots, 0]]
-        xy[roots, 1] += delta[self.col[roots, 1]]
+        cx, cy = self.col[roots, 0], self.col[roots, 1]
         heads = np.unique(self.heading_class[self.root])
         heads = heads[self.col_of_class(heads) >= 0]
-        theta[heads] += delta[self.col_of_class(heads)]
-        return xy, theta
+        ch = self.col_of_class(heads)
+
+        def step(
+            xy: FloatArray, theta: FloatArray, delta: FloatArray
+        ) -> tuple[FloatArray, FloatArray]:
+            xy = xy.copy()
+            theta = theta.copy()
+            xy[roots, 0] += delta[cx]
+            xy[roots, 1] += delta[cy]
+            theta[heads] += delta[ch]
+            return xy, theta
+
+        return step
 
     def col_of_class(self, classes: IntArray) -> IntArray:
         """Parameter index of each heading class's ϑ (-1 if fixed)."""
