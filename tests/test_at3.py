@@ -148,6 +148,19 @@ def test_compound_with_own_reversal_cross_cov_is_zero():
     assert np.linalg.eigvalsh(independent.cov).max() > 1e-4
 
 
+def test_compound_chain_dispatches_3d_chains():
+    steps = random_at3s(11, 6)
+    chain = rm.compound_chain(steps)
+    assert isinstance(chain, rm.AT3)
+    acc = steps[0]
+    for k in range(1, 6):
+        acc = rm.compound(acc, steps[k])
+        np.testing.assert_allclose(chain[k].matrix, acc.matrix, atol=1e-13)
+        np.testing.assert_allclose(chain[k].cov, acc.cov, rtol=1e-12, atol=1e-15)
+    with pytest.raises(ParameterError, match="SE\\(2\\) ATs only"):
+        rm.compound_chain(steps, moments="exact")
+
+
 @given(st.integers(0, 10_000))
 def test_merge_is_order_independent_and_psd(seed):
     a, b, c = random_at3s(seed, 3, scale=0.1)

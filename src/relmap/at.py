@@ -24,7 +24,7 @@ import numpy as np
 from relmap import gaussian
 from relmap import moments as _moments
 from relmap._layout import components_outermost, matrix, read_only, stack_last
-from relmap.at3 import AT3, compound3, merge3, reverse3
+from relmap.at3 import AT3, compound3, compound_chain3, merge3, reverse3
 from relmap.errors import ParameterError, ShapeError
 from relmap.gaussian import DEFAULT_RTOL, Ellipse
 from relmap.lie import SE2, se2
@@ -502,7 +502,15 @@ def compound_chain(steps: AT, *, axis: int = -1, moments: MomentsMethod = "first
     ``moments="unscented"`` the unscented transform one step at a time, as repeated
     ``compound(..., moments="unscented")`` (:func:`relmap.moments.unscented_chain`, a loop
     over the steps).
+
+    An :class:`AT3` chain is compounded in 3-D (:func:`relmap.at3.compound_chain3`; first order
+    only).
     """
+    if isinstance(steps, AT3):
+        if moments != "first_order":
+            _moments.check_method(moments)
+            raise ParameterError(f"moments={moments!r} is available for SE(2) ATs only")
+        return compound_chain3(steps, axis=axis)  # type: ignore[return-value]
     _check_types((steps,))
     if steps.ndim == 0:
         raise ShapeError("compound_chain needs an AT with at least one batch axis (the chain)")
