@@ -612,6 +612,55 @@ def panel_map(
     return src[:t], dst[:t]
 
 
+@numba.njit(cache=True, fastmath=_FAST, inline="always")
+def _subtract_products(
+    P: FloatArray,
+    Li: IntArray,
+    relpos: IntArray,
+    rd: int,
+    wd: int,
+    p: int,
+    md: int,
+    p2: int,
+    do: int,
+    so: int,
+    cols: int,
+    f: int,
+    b: int,
+    dcols: int,
+) -> None:  # pragma: no cover
+    """Panel s (at ``so``, ``cols`` wide, first node f) minus the products of descendant d's
+    rows p..md (panel at ``do``, ``wd`` nodes, ``dcols`` wide) with its rows p..p2, in loops.
+    Inlined: where the caller passes constant widths the loops have fixed lengths."""
+    for t1 in range(p, md):
+        R = relpos[Li[rd + t1 - wd]]
+        for t2 in range(p, min(t1 + 1, p2)):
+            U = Li[rd + t2 - wd] - f
+            for a in range(b):
+                ra = do + (t1 * b + a) * dcols
+                row = so + (R * b + a) * cols + U * b
+                for c in range(b):
+                    rc = do + (t2 * b + c) * dcols
+                    acc = 0.0
+                    for k in range(dcols):
+                        acc += P[ra + k] * P[rc + k]
+                    P[row + c] -= acc
+
+
+@numba.njit(cache=True, fastmath=_FAST, inline="always")
+def _solve_rows_below(P: FloatArray, so: int, rows: int, cols: int) -> None:  # pragma: no cover
+    """Rows cols..rows of the panel at ``so`` (``cols`` wide, its Cholesky diagonal block
+    done) times L11⁻ᵀ, in place, row by row. Inlined: constant widths give fixed loops."""
+    for r in range(cols, rows):
+        ro = so + r * cols
+        for c in range(cols):
+            co = so + c * cols
+            acc = P[ro + c]
+            for k in range(c):
+                acc -= P[ro + k] * P[co + k]
+            P[ro + c] = acc / P[co + c]
+
+
 @numba.njit(cache=True, fastmath=_FAST)
 def factorize_supernodal(
     Lp: IntArray,
@@ -682,33 +731,9 @@ def factorize_supernodal(
                             for c in range(b):
                                 P[row + c] -= C[crow, (t2 - p) * b + c]
             elif wd == 1:  # a one-node descendant: b×b blocks, loops of fixed length
-                for t1 in range(p, md):
-                    R = relpos[Li[rd + t1 - 1]]
-                    for t2 in range(p, min(t1 + 1, p2)):
-                        U = Li[rd + t2 - 1] - f
-                        for a in range(b):
-                            ra = do + (t1 * b + a) * b
-                            row = so + (R * b + a) * cols + U * b
-                            for c in range(b):
-                                rc = do + (t2 * b + c) * b
-                                acc = 0.0
-                                for k in range(b):
-                                    acc += P[ra + k] * P[rc + k]
-                                P[row + c] -= acc
+                _subtract_products(P, Li, relpos, rd, 1, p, md, p2, do, so, cols, f, b, b)
             else:
-                for t1 in range(p, md):
-                    R = relpos[Li[rd + t1 - wd]]
-                    for t2 in range(p, min(t1 + 1, p2)):
-                        U = Li[rd + t2 - wd] - f
-                        for a in range(b):
-                            ra = do + (t1 * b + a) * dcols
-                            row = so + (R * b + a) * cols + U * b
-                            for c in range(b):
-                                rc = do + (t2 * b + c) * dcols
-                                acc = 0.0
-                                for k in range(dcols):
-                                    acc += P[ra + k] * P[rc + k]
-                                P[row + c] -= acc
+                _subtract_products(P, Li, relpos, rd, wd, p, md, p2, do, so, cols, f, b, dcols)
             ptr[d] = p2
             if p2 < md:
                 e = sn_of[Li[rd + p2 - wd]]
@@ -757,23 +782,9 @@ def factorize_supernodal(
                     P[ro + c] = acc / P[co + c]
         # the rows below: L21 = A21 L11⁻ᵀ, row by row (one node: loops of fixed length)
         if w == 1:
-            for r in range(b, m * b):
-                ro = so + r * b
-                for c in range(b):
-                    co = so + c * b
-                    acc = P[ro + c]
-                    for k in range(c):
-                        acc -= P[ro + k] * P[co + k]
-                    P[ro + c] = acc / P[co + c]
+            _solve_rows_below(P, so, m * b, b)
         else:
-            for r in range(cols, m * b):
-                ro = so + r * cols
-                for c in range(cols):
-                    co = so + c * cols
-                    acc = P[ro + c]
-                    for k in range(c):
-                        acc -= P[ro + k] * P[co + k]
-                    P[ro + c] = acc / P[co + c]
+            _solve_rows_below(P, so, m * b, cols)
         if m > w:
             ptr[s] = w
             e = sn_of[Li[r0]]
