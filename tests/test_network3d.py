@@ -314,3 +314,59 @@ def test_sensing_in_3d():
 
 def test_problem_defaults_to_the_plane():
     assert Problem._field_defaults["group"] is SE2
+
+
+def _numba_off() -> bool:
+    from relmap import _numba
+
+    return not _numba.enabled()
+
+
+@pytest.mark.skipif(_numba_off(), reason="numba kernels off (RELMAP_NUMBA=0) or numba missing")
+def test_the_se3_residual_kernel_matches_the_numpy_formulas():
+    """relmap.network._linearize.se3_residuals against relmap.lie's between and the residual
+    of optimal._residual, at rotations of every size: tiny (series), generic, near π (Log's
+    branch), and positions tens of metres out."""
+    from relmap.lie import so3
+    from relmap.network import _linearize
+
+    g = rng(12)
+    n, m = 200, 600
+    axes = g.normal(size=(n, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    angles = np.concatenate(
+        [g.uniform(0, np.pi, n - 40), np.full(20, 1e-6), np.pi - g.uniform(0, 1e-4, 20)]
+    )
+    poses = se3.from_parts(g.normal(scale=30, size=(n, 3)), so3.exp(axes * angles[:, None]))
+    i, j = g.integers(0, n, m), g.integers(0, n, m)
+    noise = g.normal(scale=0.05, size=(m, 6))
+    near = g.normal(size=(50, 3))
+    near /= np.linalg.norm(near, axis=1, keepdims=True)
+    noise[:50, 3:] = near * (np.pi - g.uniform(0, 1e-7, 50))[:, None]  # residuals near π
+    noise[50:80, 3:] *= 1e-6  # and tiny ones
+    z = np.ascontiguousarray(se3.plus(se3.between(poses[i], poses[j]), noise))
+    r, Ji, Jj = _linearize.se3_residuals(np.ascontiguousarray(poses), i, j, z)
+    d, Ji_ref, Jj_ref = SE3.between(poses[i], poses[j], jacobians=True)
+    r_ref, Jr = optimal._residual(SE3, d, z)
+    np.testing.assert_allclose(r, r_ref, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(Ji, Jr @ Ji_ref, rtol=0, atol=1e-13 * np.abs(Ji_ref).max())
+    np.testing.assert_allclose(Jj, Jr @ Jj_ref, rtol=0, atol=1e-14)
+
+
+@pytest.mark.skipif(_numba_off(), reason="numba kernels off (RELMAP_NUMBA=0) or numba missing")
+def test_the_3d_linearization_is_the_same_on_both_paths(monkeypatch):
+    from relmap import _numba
+
+    m, _ = noisy_map(13, rot_sigma=(0.2, 0.5))
+    problem, _ = optimal.problem_from_map(m, [e.name for e in m.edges()], "a")
+    param = parameterize(problem)
+    w = optimal._weights(problem, param)
+    system = optimal._LieSystem(problem, param, w)
+    poses = np.ascontiguousarray(se3.plus(problem.guess, rng(14).normal(scale=0.3, size=(5, 6))))
+    monkeypatch.setattr(_numba, "LARGE", 0)
+    cost, _, data, grad = system.linearize(poses)
+    monkeypatch.setenv("RELMAP_NUMBA", "0")
+    cost_ref, _, data_ref, grad_ref = system.linearize(poses)
+    assert cost == pytest.approx(cost_ref, rel=1e-12)
+    np.testing.assert_allclose(data, data_ref, rtol=1e-11, atol=1e-11 * np.abs(data_ref).max())
+    np.testing.assert_allclose(grad, grad_ref, rtol=1e-11, atol=1e-11 * np.abs(grad_ref).max())

@@ -29,7 +29,7 @@ from relmap.at import AT
 from relmap.at3 import AT3
 from relmap.errors import SolverError
 from relmap.gaussian import inverse_pd
-from relmap.lie import SE2, Group, se2, so3
+from relmap.lie import SE2, SE3, Group, se2, so3
 from relmap.network.problem import Parameterization, Problem, parameterize
 from relmap.network.sparse import SymmetricFactor, SymmetricPattern, selected_inverse_blocks
 from relmap.typing import FloatArray, IntArray
@@ -434,6 +434,7 @@ class _LieSystem:
         g_index = np.concatenate([param.col[self.i].T.reshape(-1), param.col[self.j].T.reshape(-1)])
         self.g_index = np.where(g_index >= 0, g_index, param.size)
         self.W = w.W
+        self._z = np.ascontiguousarray(p.z[w.edges])
         m = len(self.i)  # the plain ATs' contribution slots, AT by AT (for the numba kernel)
         self._position = np.ascontiguousarray(
             self.pattern.position[: 4 * b * b * m].reshape(b * b, 4, m).transpose(2, 0, 1)
@@ -442,11 +443,17 @@ class _LieSystem:
     def linearize(self, poses: FloatArray) -> tuple[float, FloatArray, FloatArray, FloatArray]:
         """(cost, poses, normal-matrix CSC data, gradient) at ``poses``."""
         p, group, b = self.p, self.group, self.dof
-        d, Ji, Jj = group.between(poses[self.i], poses[self.j], jacobians=True)
-        r, Jr = _residual(group, d, p.z[self.w.edges])
-        if Jr is not None:
-            Ji, Jj = Jr @ Ji, Jr @ Jj
-        if not self.w.groups and _numba.enabled(len(self.i)):
+        kernels = not self.w.groups and _numba.enabled(len(self.i))
+        if kernels and group is SE3:
+            from relmap.network import _linearize
+
+            r, Ji, Jj = _linearize.se3_residuals(poses, self.i, self.j, self._z)
+        else:
+            d, Ji, Jj = group.between(poses[self.i], poses[self.j], jacobians=True)
+            r, Jr = _residual(group, d, p.z[self.w.edges])
+            if Jr is not None:
+                Ji, Jj = Jr @ Ji, Jr @ Jj
+        if kernels:
             from relmap.network import _linearize
 
             cost, data, grad = _linearize.hessian_blocks(
