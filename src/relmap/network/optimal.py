@@ -444,9 +444,9 @@ class _LieSystem:
         """(cost, poses, normal-matrix CSC data, gradient) at ``poses``."""
         p, group, b = self.p, self.group, self.dof
         kernels = not self.w.groups and _numba.enabled(len(self.i))
-        if kernels and group is SE3:
+        if kernels:
             from relmap.network import _linearize
-
+        if kernels and group is SE3:
             r, Ji, Jj = _linearize.se3_residuals(poses, self.i, self.j, self._z)
         else:
             d, Ji, Jj = group.between(poses[self.i], poses[self.j], jacobians=True)
@@ -454,8 +454,6 @@ class _LieSystem:
             if Jr is not None:
                 Ji, Jj = Jr @ Ji, Jr @ Jj
         if kernels:
-            from relmap.network import _linearize
-
             cost, data, grad = _linearize.hessian_blocks(
                 np.ascontiguousarray(Ji),
                 np.ascontiguousarray(Jj),
