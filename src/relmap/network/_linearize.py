@@ -13,6 +13,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from relmap._at3_kernels import _hat, _mm, _mmt, _mv, _tr
 from relmap._numba_math import wrap as _wrap
 from relmap.typing import FloatArray, IntArray
 
@@ -167,6 +168,16 @@ def hessian_blocks(
 _SMALL = 1e-4  # relmap.lie.so3's threshold for the small-angle series
 
 
+@numba.njit(cache=True, inline="always")
+def _rotation(T, k):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """The rotation of pose k of T (n, 4, 4) as a row-major 9-tuple."""
+    return (
+        T[k, 0, 0], T[k, 0, 1], T[k, 0, 2],
+        T[k, 1, 0], T[k, 1, 1], T[k, 1, 2],
+        T[k, 2, 0], T[k, 2, 1], T[k, 2, 2],
+    )  # fmt: skip
+
+
 @numba.njit(cache=True)
 def se3_residuals(
     poses: FloatArray, i: IntArray, j: IntArray, z: FloatArray
@@ -180,102 +191,68 @@ def se3_residuals(
 
     (:func:`relmap.lie.se3.between`'s Jacobians, with ``R_iᵀ [t_i]× = [R_iᵀ t_i]× R_iᵀ``
     folded in, times the residual's Jacobian). Log and J_l⁻¹ as in :mod:`relmap.lie.so3`,
-    with its small-angle series and its branch near π."""
+    with its small-angle series and its branch near π; 3×3 algebra on the tuples of
+    :mod:`relmap._at3_kernels`."""
     m = len(i)
     r = np.empty((m, 6))
     Ji = np.zeros((m, 6, 6))
     Jj = np.zeros((m, 6, 6))
-    Rt = np.empty((3, 3))
-    Rd = np.empty((3, 3))
-    E = np.empty((3, 3))
-    K = np.empty((3, 3))
-    Jl = np.empty((3, 3))
-    td = np.empty(3)
-    phi = np.empty(3)
     for k in range(m):
         a, b = i[k], j[k]
-        for u in range(3):
-            for v in range(3):
-                Rt[u, v] = poses[a, v, u]
-        for u in range(3):
-            acc = 0.0
-            for v in range(3):
-                acc += Rt[u, v] * (poses[b, v, 3] - poses[a, v, 3])
-            td[u] = acc
-            r[k, u] = acc - z[k, u, 3]
-        for u in range(3):  # R_d = R_iᵀ R_j
-            for v in range(3):
-                acc = 0.0
-                for q in range(3):
-                    acc += Rt[u, q] * poses[b, q, v]
-                Rd[u, v] = acc
-        for u in range(3):  # E = R_d R_zᵀ
-            for v in range(3):
-                acc = 0.0
-                for q in range(3):
-                    acc += Rd[u, q] * z[k, v, q]
-                E[u, v] = acc
-        _log(E, phi)
-        for u in range(3):
-            r[k, 3 + u] = phi[u]
-        # J_l⁻¹(φ) = I - [φ]×/2 + D [φ]×²
+        Rt = _tr(_rotation(poses, a))
+        td = _mv(Rt, (poses[b, 0, 3] - poses[a, 0, 3], poses[b, 1, 3] - poses[a, 1, 3],
+                      poses[b, 2, 3] - poses[a, 2, 3]))  # fmt: skip
+        phi = _log(_mmt(_mm(Rt, _rotation(poses, b)), _rotation(z, k)))  # Log(R_d R_zᵀ)
         theta = np.sqrt(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2])
         if theta < _SMALL:
             D = 1 / 12 + theta**2 / 720 + theta**4 / 30240
         else:
             h = np.sin(theta / 2)
             D = (1 - theta * np.sin(theta) / (4 * h * h)) / (theta * theta)
-        K[0, 0], K[0, 1], K[0, 2] = 0.0, -phi[2], phi[1]
-        K[1, 0], K[1, 1], K[1, 2] = phi[2], 0.0, -phi[0]
-        K[2, 0], K[2, 1], K[2, 2] = -phi[1], phi[0], 0.0
+        K = _hat(phi)
+        KK = _mm(K, K)
+        JlRt = _mm(  # J_l⁻¹(φ) R_iᵀ, J_l⁻¹ = I - [φ]×/2 + D [φ]×²
+            (
+                1.0 - 0.5 * K[0] + D * KK[0], -0.5 * K[1] + D * KK[1], -0.5 * K[2] + D * KK[2],
+                -0.5 * K[3] + D * KK[3], 1.0 - 0.5 * K[4] + D * KK[4], -0.5 * K[5] + D * KK[5],
+                -0.5 * K[6] + D * KK[6], -0.5 * K[7] + D * KK[7], 1.0 - 0.5 * K[8] + D * KK[8],
+            ),
+            Rt,
+        )  # fmt: skip
+        S = _mm(_hat(td), Rt)
         for u in range(3):
+            r[k, u] = td[u] - z[k, u, 3]
+            r[k, 3 + u] = phi[u]
             for v in range(3):
-                kk = 0.0
-                for q in range(3):
-                    kk += K[u, q] * K[q, v]
-                Jl[u, v] = (1.0 if u == v else 0.0) - 0.5 * K[u, v] + D * kk
-        for u in range(3):
-            for v in range(3):
-                Ji[k, u, v] = -Rt[u, v]
-                Jj[k, u, v] = Rt[u, v]
-                jr = 0.0
-                for q in range(3):
-                    jr += Jl[u, q] * Rt[q, v]
-                Ji[k, 3 + u, 3 + v] = -jr
-                Jj[k, 3 + u, 3 + v] = jr
-        Ji[k, 0, 3] = -td[2] * Rt[1, 0] + td[1] * Rt[2, 0]  # [t_d]× R_iᵀ
-        Ji[k, 0, 4] = -td[2] * Rt[1, 1] + td[1] * Rt[2, 1]
-        Ji[k, 0, 5] = -td[2] * Rt[1, 2] + td[1] * Rt[2, 2]
-        Ji[k, 1, 3] = td[2] * Rt[0, 0] - td[0] * Rt[2, 0]
-        Ji[k, 1, 4] = td[2] * Rt[0, 1] - td[0] * Rt[2, 1]
-        Ji[k, 1, 5] = td[2] * Rt[0, 2] - td[0] * Rt[2, 2]
-        Ji[k, 2, 3] = -td[1] * Rt[0, 0] + td[0] * Rt[1, 0]
-        Ji[k, 2, 4] = -td[1] * Rt[0, 1] + td[0] * Rt[1, 1]
-        Ji[k, 2, 5] = -td[1] * Rt[0, 2] + td[0] * Rt[1, 2]
+                q = 3 * u + v
+                Ji[k, u, v] = -Rt[q]
+                Jj[k, u, v] = Rt[q]
+                Ji[k, u, 3 + v] = S[q]
+                Ji[k, 3 + u, 3 + v] = -JlRt[q]
+                Jj[k, 3 + u, 3 + v] = JlRt[q]
     return r, Ji, Jj
 
 
 @numba.njit(cache=True, inline="always")
-def _log(R: FloatArray, out: FloatArray) -> None:  # pragma: no cover
-    """:func:`relmap.lie.so3.log` of one rotation matrix into ``out`` (3,)."""
-    cos = min(max((R[0, 0] + R[1, 1] + R[2, 2] - 1) / 2, -1.0), 1.0)
-    w0, w1, w2 = R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]
+def _log(R):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """:func:`relmap.lie.so3.log` of one rotation (a row-major 9-tuple), as a 3-tuple."""
+    cos = min(max((R[0] + R[4] + R[8] - 1) / 2, -1.0), 1.0)
+    w0, w1, w2 = R[7] - R[5], R[2] - R[6], R[3] - R[1]
     theta = np.arctan2(0.5 * np.sqrt(w0 * w0 + w1 * w1 + w2 * w2), cos)
     if theta > np.pi - 1e-3:  # sin θ vanishes: the axis from the symmetric part
-        best, kbest = -np.inf, 0
+        best, kb = -np.inf, 0
         for q in range(3):
-            dq = (R[q, q] - cos) / (1 - cos)
+            dq = (R[4 * q] - cos) / (1 - cos)
             if dq > best:
-                best, kbest = dq, q
+                best, kb = dq, q
         s = np.sqrt(best)
-        n0 = (0.5 * (R[0, kbest] + R[kbest, 0]) - (cos if kbest == 0 else 0.0)) / (1 - cos) / s
-        n1 = (0.5 * (R[1, kbest] + R[kbest, 1]) - (cos if kbest == 1 else 0.0)) / (1 - cos) / s
-        n2 = (0.5 * (R[2, kbest] + R[kbest, 2]) - (cos if kbest == 2 else 0.0)) / (1 - cos) / s
-        sign = -1.0 if n0 * w0 + n1 * w1 + n2 * w2 < 0 else 1.0
-        out[0], out[1], out[2] = sign * theta * n0, sign * theta * n1, sign * theta * n2
-        return
+        n0 = (0.5 * (R[kb] + R[3 * kb]) - (cos if kb == 0 else 0.0)) / (1 - cos) / s
+        n1 = (0.5 * (R[3 + kb] + R[3 * kb + 1]) - (cos if kb == 1 else 0.0)) / (1 - cos) / s
+        n2 = (0.5 * (R[6 + kb] + R[3 * kb + 2]) - (cos if kb == 2 else 0.0)) / (1 - cos) / s
+        f = -theta if n0 * w0 + n1 * w1 + n2 * w2 < 0 else theta
+        return (f * n0, f * n1, f * n2)
     if theta < _SMALL:
         A = 1 - theta * theta / 6 + theta**4 / 120
     else:
         A = np.sin(theta) / theta
-    out[0], out[1], out[2] = w0 / (2 * A), w1 / (2 * A), w2 / (2 * A)
+    return (w0 / (2 * A), w1 / (2 * A), w2 / (2 * A))
