@@ -793,6 +793,19 @@ def factorize_supernodal(
     return -1
 
 
+@numba.njit(cache=True, inline="always")
+def _on_paths(Lp: IntArray, Li: IntArray, nodes: IntArray) -> np.ndarray:  # pragma: no cover
+    """Whether each node lies on an elimination-tree path from ``nodes`` to the root (a
+    node's parent is the first row of its column in L)."""
+    on_path = np.zeros(len(Lp) - 1, np.bool_)
+    for a in range(len(nodes)):
+        v = nodes[a]
+        while v != -1 and not on_path[v]:
+            on_path[v] = True
+            v = Li[Lp[v]] if Lp[v + 1] > Lp[v] else -1
+    return on_path
+
+
 @numba.njit(cache=True)
 def inverse_blocks(
     Lp: IntArray,
@@ -812,19 +825,10 @@ def inverse_blocks(
     n = len(Lp) - 1
     k = len(nodes)
     q = k * b
+    path = np.flatnonzero(_on_paths(Lp, Li, nodes))
+    count = len(path)
     where = np.full(n, -1, np.int64)
-    path = np.empty(n, np.int64)
-    count = 0
-    for a in range(k):  # union of the paths to the root (parent = first row below)
-        v = nodes[a]
-        while v != -1 and where[v] == -1:
-            where[v] = 0
-            path[count] = v
-            count += 1
-            v = Li[Lp[v]] if Lp[v + 1] > Lp[v] else -1
-    path = np.sort(path[:count])
-    for t in range(count):
-        where[path[t]] = t
+    where[path] = np.arange(count)
     Y = np.zeros((count, b, q))
     for a in range(k):
         for r in range(b):
@@ -876,12 +880,7 @@ def panel_inverse_blocks(
     n = len(Lp) - 1
     k = len(nodes)
     q = k * b
-    on_path = np.zeros(n, np.bool_)
-    for a in range(k):  # union of the paths to the root (parent = first row below)
-        v = nodes[a]
-        while v != -1 and not on_path[v]:
-            on_path[v] = True
-            v = Li[Lp[v]] if Lp[v + 1] > Lp[v] else -1
+    on_path = _on_paths(Lp, Li, nodes)
     Y = np.zeros((n * b, q)) if k else np.zeros((0, 0))
     for a in range(k):
         for r in range(b):
