@@ -69,6 +69,25 @@ def _stable_order(ed, n, eo):
             eo[k] = i
 
 
+@numba.njit(cache=True, inline="always")
+def _greedy(ed, ej, el, n, eo, row_state, col_taken, state, status, lm, d2, st, used_at, mark):
+    """Greedy one-to-one pairing, cheapest first: the entries (reading ``ej``, landmark ``el``,
+    d² ``ed``) in stable d² order, each taken when its reading is open (``row_state`` 1) and
+    its landmark free; a taken reading gets ``state``, its landmark, d² and ``status`` in
+    ``lm``, ``d2``, ``st`` (and its entry in ``used_at`` when ``mark``)."""
+    _stable_order(ed, n, eo)
+    for i in range(n):
+        e = eo[i]
+        j, lk = ej[e], el[e]
+        if row_state[j] != 1 or col_taken[lk]:
+            continue
+        row_state[j] = state
+        col_taken[lk] = True
+        if mark:
+            used_at[j] = e
+        lm[j], d2[j], st[j] = lk, ed[e], status
+
+
 @numba.njit(cache=True)
 def signature_mode(lsig, keys, order):
     """Fill ``keys`` (landmark signatures sorted) and ``order`` (their rows); 1 if the landmark
@@ -438,16 +457,8 @@ def _run(mean, cov, z, valid, sig, lm, lsig, par, out_lm, out_st, out_d2, out_me
                         row_state[j] = 1
                         col_taken[out_lm[f, j]] = False
                         out_lm[f, j], out_d2[f, j], out_st[f, j] = -1, np.inf, UNKNOWN
-                _stable_order(ed, n, eo)  # the entries by d², ties in entry order
-                for i in range(n):
-                    e = eo[i]
-                    j, lk = ej[e], el[e]
-                    if row_state[j] != 1 or col_taken[lk]:
-                        continue
-                    row_state[j] = 2
-                    col_taken[lk] = True
-                    used_at[j] = e
-                    out_lm[f, j], out_d2[f, j], out_st[f, j] = lk, ed[e], USED
+                _greedy(ed, ej, el, n, eo, row_state, col_taken, 2, USED,
+                        out_lm[f], out_d2[f], out_st[f], used_at, True)  # fmt: skip
             # ---- the 3×3 update over the used pairs (ekf._update_one)
             s_a = n1 = s2 = 0.0
             swr = swi = sur = sui = sdr = sdi = 0.0
@@ -586,15 +597,8 @@ def _run(mean, cov, z, valid, sig, lm, lsig, par, out_lm, out_st, out_d2, out_me
                     if j != prev:
                         prev = j
                         col_taken[el[used_at[j]]] = False
-                _stable_order(ed, n, eo)  # the entries by d², ties in entry order
-                for i in range(n):
-                    e = eo[i]
-                    j, lk = ej[e], el[e]
-                    if row_state[j] != 1 or col_taken[lk]:
-                        continue
-                    row_state[j] = 3
-                    col_taken[lk] = True
-                    out_lm[f, j], out_d2[f, j], out_st[f, j] = lk, ed[e], GATED
+                _greedy(ed, ej, el, n, eo, row_state, col_taken, 3, GATED,
+                        out_lm[f], out_d2[f], out_st[f], used_at, False)  # fmt: skip
         if count == 0:
             for i in range(3):
                 out_mean[i, f] = mean[f, i]
