@@ -70,6 +70,28 @@ def _stable_order(ed, n, eo):
 
 
 @numba.njit(cache=True, inline="always")
+def _accumulate(s_a, n1, s2, swr, swi, sur, sui, sdr, sdi, ir, ux, uy, vr, vb, var_r, var_b):
+    """The sums of the 3×3 update (ekf._update_one) with one more used pair: its terms from
+    :func:`_terms` (inverse range ``ir``, unit vector ``u``, innovations, variances)."""
+    w0, w1 = 1.0 / var_r, 1.0 / var_b
+    wq, e2 = w1 * ir * ir, w1 * vb
+    q = w0 - wq
+    wr_ = w1 * ir
+    a_, b_ = w0 * vr, e2 * ir  # (a_ + i b_)·u
+    return (
+        s_a + (w0 + wq),
+        n1 + w1,
+        s2 + e2,
+        swr + q * (ux * ux - uy * uy),
+        swi + q * (ux * uy + uy * ux),
+        sur + wr_ * ux,
+        sui + wr_ * uy,
+        sdr + (a_ * ux - b_ * uy),
+        sdi + (a_ * uy + b_ * ux),
+    )
+
+
+@numba.njit(cache=True, inline="always")
 def _greedy(ed, ej, el, n, eo, row_state, col_taken, state, status, lm, d2, st, used_at, mark):
     """Greedy one-to-one pairing, cheapest first: the entries (reading ``ej``, landmark ``el``,
     d² ``ed``) in stable d² order, each taken when its reading is open (``row_state`` 1) and
@@ -342,20 +364,9 @@ def _run(mean, cov, z, valid, sig, lm, lsig, par, out_lm, out_st, out_d2, out_me
                 out_st[f, j] = USED
                 row_state[j] = 2
                 count += 1
-                w0, w1 = 1.0 / var_r, 1.0 / var_b
-                wq, e2 = w1 * ir * ir, w1 * vb
-                s_a += w0 + wq
-                n1 += w1
-                s2 += e2
-                q = w0 - wq
-                swr += q * (ux * ux - uy * uy)
-                swi += q * (ux * uy + uy * ux)
-                wr_ = w1 * ir
-                sur += wr_ * ux
-                sui += wr_ * uy
-                a_, b_ = w0 * vr, e2 * ir  # (a_ + i b_)·u
-                sdr += a_ * ux - b_ * uy
-                sdi += a_ * uy + b_ * ux
+                s_a, n1, s2, swr, swi, sur, sui, sdr, sdi = _accumulate(
+                    s_a, n1, s2, swr, swi, sur, sui, sdr, sdi, ir, ux, uy, vr, vb, var_r, var_b
+                )
             if not fused:  # undone
                 for lk in range(L):
                     col_taken[lk] = False
@@ -470,21 +481,9 @@ def _run(mean, cov, z, valid, sig, lm, lsig, par, out_lm, out_st, out_d2, out_me
                 e = used_at[j]
                 ir, ux, uy, vr = et[e, 0], et[e, 1], et[e, 2], et[e, 3]
                 vb, var_r, var_b = et[e, 4], et[e, 5], et[e, 6]
-                w0, w1 = 1.0 / var_r, 1.0 / var_b
-                wq, e2 = w1 * ir * ir, w1 * vb
-                s_a += w0 + wq
-                n1 += w1
-                s2 += e2
-                q = w0 - wq
-                u2r, u2i = ux * ux - uy * uy, ux * uy + uy * ux
-                swr += q * u2r
-                swi += q * u2i
-                wr_ = w1 * ir
-                sur += wr_ * ux
-                sui += wr_ * uy
-                a_, b_ = w0 * vr, e2 * ir  # (a_ + i b_)·u
-                sdr += a_ * ux - b_ * uy
-                sdi += a_ * uy + b_ * ux
+                s_a, n1, s2, swr, swi, sur, sui, sdr, sdi = _accumulate(
+                    s_a, n1, s2, swr, swi, sur, sui, sdr, sdi, ir, ux, uy, vr, vb, var_r, var_b
+                )
             # ---- phase 2: the readings left, against the landmarks left
             # One reading left (the usual case): its cheapest free landmark is its pair; d² is
             # computed only where the range alone does not exclude it, d² ≥ v_r²/S_rr ≥
