@@ -80,7 +80,7 @@ def test_the_batched_reduction_equals_one_query_per_sample():
     g = bridge_map(np.radians(2.0))
     n, seed = 6, 5
     v = validate_query(g, "w", "u", method="reduce", n=n, seed=seed)
-    rng = np.random.default_rng(seed)
+    rng = rm.montecarlo.block_rng(seed, 0)  # n < one block: every sample is in block 0
     draws = [g.edge(name).at.sample(n, rng) for name in v.names]
     for k in range(n):
         h = rm.RelationalMap()

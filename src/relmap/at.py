@@ -117,6 +117,10 @@ class AT:
         object.__setattr__(out, "_cov", buf[3:].reshape(3, 3))
         return out
 
+    def __reduce__(self) -> tuple[object, ...]:
+        """Pickle as the two arrays (values travel to Dask workers, ``relmap.distributed``)."""
+        return (type(self)._trusted, (np.array(self._mean), np.array(self._cov)))
+
     def __setattr__(self, name: str, value: object) -> None:
         raise AttributeError("AT is immutable; operations return new ATs")
 

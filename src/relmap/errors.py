@@ -8,6 +8,8 @@ own subclass, so callers can catch exactly what they mean to handle. Messages na
 from __future__ import annotations
 
 __all__ = [
+    "ChunkError",
+    "ClusterError",
     "CovarianceError",
     "DisconnectedError",
     "FileFormatError",
@@ -107,3 +109,25 @@ class FileFormatError(RelmapError, ValueError):
         self.line = line
         where = f"{self.path}:{line}" if line is not None else self.path
         super().__init__(f"{where}: {message}")
+
+
+class ClusterError(RelmapError, RuntimeError):
+    """A Dask cluster cannot do the work: the scheduler is unreachable, no worker is there, or
+    the workers lack a package relmap needs (the message names it)."""
+
+
+class ChunkError(RelmapError, RuntimeError):
+    """A chunk of a Monte Carlo run or of a study raised; the message names the chunk (its
+    block or parameters) and the seed that reproduces it, then the original error."""
+
+    def __init__(self, message: str, *, block: int | None = None, seed: object = None) -> None:
+        super().__init__(message)
+        self.block = block
+        self.seed = seed
+
+    def __reduce__(self) -> tuple[object, ...]:  # travels from a Dask worker to the client
+        return (_chunk_error, (str(self), self.block, self.seed))
+
+
+def _chunk_error(message: str, block: int | None, seed: object) -> ChunkError:
+    return ChunkError(message, block=block, seed=seed)

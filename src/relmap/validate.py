@@ -33,6 +33,12 @@ sampled ATs themselves is the true nonlinear function whose distribution the mom
 (an exact-moments re-estimate would average each sampled map over its own noise once more).
 Merges on sampled maps use first-order gains; the exact-moments prediction fuses with gains
 from its own covariances, which is the same estimator to first order in the gains.
+
+**Blocks, and clusters.** Samples come in blocks of :data:`BLOCK` (by method); block ``j``
+draws from its own stream (``SeedSequence(seed).spawn(j + 1)[j]``) and is reduced to partial
+sums (:class:`relmap.montecarlo.Tally`) where it runs; the client merges them in block order.
+Memory does not grow with ``n``, and the same seed gives the same bits in this process or on
+a Dask cluster of any size (``client=``; :mod:`relmap.distributed`).
 """
 
 from __future__ import annotations
@@ -53,7 +59,7 @@ if TYPE_CHECKING:
     from relmap.network.graph import RelationalMap
     from relmap.network.query import Estimate, LinearizationCheck
 
-__all__ = ["Validation", "validate_query"]
+__all__ = ["BLOCK", "Plan", "Validation", "plan", "run", "validate_query"]
 
 Frame = Hashable
 Progress = Callable[[int, int], None]
@@ -63,13 +69,15 @@ class Validation(NamedTuple):
     """The query's estimate, the re-estimates of ``n`` sampled maps, and how well they agree."""
 
     estimate: Estimate
-    samples: montecarlo.SampleSet
+    samples: montecarlo.Summary  #: moments, and the first samples (for plots)
     agreement: montecarlo.Agreement
     names: tuple[str, ...]  #: the ATs sampled (those that can influence the answer)
     seed: SeedLike
     seconds: float
     #: predicted error of the first-order reduction (SE(2), reduce); None otherwise
     linearization: LinearizationCheck | None = None
+    blocks: int = 0  #: blocks of samples, each from its own random stream
+    reason: str = ""  #: why the method was used
 
     def summary(self) -> dict[str, Any]:
         """A JSON-ready dictionary: predicted and empirical moments and the statistics."""
@@ -107,19 +115,139 @@ class Validation(NamedTuple):
                 None if self.linearization is None else self.linearization.as_dict()
             ),
             "dof": 6 if spatial else 3,
+            "blocks": self.blocks,
+            "reason": self.reason,
             "seconds": self.seconds,
         }
 
 
-def relevant_names(g: RelationalMap, src: Frame, dst: Frame) -> tuple[str, ...]:
-    """The ATs of the 2-connected blocks on the way from ``src`` to ``dst`` (map order): the
-    only ones a query between the two frames depends on."""
+#: Samples per block, by method: a block is the unit of the random streams and of the partial
+#: sums (chunks of blocks go to workers; see :func:`relmap.montecarlo.run`).
+BLOCK = {"reduce": 4096, "optimal": 8}
+
+
+class Plan(NamedTuple):
+    """A validation about to run: the query's estimate, what is sampled, the method and why."""
+
+    estimate: Estimate
+    names: tuple[str, ...]  #: the ATs sampled (those that can influence the answer)
+    reason: str  #: why this method (a sentence)
+    query_seconds: float  #: how long the query took (the guide to a sample's cost)
+    linearization: LinearizationCheck | None
+    problem: _Problem
+
+    def expected_seconds(self, n: int, workers: int = 1) -> float:
+        """A rough forecast of the sampling's time: the optimal method re-solves one map per
+        sample (about the query's own time, each), the reduction one batch per block."""
+        per_block = self.query_seconds * (
+            BLOCK["optimal"] if self.estimate.method == "optimal" else 2
+        )
+        blocks = -(-int(n) // BLOCK[self.estimate.method])
+        return per_block * -(-blocks // max(1, workers))
+
+
+class _Problem(NamedTuple):
+    """What a worker needs to re-estimate sampled maps (sent once per worker)."""
+
+    edges: tuple[tuple[str, Frame, Frame, AT | AT3], ...]
+    src: Frame
+    dst: Frame
+    method: str
+
+
+def _draw(problem: _Problem, rng: np.random.Generator, m: int) -> np.ndarray:
+    """``m`` sampled maps re-estimated: every AT drawn from its Gaussian (in map order, from
+    ``rng``), then one batched reduction, or one optimal solve per sampled map."""
+    draws = [at.sample(m, rng) for _, _, _, at in problem.edges]
+    kind = type(problem.edges[0][3])
+    dof = kind.group.dof
+    if problem.method == "reduce":
+        from relmap.network.reduce import reduce_network
+
+        batched = [
+            (name, s, t, kind._trusted(d, np.broadcast_to(at.cov, (m, dof, dof))))
+            for (name, s, t, at), d in zip(problem.edges, draws, strict=True)
+        ]
+        return reduce_network(batched, problem.src, problem.dst).at.mean
+    from relmap.network.graph import RelationalMap
+
+    out = np.empty((m, *kind.group.point_shape))
+    for k in range(m):
+        h = RelationalMap()
+        for (name, s, t, at), d in zip(problem.edges, draws, strict=True):
+            h.add(s, t, kind._trusted(d[k], at.cov), name=name)
+        out[k] = h.query(problem.src, problem.dst, method="optimal").at.mean
+    return out
+
+
+def plan(
+    g: RelationalMap, src: Frame, dst: Frame, *, method: str = "auto", moments: str = "first_order"
+) -> Plan:
+    """Answer the query and decide what :func:`run` will sample and how (see
+    :func:`validate_query`)."""
     from relmap.network.blocks import blocks_between
 
+    if g.groups:
+        raise ParameterError("validate does not sample dependent ATs (joint groups) yet")
+    if src == dst:
+        raise ParameterError("FROM and TO are the same frame: nothing to validate")
+    t0 = time.perf_counter()
+    est = g.query(src, dst, method=method, moments=moments)
+    seconds = time.perf_counter() - t0
+    check = None
+    if est.method == "reduce" and isinstance(est.at, AT):
+        from relmap.network.query import linearization_check
+
+        check = linearization_check(g, src, dst)
     incident = {f: [e.name for e in g.incident(f)] for f in g.frames}
     ends = {e.name: (e.src, e.dst) for e in g.edges()}
-    in_play = {n for b in blocks_between(incident, ends, src, dst) for n in b.names}
-    return tuple(e.name for e in g.edges() if e.name in in_play)
+    blocks = blocks_between(incident, ends, src, dst)
+    in_play = {n for b in blocks for n in b.names}
+    names = tuple(e.name for e in g.edges() if e.name in in_play)
+    loops = [b for b in blocks if len(b.names) > 1]
+    if method != "auto":
+        reason = f"method {method}, as asked"
+    elif est.method == "reduce":
+        reason = (
+            "auto chose reduce: no loop lies between the frames, so compounding along the "
+            "chain is the first-order answer (one batched reduction per block of samples)"
+        )
+    else:
+        reason = (
+            f"auto chose optimal: a loop between the frames matters ({len(loops)} "
+            f"2-connected block{'s' if len(loops) > 1 else ''} of "
+            f"{sum(len(b.names) for b in loops)} ATs on the way), where the reduction's merges "
+            "and Delta-Y are approximations (one joint solve per sampled map)"
+        )
+    edges = tuple((e.name, e.src, e.dst, e.at) for e in (g.edge(name) for name in names))
+    return Plan(est, names, reason, seconds, check, _Problem(edges, src, dst, est.method))
+
+
+def run(
+    p: Plan,
+    *,
+    n: int = 10_000,
+    seed: SeedLike | np.random.SeedSequence = 0,
+    probability: float = 0.9,
+    progress: Progress | None = None,
+    client: Any = None,
+    keep: int = montecarlo.KEEP,
+    chunk_seconds: float | None = None,
+) -> Validation:
+    """Sample the plan's maps ``n`` times and compare (:func:`validate_query`)."""
+    if int(n) != n or n < 2:
+        raise ParameterError(f"n must be an integer ≥ 2; got {n}")
+    t0 = time.perf_counter() - p.query_seconds
+    mc = montecarlo.run(
+        _draw, p.problem, p.estimate.at, n=int(n), seed=seed, block=BLOCK[p.estimate.method],
+        probability=probability, client=client, keep=keep, progress=progress,
+        chunk_seconds=chunk_seconds,
+    )  # fmt: skip
+    shown = mc.seed.entropy if seed is None else seed
+    return Validation(
+        p.estimate, mc.samples, mc.agreement, p.names, shown, time.perf_counter() - t0,
+        p.linearization, mc.blocks, p.reason,
+    )  # fmt: skip
 
 
 def validate_query(
@@ -129,62 +257,32 @@ def validate_query(
     *,
     method: str = "auto",
     n: int = 10_000,
-    seed: SeedLike = 0,
+    seed: SeedLike | np.random.SeedSequence = 0,
     probability: float = 0.9,
     progress: Progress | None = None,
     moments: str = "first_order",
+    client: Any = None,
+    keep: int = montecarlo.KEEP,
 ) -> Validation:
     """Monte Carlo check of ``g.query(src, dst, method=method)`` with ``n`` sampled maps.
 
-    Every AT on the way between the two frames is drawn independently from its Gaussian (one
-    generator seeded by ``seed``, ATs in map order); the query is re-estimated on each draw by
-    the method it used (see the module docstring). ``progress(k, n)`` is called while the
-    optimal method works through the samples. ``moments`` (SE(2), reduction) is how the
-    query's prediction is computed (module docstring). When the reduction answers an SE(2) query,
-    ``Validation.linearization`` holds the predicted error of its first-order version. Maps
-    with dependent ATs (joint groups) are not supported yet
+    Every AT on the way between the two frames is drawn independently from its Gaussian, the
+    query is re-estimated on each draw by the method it used (see the module docstring), in
+    blocks of :data:`BLOCK` samples (block ``j`` from the stream
+    :func:`relmap.montecarlo.block_seed` ``(seed, j)``, ATs in map order). The sample is
+    summarized by partial sums merged in block order, so memory does not grow with ``n``
+    (``Validation.samples.samples`` keeps the first ``keep``), and the same ``seed`` gives the
+    same bits here or on a Dask cluster: ``client`` is None (this process), a
+    ``distributed.Client`` or a scheduler address (``relmap[distributed]``).
+    ``progress(k, n)`` is called as chunks of blocks complete. ``moments`` (SE(2),
+    reduction) is how the query's prediction is computed (module docstring). When the
+    reduction answers an SE(2) query, ``Validation.linearization`` holds the predicted error of
+    its first-order version. Maps with dependent ATs (joint groups) are not supported yet
     (:class:`relmap.errors.ParameterError`).
     """
     if int(n) != n or n < 2:
         raise ParameterError(f"n must be an integer ≥ 2; got {n}")
-    n = int(n)
-    if g.groups:
-        raise ParameterError("validate does not sample dependent ATs (joint groups) yet")
-    if src == dst:
-        raise ParameterError("FROM and TO are the same frame: nothing to validate")
-    t0 = time.perf_counter()
-    est = g.query(src, dst, method=method, moments=moments)
-    check = None
-    if est.method == "reduce" and isinstance(est.at, AT):
-        from relmap.network.query import linearization_check
-
-        check = linearization_check(g, src, dst)
-    names = relevant_names(g, src, dst)
-    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
-    edges = [g.edge(name) for name in names]
-    draws = [e.at.sample(n, rng) for e in edges]
-    kind = type(est.at)
-    dof = kind.group.dof
-    if est.method == "reduce":
-        from relmap.network.reduce import reduce_network
-
-        batched = [
-            (e.name, e.src, e.dst, kind._trusted(d, np.broadcast_to(e.at.cov, (n, dof, dof))))
-            for e, d in zip(edges, draws, strict=True)
-        ]
-        out = reduce_network(batched, src, dst).at.mean
-    else:
-        from relmap.network.graph import RelationalMap
-
-        out = np.empty((n, *kind.group.point_shape))
-        for k in range(n):
-            h = RelationalMap()
-            for e, d in zip(edges, draws, strict=True):
-                h.add(e.src, e.dst, kind._trusted(d[k], e.at.cov), name=e.name)
-            out[k] = h.query(src, dst, method="optimal").at.mean
-            if progress is not None:
-                progress(k + 1, n)
-    samples = montecarlo.SampleSet.of(out, kind.group)
-    agreement = samples.compare(est.at, probability)
-    seconds = time.perf_counter() - t0
-    return Validation(est, samples, agreement, names, seed, seconds, check)
+    p = plan(g, src, dst, method=method, moments=moments)
+    return run(
+        p, n=n, seed=seed, probability=probability, progress=progress, client=client, keep=keep
+    )
