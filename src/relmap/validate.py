@@ -132,17 +132,17 @@ class Plan(NamedTuple):
     estimate: Estimate
     names: tuple[str, ...]  #: the ATs sampled (those that can influence the answer)
     reason: str  #: why this method (a sentence)
-    query_seconds: float  #: how long the query took (the guide to a sample's cost)
+    query_seconds: float  #: how long the query took
+    pilot_seconds: float  #: one sampled map re-estimated (optimal), or 256 at once (reduce)
     linearization: LinearizationCheck | None
     problem: _Problem
 
     def expected_seconds(self, n: int, workers: int = 1) -> float:
-        """A rough forecast of the sampling's time: the optimal method re-solves one map per
-        sample (about the query's own time, each), the reduction one batch per block."""
-        per_block = self.query_seconds * (
-            BLOCK["optimal"] if self.estimate.method == "optimal" else 2
-        )
-        blocks = -(-int(n) // BLOCK[self.estimate.method])
+        """A rough forecast of the sampling's time on ``workers`` processes, from the pilot
+        (the optimal method re-solves one map per sample; the reduction runs per block)."""
+        method = self.estimate.method
+        per_block = self.pilot_seconds * (BLOCK[method] if method == "optimal" else 4)
+        blocks = -(-int(n) // BLOCK[method])
         return per_block * -(-blocks // max(1, workers))
 
 
@@ -220,7 +220,11 @@ def plan(
             "and Delta-Y are approximations (one joint solve per sampled map)"
         )
     edges = tuple((e.name, e.src, e.dst, e.at) for e in (g.edge(name) for name in names))
-    return Plan(est, names, reason, seconds, check, _Problem(edges, src, dst, est.method))
+    problem = _Problem(edges, src, dst, est.method)
+    t1 = time.perf_counter()
+    _draw(problem, np.random.default_rng(0), 1 if est.method == "optimal" else 256)  # a pilot
+    pilot = time.perf_counter() - t1
+    return Plan(est, names, reason, seconds, pilot, check, problem)
 
 
 def run(
@@ -237,7 +241,7 @@ def run(
     """Sample the plan's maps ``n`` times and compare (:func:`validate_query`)."""
     if int(n) != n or n < 2:
         raise ParameterError(f"n must be an integer ≥ 2; got {n}")
-    t0 = time.perf_counter() - p.query_seconds
+    t0 = time.perf_counter() - p.query_seconds - p.pilot_seconds
     mc = montecarlo.run(
         _draw, p.problem, p.estimate.at, n=int(n), seed=seed, block=BLOCK[p.estimate.method],
         probability=probability, client=client, keep=keep, progress=progress,
