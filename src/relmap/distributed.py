@@ -21,12 +21,12 @@ import time
 import uuid
 from collections import deque
 from collections.abc import Callable, Iterator
-from typing import Any
+from typing import Any, NamedTuple
 
 from relmap.errors import ChunkError, ClusterError, ParameterError
 
-__all__ = ["CHUNK_SECONDS", "CONNECT_SECONDS", "check_workers", "connect", "local_client",
-           "map_blocks", "workers_of"]  # fmt: skip
+__all__ = ["CHUNK_SECONDS", "CONNECT_SECONDS", "Work", "check_workers", "connect",
+           "local_client", "map_blocks", "workers_of"]  # fmt: skip
 
 #: Target seconds of work per chunk (task).
 CHUNK_SECONDS = 0.5
@@ -38,6 +38,15 @@ WORKER_SECONDS = 60.0
 NEEDED = ("relmap", "numpy", "scipy")
 
 Client = Any  # distributed.Client: typed loosely, dask is optional
+
+
+class Work(NamedTuple):
+    """How a :func:`map_blocks` went: chunks (tasks), the seconds they computed in all (on
+    the workers: scheduling and transfer excluded), and the worker threads (1 here)."""
+
+    chunks: int
+    busy_seconds: float
+    slots: int
 
 
 def _need_distributed() -> Any:
@@ -261,9 +270,10 @@ def map_blocks(
     client: Client | str | None = None,
     chunk_seconds: float | None = None,
     on_chunk: Callable[[], None] | None = None,
-) -> None:
+) -> Work:
     """Call ``consume(j, fn(job, j))`` for every block ``0 ≤ j < blocks`` (in any order, as
-    chunks complete), then ``on_chunk()`` after each chunk (module docstring).
+    chunks complete), then ``on_chunk()`` after each chunk (module docstring); return how the
+    work went (:class:`Work`).
 
     ``fn`` must be importable on the workers (a module-level function of relmap). Ctrl-C (or
     any error) cancels every chunk still pending before it propagates.
@@ -280,7 +290,7 @@ def map_blocks(
         if c is not None and not isinstance(client, str):
             check_workers(c)
         ex: _Here | _OnCluster = _Here(fn, job) if c is None else _OnCluster(c, fn, job)
-        submitted, inflight, timed_blocks, timed_seconds = 0, 0, 0, 0.0
+        submitted, inflight, timed_blocks, timed_seconds, chunks = 0, 0, 0, 0.0, 0
         try:
             while submitted < blocks or inflight:
                 while submitted < blocks and inflight < ex.depth:
@@ -294,7 +304,7 @@ def map_blocks(
                     ex.submit(submitted, stop)
                     submitted, inflight = stop, inflight + 1
                 first, stop, out, seconds = ex.next_done()
-                inflight -= 1
+                inflight, chunks = inflight - 1, chunks + 1
                 timed_blocks, timed_seconds = timed_blocks + stop - first, timed_seconds + seconds
                 for j, result in zip(range(first, stop), out, strict=True):
                     consume(j, result)
@@ -306,3 +316,4 @@ def map_blocks(
         finally:
             if isinstance(ex, _OnCluster):
                 ex.close()
+        return Work(chunks, timed_seconds, ex.slots)

@@ -401,6 +401,7 @@ class Check(NamedTuple):
     agreement: Agreement
     seed: np.random.SeedSequence  #: the root of every block's stream (its entropy reproduces)
     blocks: int
+    work: Any = None  #: :class:`relmap.distributed.Work`: chunks, busy seconds, worker threads
 
 
 def root_seed(seed: SeedLike | np.random.SeedSequence) -> np.random.SeedSequence:
@@ -527,7 +528,7 @@ def run(
         if progress is not None:
             progress(state["done"], n)
 
-    distributed.map_blocks(
+    work = distributed.map_blocks(
         _run_block, job, blocks, consume, client=client, chunk_seconds=chunk_seconds,
         on_chunk=chunk_done,
     )  # fmt: skip
@@ -542,7 +543,8 @@ def run(
         estimate.mean,
         total,
     )
-    return Check(summary, _agreement(total, estimate.mean, estimate, probability), root, blocks)
+    agreement = _agreement(total, estimate.mean, estimate, probability)
+    return Check(summary, agreement, root, blocks, work)
 
 
 def _draw_operation(problem: tuple[Callable[..., FloatArray], tuple[AT | AT3, ...]],

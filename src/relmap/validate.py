@@ -123,7 +123,7 @@ class Validation(NamedTuple):
 
 #: Samples per block, by method: a block is the unit of the random streams and of the partial
 #: sums (chunks of blocks go to workers; see :func:`relmap.montecarlo.run`).
-BLOCK = {"reduce": 4096, "optimal": 8}
+BLOCK = {"reduce": 4096, "optimal": 4}
 
 
 class Plan(NamedTuple):
