@@ -147,26 +147,49 @@ class Plan(NamedTuple):
 
 
 class _Problem(NamedTuple):
-    """What a worker needs to re-estimate sampled maps (sent once per worker)."""
+    """What a worker needs to re-estimate sampled maps (sent once per worker): the ATs as two
+    stacked arrays, so the message is a few large buffers whatever the map's size."""
 
-    edges: tuple[tuple[str, Frame, Frame, AT | AT3], ...]
+    names: tuple[str, ...]
+    ends: tuple[tuple[Frame, Frame], ...]
+    means: np.ndarray  #: (E, *point) every AT's mean
+    covs: np.ndarray  #: (E, dof, dof)
+    kind: type  #: AT or AT3
     src: Frame
     dst: Frame
     method: str
+
+    @classmethod
+    def of(
+        cls, g: RelationalMap, names: tuple[str, ...], src: Frame, dst: Frame, method: str
+    ) -> _Problem:
+        edges = [g.edge(name) for name in names]
+        return cls(
+            names,
+            tuple((e.src, e.dst) for e in edges),
+            np.stack([e.at.mean for e in edges]),
+            np.stack([e.at.cov for e in edges]),
+            type(edges[0].at),
+            src,
+            dst,
+            method,
+        )
 
 
 def _draw(problem: _Problem, rng: np.random.Generator, m: int) -> np.ndarray:
     """``m`` sampled maps re-estimated: every AT drawn from its Gaussian (in map order, from
     ``rng``), then one batched reduction, or one optimal solve per sampled map."""
-    draws = [at.sample(m, rng) for _, _, _, at in problem.edges]
-    kind = type(problem.edges[0][3])
+    kind, covs = problem.kind, problem.covs
+    ats = [kind._trusted(mean, cov) for mean, cov in zip(problem.means, covs, strict=True)]
+    draws = [at.sample(m, rng) for at in ats]
     dof = kind.group.dof
+    edges = list(zip(problem.names, problem.ends, covs, draws, strict=True))
     if problem.method == "reduce":
         from relmap.network.reduce import reduce_network
 
         batched = [
-            (name, s, t, kind._trusted(d, np.broadcast_to(at.cov, (m, dof, dof))))
-            for (name, s, t, at), d in zip(problem.edges, draws, strict=True)
+            (name, s, t, kind._trusted(d, np.broadcast_to(cov, (m, dof, dof))))
+            for name, (s, t), cov, d in edges
         ]
         return reduce_network(batched, problem.src, problem.dst).at.mean
     from relmap.network.graph import RelationalMap
@@ -174,8 +197,8 @@ def _draw(problem: _Problem, rng: np.random.Generator, m: int) -> np.ndarray:
     out = np.empty((m, *kind.group.point_shape))
     for k in range(m):
         h = RelationalMap()
-        for (name, s, t, at), d in zip(problem.edges, draws, strict=True):
-            h.add(s, t, kind._trusted(d[k], at.cov), name=name)
+        for name, (s, t), cov, d in edges:
+            h.add(s, t, kind._trusted(d[k], cov), name=name)
         out[k] = h.query(problem.src, problem.dst, method="optimal").at.mean
     return out
 
@@ -219,8 +242,7 @@ def plan(
             f"{sum(len(b.names) for b in loops)} ATs on the way), where the reduction's merges "
             "and Delta-Y are approximations (one joint solve per sampled map)"
         )
-    edges = tuple((e.name, e.src, e.dst, e.at) for e in (g.edge(name) for name in names))
-    problem = _Problem(edges, src, dst, est.method)
+    problem = _Problem.of(g, names, src, dst, est.method)
     t1 = time.perf_counter()
     _draw(problem, np.random.default_rng(0), 1 if est.method == "optimal" else 256)  # a pilot
     pilot = time.perf_counter() - t1
