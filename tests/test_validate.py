@@ -126,3 +126,22 @@ def test_cli_json_and_text(tmp_path, capsys):
     assert "optimal" in text and "NEES" in text and "Mardia" in text
     assert main(["validate", str(path), "W", "nowhere"]) == 2
     assert "no frame" in capsys.readouterr().err
+
+
+def test_cli_says_the_method_why_and_how_long(tmp_path, capsys, monkeypatch):
+    path = tmp_path / "chain.yaml"
+    save_map(path, chain_map())
+    assert main(["validate", str(path), "W", "L2", "-n", "100"]) == 0
+    captured = capsys.readouterr()
+    assert "relmap validate: reduce (auto chose reduce: no loop" in captured.err
+    assert "samples in this process, about" in captured.err
+    assert "method: auto chose reduce" in captured.out
+
+    from relmap import validate
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(validate, "run", interrupted)
+    assert main(["validate", str(path), "W", "L2"]) == 130
+    assert "interrupted" in capsys.readouterr().err

@@ -59,40 +59,38 @@ def _validate(args: argparse.Namespace) -> int:
         raise ParameterError(f"--workers must be a positive integer; got {args.workers}")
     g = load_map(args.map)
     src, dst = _frame(g, args.src), _frame(g, args.dst)
-    p = validate.plan(g, src, dst, method=args.method, moments=args.moments)
-    with contextlib.ExitStack() as stack:
-        client, where, workers = None, "in this process", 1
-        if args.workers is not None or args.scheduler is not None:
-            from relmap import distributed
+    try:
+        with contextlib.ExitStack() as stack:
+            p = validate.plan(g, src, dst, method=args.method, moments=args.moments)
+            client, where, workers = None, "in this process", 1
+            if args.workers is not None or args.scheduler is not None:
+                from relmap import distributed
 
-            if args.scheduler is not None:
-                client = stack.enter_context(distributed.connect(args.scheduler))
-                where = f"on the Dask cluster at {args.scheduler}"
-            else:
-                client = stack.enter_context(distributed.local_client(args.workers))
-                where = f"on a local Dask cluster of {args.workers} processes"
-            workers = distributed.workers_of(client)
-        guess = p.expected_seconds(args.n, workers)
-        print(
-            f"relmap validate: {p.estimate.method} ({p.reason}); {args.n:,} samples {where}, "
-            f"about {_duration(guess)}",
-            file=sys.stderr,
-        )
-        bar = TerminalProgress(f"validating {args.src} → {args.dst}")
-        t0 = time.perf_counter()
+                if args.scheduler is not None:
+                    client = stack.enter_context(distributed.connect(args.scheduler))
+                    where = f"on the Dask cluster at {args.scheduler}"
+                else:
+                    client = stack.enter_context(distributed.local_client(args.workers))
+                    where = f"on a local Dask cluster of {args.workers} processes"
+                workers = distributed.workers_of(client)
+            guess = p.expected_seconds(args.n, workers)
+            print(
+                f"relmap validate: {p.estimate.method} ({p.reason}); {args.n:,} samples "
+                f"{where}, about {_duration(guess)}",
+                file=sys.stderr,
+            )
+            bar = TerminalProgress(f"validating {args.src} → {args.dst}")
+            stack.callback(bar.close)
+            t0 = time.perf_counter()
 
-        def show(k: int, n: int) -> None:
-            left = (time.perf_counter() - t0) * (n - k) / max(k, 1)
-            bar.update(f"{k:,}/{n:,} samples, about {_duration(left)} left", force=True)
+            def show(k: int, n: int) -> None:
+                left = (time.perf_counter() - t0) * (n - k) / max(k, 1)
+                bar.update(f"{k:,}/{n:,} samples, about {_duration(left)} left", force=True)
 
-        try:
             v = validate.run(p, n=args.n, seed=args.seed, progress=show, client=client)
-        except KeyboardInterrupt:
-            bar.close()
-            print("relmap: interrupted; the pending chunks were cancelled", file=sys.stderr)
-            return 130
-        finally:
-            bar.close()
+    except KeyboardInterrupt:
+        print("relmap: interrupted; the pending chunks were cancelled", file=sys.stderr)
+        return 130
     s = v.summary()
     if args.json:
         print(json.dumps(s))
