@@ -10,6 +10,7 @@ from __future__ import annotations
 __all__ = [
     "CovarianceError",
     "DisconnectedError",
+    "DuplicateNameError",
     "FileFormatError",
     "InconsistentMapError",
     "InconsistentMergeError",
@@ -17,6 +18,8 @@ __all__ = [
     "NonFiniteError",
     "NotPositiveSemidefiniteError",
     "NotSymmetricError",
+    "NumericalError",
+    "OutputError",
     "ParameterError",
     "RelmapError",
     "ShapeError",
@@ -24,6 +27,11 @@ __all__ = [
     "UnknownATError",
     "UnknownFrameError",
 ]
+
+
+def _shorten(path: str, limit: int = 160) -> str:
+    """A path as shown in a message: a very long one elided in the middle."""
+    return path if len(path) <= limit else f"{path[:100]}…{path[-40:]} ({len(path)} characters)"
 
 
 class RelmapError(Exception):
@@ -95,6 +103,30 @@ class InconsistentMapError(RelmapError, ValueError):
     """Exactly known ATs (zero variance) that contradict each other around a loop."""
 
 
+class DuplicateNameError(RelmapError, ValueError):
+    """A name (of an AT, a group) that is already taken."""
+
+
+class NumericalError(RelmapError, ArithmeticError):
+    """relmap's own arithmetic left the floating-point range (overflow to inf, or NaN) on valid
+    input: the message names the operation. Nothing non-finite is ever returned as a result."""
+
+
+class OutputError(RelmapError, OSError):
+    """An output (a file, a folder, a device) cannot be written; the message names it and why.
+
+    Raised before any work when the destination is checked
+    (:func:`relmap.io.atomic.check_writable`), and when writing fails.
+    """
+
+    def __init__(self, path: object, message: str) -> None:
+        self.path = str(path)
+        super().__init__(f"{_shorten(self.path)}: {message}")
+
+    def __str__(self) -> str:  # OSError would format its arguments
+        return str(self.args[0]) if self.args else ""
+
+
 class SolverError(RelmapError, RuntimeError):
     """The joint (optimal) estimate failed: no convergence, or an unconstrained direction."""
 
@@ -105,5 +137,6 @@ class FileFormatError(RelmapError, ValueError):
     def __init__(self, path: object, message: str, line: int | None = None) -> None:
         self.path = str(path)
         self.line = line
-        where = f"{self.path}:{line}" if line is not None else self.path
+        shown = _shorten(self.path)
+        where = f"{shown}:{line}" if line is not None else shown
         super().__init__(f"{where}: {message}")
