@@ -8,6 +8,7 @@ own subclass, so callers can catch exactly what they mean to handle. Messages na
 from __future__ import annotations
 
 __all__ = [
+    "ArgumentTypeError",
     "CovarianceError",
     "DisconnectedError",
     "DuplicateNameError",
@@ -16,6 +17,7 @@ __all__ = [
     "InconsistentMergeError",
     "IrreducibleNetworkError",
     "NonFiniteError",
+    "NotNumericError",
     "NotPositiveSemidefiniteError",
     "NotSymmetricError",
     "NumericalError",
@@ -40,6 +42,15 @@ class RelmapError(Exception):
 
 class ShapeError(RelmapError, ValueError):
     """An array has the wrong shape (e.g. a mean that is not ``(..., 3)``)."""
+
+
+class NotNumericError(RelmapError, TypeError):
+    """An input that should hold real numbers does not: text, a mapping, None, objects,
+    booleans or complex numbers."""
+
+
+class ArgumentTypeError(RelmapError, TypeError):
+    """An argument of the wrong kind (an integer where an AT is expected, ...)."""
 
 
 class NonFiniteError(RelmapError, ValueError):

@@ -52,7 +52,7 @@ def _resolve(path: str | os.PathLike[str]) -> Path:
 def _stat(target: Path) -> os.stat_result | None:
     try:
         return target.stat()
-    except FileNotFoundError:
+    except (FileNotFoundError, NotADirectoryError):  # (a file where a folder should be)
         return None
     except OSError as exc:
         raise OutputError(target, f"cannot write: {exc.strerror}") from None
@@ -86,9 +86,8 @@ def _check_name(path: str | os.PathLike[str]) -> None:
         limit = 255
     for part in Path(text).parts:
         if len(os.fsencode(part)) > limit:
-            short = part[:40] + "…"
             raise OutputError(
-                short, f"cannot write: file name too long ({len(part)} characters, at most {limit})"
+                path, f"cannot write: file name too long ({len(part)} characters, at most {limit})"
             )
 
 

@@ -33,9 +33,9 @@ def _read_bytes(path: Path) -> bytes:
         with open(path, "rb") as fh:
             return fh.read()
     except FileNotFoundError:
-        raise FileFormatError(path, "no such file") from None
+        raise FileFormatError(path, "cannot read: no such file") from None
     except IsADirectoryError:
-        raise FileFormatError(path, "is a directory, not a file") from None
+        raise FileFormatError(path, "cannot read: it is a directory, not a file") from None
     except OSError as exc:
         raise FileFormatError(path, f"cannot read: {exc.strerror or exc}") from None
     except ValueError as exc:  # a NUL byte in the name
