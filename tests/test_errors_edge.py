@@ -455,3 +455,16 @@ def test_plaza_empty_ground_truth(tmp_path):
     )
     with pytest.raises(FileFormatError, match=r"P_\.mat.*'GT'.*no rows"):
         read_plaza(folder)
+
+
+@pytest.mark.parametrize("variance", [1e200, 1e300])
+def test_decisions_with_a_huge_covariance_fail_cleanly(variance):
+    from relmap import decisions
+
+    a = rm.AT([1.0, 0.0, 0.0], variance * np.eye(3))
+    with pytest.raises(NumericalError, match="in_view"):
+        decisions.in_view(a, 0.5, 5.0)  # used to end in LinAlgError, or run out of memory
+    with pytest.raises(NumericalError, match="through_door"):
+        decisions.through_door(a, 1.0, 0.5)  # used to be "negative dimensions"
+    wide = rm.AT([1.0, 0.0, 0.0], np.diag([1e100, 1e100, 1e-2]))
+    assert decisions.through_door(wide, 1.0, 0.5).probability == pytest.approx(0.0, abs=1e-12)
