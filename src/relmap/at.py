@@ -16,6 +16,7 @@ ATs are immutable values: operations return new ATs. User input is validated onc
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator, Sequence
 from typing import Literal, overload
 
@@ -156,7 +157,7 @@ class AT:
         if (st < 0).any():
             raise ParameterError(f"sigma_theta must be non-negative; got {st.min()}")
         xy = gaussian.rotated_covariance(sigma_major, sigma_minor, angle)
-        cov = np.zeros((*np.broadcast_shapes(xy.shape[:-2], st.shape), 3, 3))
+        cov = np.zeros((*gaussian.broadcast("from_ellipse", xy.shape[:-2], st.shape), 3, 3))
         cov[..., :2, :2] = xy
         cov[..., 2, 2] = st * st
         return cls(mean, cov)
@@ -164,6 +165,7 @@ class AT:
     @classmethod
     def identity(cls, batch_shape: tuple[int, ...] = ()) -> AT:
         """The exactly known identity transformation."""
+        batch_shape = _batch_shape(batch_shape)
         return cls._trusted(se2.identity(batch_shape), np.zeros((*batch_shape, 3, 3)))
 
     @classmethod
@@ -366,9 +368,14 @@ def _check_types(ats: Sequence[object]) -> None:
 
 def _sequence_of(ats: object, what: str) -> list:  # type: ignore[type-arg]
     """``ats`` as a non-empty list (for the stack functions of AT and AT3)."""
-    if isinstance(ats, (str, bytes)) or not hasattr(ats, "__iter__"):
-        raise ArgumentTypeError(f"{what} needs a sequence of ATs; got a {type(ats).__name__}")
-    out = list(ats)  # type: ignore[call-overload]
+    try:
+        if isinstance(ats, (str, bytes, dict)):
+            raise TypeError
+        out = list(ats)  # type: ignore[call-overload]
+    except TypeError:
+        raise ArgumentTypeError(
+            f"{what} needs a sequence of ATs; got a {type(ats).__name__}"
+        ) from None
     if not out:
         raise ShapeError(f"{what} needs at least one AT")
     return out
@@ -385,6 +392,22 @@ def _stack_axis(ats: Sequence[AT] | Sequence[AT3], axis: object, what: str) -> i
     if not -ndim - 1 <= axis <= ndim:
         raise ShapeError(f"{what}: axis {axis} is out of range for {ndim + 1} batch axes")
     return int(axis) if axis >= 0 else int(axis) + ndim + 1
+
+
+def _batch_shape(shape: object) -> tuple[int, ...]:
+    """``shape`` as a batch shape (a tuple of non-negative integers), or a ShapeError."""
+    items = (shape,) if isinstance(shape, (int, np.integer)) else shape
+    if (
+        isinstance(items, (str, bytes))
+        or not isinstance(items, (tuple, list))
+        or not all(isinstance(n, (int, np.integer)) and not isinstance(n, bool) for n in items)
+        or any(n < 0 for n in items)
+    ):
+        raise ShapeError(f"batch_shape must be a tuple of non-negative integers; got {shape!r}")
+    out = tuple(int(n) for n in items)
+    if math.prod(out) * 52 * 8 > gaussian._MAX_SAMPLE_BYTES:  # a 4×4 mean and a 6×6 cov each
+        raise ShapeError(f"batch_shape {out} is too large to hold in memory")
+    return out
 
 
 def _broadcast_error(what: str, *shapes: tuple[int, ...]) -> ShapeError:

@@ -108,6 +108,7 @@ class AT3:
         atol: float = ROTATION_ATOL,
         rtol: float = DEFAULT_RTOL,
     ) -> None:
+        atol = gaussian.check_tolerance(atol, "atol")
         t = gaussian.real_array(translation, "translation")
         if t.ndim == 0 or t.shape[-1] != 3:
             raise ShapeError(f"translation must have shape (..., 3); got {t.shape}")
@@ -210,6 +211,9 @@ class AT3:
 
     @classmethod
     def identity(cls, batch_shape: tuple[int, ...] = ()) -> AT3:
+        from relmap.at import _batch_shape
+
+        batch_shape = _batch_shape(batch_shape)
         return cls._trusted(se3.identity(batch_shape), np.zeros((*batch_shape, 6, 6)))
 
     @classmethod

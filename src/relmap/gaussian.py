@@ -37,6 +37,7 @@ from relmap.typing import ArrayLike, FloatArray, SeedLike
 __all__ = [
     "DEFAULT_RTOL",
     "Ellipse",
+    "broadcast",
     "check_count",
     "check_finite",
     "check_probability",
@@ -89,6 +90,15 @@ def real_array(value: ArrayLike, name: str) -> FloatArray:
             what = "objects that are not real numbers (or integers too large for a float)"
         raise NotNumericError(f"{name} must be an array of real numbers; got {what}")
     return np.array(raw, dtype=np.float64)
+
+
+def broadcast(what: str, *shapes: tuple[int, ...]) -> tuple[int, ...]:
+    """``np.broadcast_shapes``, or a :class:`ShapeError` naming ``what`` and the shapes."""
+    try:
+        return np.broadcast_shapes(*shapes)
+    except ValueError:
+        shown = " and ".join(str(tuple(s)) for s in shapes)
+        raise ShapeError(f"{what}: shapes {shown} do not broadcast") from None
 
 
 def _kind_of(value: object) -> str:
@@ -496,7 +506,7 @@ def rotated_covariance(sigma_a: ArrayLike, sigma_b: ArrayLike, angle: ArrayLike)
     check_finite(t, "angle")
     c, s = np.cos(t), np.sin(t)
     a2, b2 = a * a, b * b
-    shape = np.broadcast_shapes(a.shape, b.shape, t.shape)
+    shape = broadcast("sigma_a, sigma_b and angle", a.shape, b.shape, t.shape)
     out = np.empty((*shape, 2, 2))
     out[..., 0, 0] = c * c * a2 + s * s * b2
     out[..., 1, 1] = s * s * a2 + c * c * b2

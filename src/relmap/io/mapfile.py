@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import sys
 from collections.abc import Hashable, Iterable
 from pathlib import Path
@@ -232,6 +233,10 @@ def _at(entry: dict[str, Any], scale: np.ndarray, scale3: np.ndarray) -> AT | AT
     return AT(mean)
 
 
+#: Decimal numbers that YAML 1.1 leaves as text (an exponent without a dot: ``9e-4``, ``1E3``).
+_YAML11_FLOAT = re.compile(r"[-+]?([0-9]+\.?[0-9]*|\.[0-9]+)[eE][-+]?[0-9]+")
+
+
 def _numbers(value: Any, shape: tuple[int, ...], what: str) -> np.ndarray:
     """``value`` (nested lists of int/float, never bool or text) as a float array of ``shape``."""
     flat: list[float] = []
@@ -240,6 +245,8 @@ def _numbers(value: Any, shape: tuple[int, ...], what: str) -> np.ndarray:
         item, depth = stack.pop()
         if isinstance(item, list) and depth < len(shape):
             stack.extend((v, depth + 1) for v in reversed(item))
+        elif isinstance(item, str) and depth == len(shape) and _YAML11_FLOAT.fullmatch(item):
+            flat.append(float(item))  # YAML 1.1 (PyYAML) reads 9e-4, 1e3 as text
         elif isinstance(item, (int, float)) and not isinstance(item, bool) and depth == len(shape):
             try:
                 flat.append(float(item))

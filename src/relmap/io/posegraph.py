@@ -375,7 +375,7 @@ def _parse(
 
 
 def _int(path: Path, tag: str, token: str, line: int) -> int:
-    if _INT.fullmatch(token) and -(2**63) <= int(token) < 2**63:
+    if _INT.fullmatch(token) and len(token) <= 20 and -(2**63) <= int(token) < 2**63:
         return int(token)
     raise FileFormatError(path, f"{tag}: vertex id {token!r} is not a (64-bit) integer", line=line)
 
