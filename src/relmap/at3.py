@@ -52,7 +52,10 @@ def _finite(what: str, *arrays: FloatArray) -> None:
     possible for inputs near the floating-point range (e.g. translations of 1e300 m, whose
     squares in the covariance overflow). The one check on the paths of relmap's results."""
     for arr in arrays:
-        if not np.isfinite(arr).all():
+        # a sum is the cheapest test (NaN and inf propagate through it); only when it is not
+        # finite are the entries tested, since a sum of huge finite entries can overflow too
+        total = sum(arr.ravel().tolist()) if arr.size <= 64 else np.add.reduce(arr, axis=None)
+        if not math.isfinite(total) and not np.isfinite(arr).all():
             raise NumericalError(
                 f"{what} overflowed the floating-point range (inputs too large): the result "
                 "would hold inf or NaN"
