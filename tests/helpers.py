@@ -32,3 +32,22 @@ def random_covs(
     """Random SPD covariances ``(*shape, n, n)`` with varied correlations."""
     L = rng.normal(scale=scale, size=(*shape, n, n))
     return L @ np.swapaxes(L, -1, -2) + 1e-4 * scale**2 * np.eye(n)
+
+
+def valid_cross_cov(
+    cov_a: np.ndarray, cov_b: np.ndarray, seed: int, batch: tuple[int, ...] | None = None
+) -> np.ndarray:
+    """A random cross-covariance ``E[δa δbᵀ] = L_a K L_bᵀ`` (``L Lᵀ = C``, ‖K‖₂ = 0.9) that
+    keeps the joint covariance ``[[C_a, X], [Xᵀ, C_b]]`` positive semi-definite, as relmap's
+    compound requires; ``batch`` (default: the covariances' broadcast batch shape)."""
+    n = cov_a.shape[-1]
+    if batch is None:
+        batch = np.broadcast_shapes(cov_a.shape[:-2], cov_b.shape[:-2])
+    K = np.random.default_rng(seed).normal(size=(*batch, n, n))
+    K *= 0.9 / np.linalg.norm(K, ord=2, axis=(-2, -1))[..., None, None]
+
+    def root(C: np.ndarray) -> np.ndarray:
+        lam, U = np.linalg.eigh(C)
+        return U * np.sqrt(np.clip(lam, 0.0, None))[..., None, :]
+
+    return root(cov_a) @ K @ np.swapaxes(root(cov_b), -1, -2)

@@ -14,7 +14,7 @@ from relmap import montecarlo
 from relmap.errors import CovarianceError, ParameterError, ShapeError
 from relmap.lie import se3, so3
 
-from .helpers import random_covs
+from .helpers import random_covs, valid_cross_cov
 
 
 def rng(seed: int) -> np.random.Generator:
@@ -352,7 +352,7 @@ def test_compound_and_reverse_fast_paths_match_the_textbook_form(shape_a, shape_
     a = _shaped(random_at3s(11, int(np.prod(shape_a))), shape_a)
     b = _shaped(random_at3s(12, int(np.prod(shape_b))), shape_b)
     _close(a @ b, *_reference_compound(a, b))
-    X = rng(13).normal(scale=0.01, size=(*np.broadcast_shapes(shape_a, shape_b), 6, 6))
+    X = valid_cross_cov(a.cov, b.cov, 13, np.broadcast_shapes(shape_a, shape_b))
     _close(rm.compound(a, b, cross_cov=X), *_reference_compound(a, b, X))
     _close(a.reverse(), *_reference_reverse(a))
 
@@ -361,7 +361,7 @@ def test_single_pair_equals_its_batch_of_one_and_chunks_do_not_matter(monkeypatc
     from relmap import at3
 
     a, b = random_at3s(21, 1000), random_at3s(22, 1000)
-    X = rng(23).normal(scale=0.01, size=(1000, 6, 6))
+    X = valid_cross_cov(a.cov, b.cov, 23)
     whole, crossed, rev = a @ b, rm.compound(a, b, cross_cov=X), a.reverse()
     for i in (0, 517, 999):  # one pair per call (the no-batch path) against the batch
         _close(a[i] @ b[i], whole.mean[i], whole.cov[i])

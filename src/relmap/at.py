@@ -16,6 +16,7 @@ ATs are immutable values: operations return new ATs. User input is validated onc
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator, Sequence
 from typing import Literal, overload
 
@@ -24,8 +25,8 @@ import numpy as np
 from relmap import gaussian
 from relmap import moments as _moments
 from relmap._layout import components_outermost, matrix, read_only, stack_last
-from relmap.at3 import AT3, compound3, compound_chain3, merge3, reverse3
-from relmap.errors import ParameterError, ShapeError
+from relmap.at3 import AT3, _finite, compound3, compound_chain3, merge3, reverse3
+from relmap.errors import ArgumentTypeError, ParameterError, ShapeError
 from relmap.gaussian import DEFAULT_RTOL, Ellipse
 from relmap.lie import SE2, se2
 from relmap.moments import MomentsMethod
@@ -69,13 +70,14 @@ class AT:
     def __init__(
         self, mean: ArrayLike, cov: ArrayLike | None = None, *, rtol: float = DEFAULT_RTOL
     ):
-        mean_arr = np.array(mean, dtype=np.float64)
+        mean_arr = gaussian.real_array(mean, "AT mean")
         if mean_arr.ndim == 0 or mean_arr.shape[-1] != 3:
             raise ShapeError(
                 f"AT mean must have shape (..., 3) holding (x, y, θ); got {mean_arr.shape}"
             )
         gaussian.check_finite(mean_arr, "AT mean")
         if cov is None:
+            gaussian.check_tolerance(rtol, "rtol")
             cov_arr = np.zeros((*mean_arr.shape[:-1], 3, 3))
         else:
             cov_arr = gaussian.validate_covariance(cov, dim=3, name="AT cov", rtol=rtol)
@@ -128,7 +130,7 @@ class AT:
     @classmethod
     def from_sigmas(cls, mean: ArrayLike, sigmas: ArrayLike) -> AT:
         """An AT with independent errors: standard deviations ``(σx, σy, σθ)``, ``(..., 3)``."""
-        s = np.asarray(sigmas, dtype=np.float64)
+        s = gaussian.real_array(sigmas, "sigmas")
         if s.ndim == 0 or s.shape[-1] != 3:
             raise ShapeError(f"sigmas must have shape (..., 3); got {s.shape}")
         gaussian.check_finite(s, "sigmas")
@@ -154,12 +156,12 @@ class AT:
         ``angle`` the direction of the major axis from the parent's x axis (radians);
         the heading error ``sigma_theta`` is independent of the position error.
         """
-        st = np.asarray(sigma_theta, dtype=np.float64)
+        st = gaussian.real_array(sigma_theta, "sigma_theta")
         gaussian.check_finite(st, "sigma_theta")
         if (st < 0).any():
             raise ParameterError(f"sigma_theta must be non-negative; got {st.min()}")
         xy = gaussian.rotated_covariance(sigma_major, sigma_minor, angle)
-        cov = np.zeros((*np.broadcast_shapes(xy.shape[:-2], st.shape), 3, 3))
+        cov = np.zeros((*gaussian.broadcast("from_ellipse", xy.shape[:-2], st.shape), 3, 3))
         cov[..., :2, :2] = xy
         cov[..., 2, 2] = st * st
         return cls(mean, cov)
@@ -167,6 +169,7 @@ class AT:
     @classmethod
     def identity(cls, batch_shape: tuple[int, ...] = ()) -> AT:
         """The exactly known identity transformation."""
+        batch_shape = _batch_shape(batch_shape)
         return cls._trusted(se2.identity(batch_shape), np.zeros((*batch_shape, 3, 3)))
 
     @classmethod
@@ -177,7 +180,10 @@ class AT:
         ``Σ = M Σ_body Mᵀ`` with ``M = blkdiag(R(θ), 1)`` (:func:`relmap.lie.se2.body_to_chart`).
         """
         checked = gaussian.validate_covariance(cov_body, dim=3, name="body cov", rtol=rtol)
-        mean_arr = np.asarray(mean, dtype=np.float64)
+        mean_arr = gaussian.real_array(mean, "AT mean")
+        if mean_arr.ndim == 0 or mean_arr.shape[-1] != 3:
+            raise ShapeError(f"AT mean must have shape (..., 3); got {mean_arr.shape}")
+        gaussian.check_finite(mean_arr, "AT mean")
         M = se2.body_to_chart(mean_arr)
         return cls(mean_arr, M @ checked @ np.swapaxes(M, -1, -2), rtol=rtol)
 
@@ -188,7 +194,7 @@ class AT:
         ``cov6`` is ``(..., 6, 6)`` or ``(..., 36)`` (the message's row-major array) on
         ``(x, y, z, rot_x, rot_y, rot_z)``; the planar rows/columns ``(0, 1, 5)`` are kept.
         """
-        c6 = np.asarray(cov6, dtype=np.float64)
+        c6 = gaussian.real_array(cov6, "ROS covariance")
         if c6.shape[-1:] == (36,):
             c6 = c6.reshape(*c6.shape[:-1], 6, 6)
         if c6.shape[-2:] != (6, 6):
@@ -201,10 +207,9 @@ class AT:
     @classmethod
     def stack(cls, ats: Sequence[AT], axis: int = 0) -> AT:
         """Stack ATs of equal batch shape along a new batch axis (like ``np.stack``)."""
-        if not ats:
-            raise ShapeError("AT.stack needs at least one AT")
+        ats = _sequence_of(ats, "AT.stack")
         _check_types(ats)
-        ax = axis if axis >= 0 else axis + ats[0].ndim + 1
+        ax = _stack_axis(ats, axis, "AT.stack")
         return cls._trusted(
             np.stack([a.mean for a in ats], axis=ax), np.stack([a.cov for a in ats], axis=ax)
         )
@@ -280,11 +285,11 @@ class AT:
 
     def ellipse(self, probability: float = 0.90) -> Ellipse:
         """Confidence ellipse of the ``(x, y)`` marginal, in the parent frame (Appendix A)."""
-        return gaussian.ellipse(self._mean[..., :2], self._cov[..., :2, :2], probability)
+        return gaussian._ellipse(self._mean[..., :2], self._cov[..., :2, :2], probability)
 
     def sample(self, n: int, seed: SeedLike = None) -> FloatArray:
         """``n`` draws of the pose from ``N(mean, cov)`` in the chart, ``(n, ..., 3)``."""
-        delta = gaussian.sample(np.zeros(3), self._cov, n, seed)
+        delta = gaussian._sample(np.zeros(3), self._cov, n, seed)
         return se2.plus(self._mean, delta)
 
     def to_body(self) -> FloatArray:
@@ -362,7 +367,56 @@ def _sym(e: Entries) -> FloatArray:
 def _check_types(ats: Sequence[object]) -> None:
     for i, a in enumerate(ats):
         if not isinstance(a, AT):
-            raise TypeError(f"argument {i} is a {type(a).__name__}, not an AT")
+            raise ArgumentTypeError(f"argument {i} is a {type(a).__name__}, not an AT")
+
+
+def _sequence_of(ats: object, what: str) -> list:  # type: ignore[type-arg]
+    """``ats`` as a non-empty list (for the stack functions of AT and AT3)."""
+    try:
+        if isinstance(ats, (str, bytes, dict)):
+            raise TypeError
+        out = list(ats)  # type: ignore[call-overload]
+    except TypeError:
+        raise ArgumentTypeError(
+            f"{what} needs a sequence of ATs; got a {type(ats).__name__}"
+        ) from None
+    if not out:
+        raise ShapeError(f"{what} needs at least one AT")
+    return out
+
+
+def _stack_axis(ats: Sequence[AT] | Sequence[AT3], axis: object, what: str) -> int:
+    """The new axis of a stack of ATs of equal batch shape (checked), as a non-negative int."""
+    shapes = {a.batch_shape for a in ats}
+    if len(shapes) > 1:
+        raise ShapeError(f"{what} needs ATs of one batch shape; got {sorted(shapes)}")
+    ndim = ats[0].ndim
+    if isinstance(axis, bool) or not isinstance(axis, (int, np.integer)):
+        raise ParameterError(f"{what}: axis must be an integer; got {axis!r}")
+    if not -ndim - 1 <= axis <= ndim:
+        raise ShapeError(f"{what}: axis {axis} is out of range for {ndim + 1} batch axes")
+    return int(axis) if axis >= 0 else int(axis) + ndim + 1
+
+
+def _batch_shape(shape: object) -> tuple[int, ...]:
+    """``shape`` as a batch shape (a tuple of non-negative integers), or a ShapeError."""
+    items = (shape,) if isinstance(shape, (int, np.integer)) else shape
+    if (
+        isinstance(items, (str, bytes))
+        or not isinstance(items, (tuple, list))
+        or not all(isinstance(n, (int, np.integer)) and not isinstance(n, bool) for n in items)
+        or any(n < 0 for n in items)
+    ):
+        raise ShapeError(f"batch_shape must be a tuple of non-negative integers; got {shape!r}")
+    out = tuple(int(n) for n in items)
+    if math.prod(out) * 52 * 8 > gaussian._MAX_SAMPLE_BYTES:  # a 4×4 mean and a 6×6 cov each
+        raise ShapeError(f"batch_shape {out} is too large to hold in memory")
+    return out
+
+
+def _broadcast_error(what: str, *shapes: tuple[int, ...]) -> ShapeError:
+    shown = " and ".join(str(s) for s in shapes)
+    return ShapeError(f"{what}: batch shapes {shown} do not broadcast")
 
 
 # ------------------------------------------------------------------------ operations
@@ -389,16 +443,39 @@ def compound(
     if isinstance(a, AT3) or isinstance(b, AT3):
         return compound3(a, b, cross_cov=cross_cov)  # type: ignore[arg-type,return-value]
     _check_types((a, b))
-    mean, cov = _compound_arrays(a.mean, a.cov, b.mean, b.cov)
+    try:
+        mean, cov = _compound_arrays(a.mean, a.cov, b.mean, b.cov)
+    except ValueError:
+        raise _broadcast_error("compound", a.batch_shape, b.batch_shape) from None
     if cross_cov is not None:
-        X = np.asarray(cross_cov, dtype=np.float64)
-        if X.shape[-2:] != (3, 3):
-            raise ShapeError(f"cross_cov must have shape (..., 3, 3); got {X.shape}")
-        gaussian.check_finite(X, "cross_cov")
+        X = _cross_cov(a.cov, b.cov, cross_cov, 3)
         _, H, K = se2.compose(a.mean, b.mean, jacobians=True)
         HXK = H @ X @ np.swapaxes(K, -1, -2)
         cov = cov + HXK + np.swapaxes(HXK, -1, -2)
+    _finite("compound", mean, cov)
     return AT._trusted(mean, cov)
+
+
+def _cross_cov(Ca: FloatArray, Cb: FloatArray, cross_cov: ArrayLike, n: int) -> FloatArray:
+    """``cross_cov`` checked: shape ``(..., n, n)``, finite, and the joint covariance
+    ``[[C_a, C_ab], [C_abᵀ, C_b]]`` positive semi-definite (else the compound's variances could
+    come out negative)."""
+    X = gaussian.real_array(cross_cov, "cross_cov")
+    if X.shape[-2:] != (n, n):
+        raise ShapeError(f"cross_cov must have shape (..., {n}, {n}); got {X.shape}")
+    gaussian.check_finite(X, "cross_cov")
+    try:
+        batch = np.broadcast_shapes(Ca.shape[:-2], Cb.shape[:-2], X.shape[:-2])
+    except ValueError:
+        raise _broadcast_error("cross_cov", Ca.shape[:-2], Cb.shape[:-2], X.shape[:-2]) from None
+    joint = np.empty((*batch, 2 * n, 2 * n))
+    joint[..., :n, :n], joint[..., n:, n:] = Ca, Cb
+    joint[..., :n, n:] = X
+    joint[..., n:, :n] = np.swapaxes(X, -1, -2)
+    gaussian.validate_covariance(
+        joint, name="the joint covariance [[C_a, cross_cov], [cross_covᵀ, C_b]]"
+    )
+    return X
 
 
 def _compound_beyond_first_order(a: AT, b: AT, cross_cov: ArrayLike | None, method: str) -> AT:
@@ -406,12 +483,10 @@ def _compound_beyond_first_order(a: AT, b: AT, cross_cov: ArrayLike | None, meth
     if isinstance(a, AT3) or isinstance(b, AT3):
         raise ParameterError(f"moments={method!r} is available for SE(2) ATs only")
     _check_types((a, b))
-    X = None
-    if cross_cov is not None:
-        X = np.asarray(cross_cov, dtype=np.float64)
-        gaussian.check_finite(X, "cross_cov")
+    X = None if cross_cov is None else _cross_cov(a.cov, b.cov, cross_cov, 3)
     f = _moments.compound_moments if method == "exact" else _moments.unscented_compound
     mean, cov = f(a.mean, a.cov, b.mean, b.cov, cross_cov=X)
+    _finite(f"compound (moments={method!r})", mean, cov)
     return AT._trusted(mean, cov)
 
 
@@ -443,6 +518,7 @@ def reverse(a: AT, *, jacobian: bool = False) -> AT | tuple[AT, FloatArray]:
     # R = H(x', y') · blkdiag(-R(θ)ᵀ, -1): the signs cancel in the sandwich.
     t = a.mean[..., 2]
     cov = _sym(_shear(_rotate(_entries(a.cov), np.cos(t), -np.sin(t)), inv[..., 0], inv[..., 1]))
+    _finite("reverse", inv, cov)
     out = AT._trusted(inv, cov)
     if jacobian:
         return out, se2.inverse(a.mean, jacobians=True)[1]
@@ -463,12 +539,15 @@ def merge(*ats: AT, atol: float = 1e-9) -> AT:
     """
     if not ats:
         raise ShapeError("merge needs at least one AT")
+    atol = gaussian.check_tolerance(atol, "atol")
     if isinstance(ats[0], AT3):
         return merge3(*ats, atol=atol)  # type: ignore[arg-type,return-value]
     _check_types(ats)
     result = ats[0]
     for k, b in enumerate(ats[1:], start=1):
         result = _merge_pair(result, b, atol, k)
+    if len(ats) > 1:
+        _finite("merge", result.mean, result.cov)
     return result
 
 
@@ -518,14 +597,24 @@ def compound_chain(steps: AT, *, axis: int = -1, moments: MomentsMethod = "first
     _check_types((steps,))
     if steps.ndim == 0:
         raise ShapeError("compound_chain needs an AT with at least one batch axis (the chain)")
+    if isinstance(axis, bool) or not isinstance(axis, (int, np.integer)):
+        raise ParameterError(f"axis must be an integer; got {axis!r}")
     if not -steps.ndim <= axis < steps.ndim:
         raise ShapeError(f"axis {axis} is out of range for batch shape {steps.batch_shape}")
+    if steps.batch_shape[axis] == 0:
+        raise ShapeError(
+            f"compound_chain needs at least one step along axis {axis}; batch shape "
+            f"{steps.batch_shape} has none"
+        )
     if moments != "first_order":
         _moments.check_method(moments)
         f = _moments.chain_moments if moments == "exact" else _moments.unscented_chain
-        return AT._trusted(*f(steps.mean, steps.cov, axis=axis))
+        mean, cov = f(steps.mean, steps.cov, axis=axis)
+        _finite(f"compound_chain (moments={moments!r})", mean, cov)
+        return AT._trusted(mean, cov)
     axis %= steps.ndim  # the same index in mean (..., 3) and cov (..., 3, 3)
     mean, cov = _scan(np.moveaxis(steps.mean, axis, 0), np.moveaxis(steps.cov, axis, 0))
+    _finite("compound_chain", mean, cov)
     return AT._trusted(np.moveaxis(mean, 0, axis), np.moveaxis(cov, 0, axis))
 
 

@@ -38,7 +38,7 @@ import numpy as np
 
 from relmap import _numba, gaussian
 from relmap._layout import components_outermost, read_only
-from relmap.errors import ParameterError, ShapeError
+from relmap.errors import ArgumentTypeError, NumericalError, ParameterError, ShapeError
 from relmap.gaussian import DEFAULT_RTOL
 from relmap.lie import SE3, se3, so3
 from relmap.lie.so3 import ROTATION_ATOL
@@ -47,9 +47,24 @@ from relmap.typing import ArrayLike, FloatArray, SeedLike
 __all__ = ["AT3", "compound3", "compound_chain3", "ellipsoid", "merge3", "reverse3"]
 
 
+def _finite(what: str, *arrays: FloatArray) -> None:
+    """Raise :class:`NumericalError` if relmap's own arithmetic overflowed (inf or NaN): only
+    possible for inputs near the floating-point range (e.g. translations of 1e300 m, whose
+    squares in the covariance overflow). The one check on the paths of relmap's results."""
+    for arr in arrays:
+        # a sum is the cheapest test (NaN and inf propagate through it); only when it is not
+        # finite are the entries tested, since a sum of huge finite entries can overflow too
+        total = sum(arr.ravel().tolist()) if arr.size <= 64 else np.add.reduce(arr, axis=None)
+        if not math.isfinite(total) and not np.isfinite(arr).all():
+            raise NumericalError(
+                f"{what} overflowed the floating-point range (inputs too large): the result "
+                "would hold inf or NaN"
+            )
+
+
 def _rotation(rotation: ArrayLike, *, atol: float) -> FloatArray:
     """Rotation matrices from quaternions (..., 4) or matrices (..., 3, 3), checked."""
-    r = np.asarray(rotation, dtype=np.float64)
+    r = gaussian.real_array(rotation, "rotation")
     gaussian.check_finite(r, "rotation")
     if r.shape[-1:] == (4,):
         return so3.from_quaternion(r, atol=atol)
@@ -96,7 +111,8 @@ class AT3:
         atol: float = ROTATION_ATOL,
         rtol: float = DEFAULT_RTOL,
     ) -> None:
-        t = np.asarray(translation, dtype=np.float64)
+        atol = gaussian.check_tolerance(atol, "atol")
+        t = gaussian.real_array(translation, "translation")
         if t.ndim == 0 or t.shape[-1] != 3:
             raise ShapeError(f"translation must have shape (..., 3); got {t.shape}")
         gaussian.check_finite(t, "translation")
@@ -156,7 +172,7 @@ class AT3:
         cls, T: ArrayLike, cov: ArrayLike | None = None, *, atol: float = ROTATION_ATOL
     ) -> AT3:
         """From homogeneous matrices (..., 4, 4)."""
-        T = np.asarray(T, dtype=np.float64)
+        T = gaussian.real_array(T, "T")
         if T.shape[-2:] != (4, 4):
             raise ShapeError(f"T must have shape (..., 4, 4); got {T.shape}")
         return cls(T[..., :3, 3], T[..., :3, :3], cov, atol=atol)
@@ -166,7 +182,7 @@ class AT3:
         cls, v: ArrayLike, cov: ArrayLike | None = None, *, atol: float = ROTATION_ATOL
     ) -> AT3:
         """From ``[x, y, z, qx, qy, qz, qw]`` (..., 7) (g2o, ROS, SciPy order)."""
-        v = np.asarray(v, dtype=np.float64)
+        v = gaussian.real_array(v, "pose vectors")
         if v.shape[-1:] != (7,):
             raise ShapeError(f"pose vectors must have shape (..., 7); got {v.shape}")
         return cls(v[..., :3], v[..., 3:], cov, atol=atol)
@@ -174,9 +190,10 @@ class AT3:
     @classmethod
     def from_sigmas(cls, translation: ArrayLike, rotation: ArrayLike, sigmas: ArrayLike) -> AT3:
         """Independent errors ``(σx, σy, σz, σφx, σφy, σφz)`` (..., 6)."""
-        s = np.asarray(sigmas, dtype=np.float64)
+        s = gaussian.real_array(sigmas, "sigmas")
         if s.shape[-1:] != (6,):
             raise ShapeError(f"sigmas must have shape (..., 6); got {s.shape}")
+        gaussian.check_finite(s, "sigmas")
         if (s < 0).any():
             raise ParameterError(f"standard deviations must be non-negative; got {s.min()}")
         cov = np.zeros((*s.shape, 6))
@@ -190,7 +207,7 @@ class AT3:
         from relmap.at import AT
 
         if not isinstance(at, AT):
-            raise TypeError(f"expected an AT, got {type(at).__name__}")
+            raise ArgumentTypeError(f"expected an AT, got {type(at).__name__}")
         x, y, th = at.mean[..., 0], at.mean[..., 1], at.mean[..., 2]
         t = np.stack([x, y, np.zeros_like(x)], axis=-1)
         R = so3.exp(np.stack([np.zeros_like(th), np.zeros_like(th), th], axis=-1))
@@ -201,6 +218,9 @@ class AT3:
 
     @classmethod
     def identity(cls, batch_shape: tuple[int, ...] = ()) -> AT3:
+        from relmap.at import _batch_shape
+
+        batch_shape = _batch_shape(batch_shape)
         return cls._trusted(se3.identity(batch_shape), np.zeros((*batch_shape, 6, 6)))
 
     @classmethod
@@ -209,9 +229,10 @@ class AT3:
         a covariance on those six numbers, mapped to relmap's chart by the first-order
         Jacobian. At pitch = ±90° the Euler covariance cannot describe every rotation error: the
         mapping is then singular, and this says so."""
-        v = np.asarray(xyz_rpy, dtype=np.float64)
+        v = gaussian.real_array(xyz_rpy, "(x, y, z, roll, pitch, yaw)")
         if v.shape[-1:] != (6,):
             raise ShapeError(f"(x, y, z, roll, pitch, yaw) must have shape (..., 6); got {v.shape}")
+        gaussian.check_finite(v, "(x, y, z, roll, pitch, yaw)")
         R = so3.from_euler(v[..., 3:])
         if cov is None:
             return cls._trusted(se3.from_parts(v[..., :3], R), np.zeros((*v.shape[:-1], 6, 6)))
@@ -223,9 +244,13 @@ class AT3:
 
     @classmethod
     def stack(cls, ats: Sequence[AT3], axis: int = 0) -> AT3:
-        if not ats:
-            raise ShapeError("AT3.stack needs at least one AT3")
-        ax = axis if axis >= 0 else axis + ats[0].ndim + 1
+        from relmap.at import _sequence_of, _stack_axis
+
+        ats = _sequence_of(ats, "AT3.stack")
+        for i, x in enumerate(ats):
+            if not isinstance(x, AT3):
+                raise ArgumentTypeError(f"AT3.stack: item {i} is a {type(x).__name__}, not an AT3")
+        ax = _stack_axis(ats, axis, "AT3.stack")
         return cls._trusted(
             np.stack([a._mean for a in ats], ax), np.stack([a._cov for a in ats], ax)
         )
@@ -305,7 +330,7 @@ class AT3:
 
     def sample(self, n: int, seed: SeedLike = None) -> FloatArray:
         """``n`` pose draws (n, ..., 4, 4) from ``N(mean, cov)`` in the chart."""
-        delta = gaussian.sample(np.zeros(6), self._cov, n, seed)
+        delta = gaussian._sample(np.zeros(6), self._cov, n, seed)
         return se3.plus(self._mean, delta)
 
     def ellipsoid(self, probability: float = 0.9) -> tuple[FloatArray, FloatArray]:
@@ -339,7 +364,7 @@ class AT3:
     def from_body(cls, T: ArrayLike, cov_body: ArrayLike, *, rtol: float = DEFAULT_RTOL) -> AT3:
         """From homogeneous poses (..., 4, 4) and covariances in GTSAM's Pose3 convention
         (body frame, rotation first; see :meth:`to_body`)."""
-        T = np.asarray(T, dtype=np.float64)
+        T = gaussian.real_array(T, "T")
         if T.shape[-2:] != (4, 4):
             raise ShapeError(f"T must have shape (..., 4, 4); got {T.shape}")
         C = gaussian.validate_covariance(cov_body, dim=6, name="body cov", rtol=rtol)
@@ -658,16 +683,17 @@ def compound3(a: AT3, b: AT3, *, cross_cov: ArrayLike | None = None) -> AT3:
     enabled, else the numpy ones (module docstring)."""
     for i, x in enumerate((a, b)):
         if not isinstance(x, AT3):
-            raise TypeError(f"argument {i} is a {type(x).__name__}, not an AT3")
+            raise ArgumentTypeError(f"argument {i} is a {type(x).__name__}, not an AT3")
     X = None
     if cross_cov is not None:
-        X = np.asarray(cross_cov, dtype=np.float64)
-        if X.shape[-2:] != (6, 6):
-            raise ShapeError(f"cross_cov must have shape (..., 6, 6); got {X.shape}")
-        gaussian.check_finite(X, "cross_cov")
+        from relmap.at import _cross_cov
+
+        X = _cross_cov(a._cov, b._cov, cross_cov, 6)
     Ta, Tb = a._mean, b._mean
     if Ta.ndim == 2 and Tb.ndim == 2 and (X is None or X.ndim == 2):
-        return _compound_one(Ta, a._cov, Tb, b._cov, X)
+        out = _compound_one(Ta, a._cov, Tb, b._cov, X)
+        _finite("compound", out._mean, out._cov)
+        return out
     batch = Ta.shape[:-2]
     try:
         if Tb.shape[:-2] != batch:
@@ -676,8 +702,10 @@ def compound3(a: AT3, b: AT3, *, cross_cov: ArrayLike | None = None) -> AT3:
             batch = np.broadcast_shapes(batch, X.shape[:-2])
     except ValueError:
         shapes = [a.batch_shape, b.batch_shape] + ([] if X is None else [X.shape[:-2]])
-        raise ShapeError(f"batch shapes {shapes} do not broadcast") from None
-    return _compound_batched(a, b, X, batch)
+        raise ShapeError(f"compound: batch shapes {shapes} do not broadcast") from None
+    out = _compound_batched(a, b, X, batch)
+    _finite("compound", out._mean, out._cov)
+    return out
 
 
 _SCAN_BELOW = 32  # chains: fewer than this are scanned one at a time (lanes would go unused)
@@ -697,14 +725,19 @@ def compound_chain3(steps: AT3, *, axis: int = -1) -> AT3:
     batched :func:`compound3` per step along ``axis``.
     """
     if not isinstance(steps, AT3):
-        raise TypeError(f"expected an AT3, got {type(steps).__name__}")
+        raise ArgumentTypeError(f"expected an AT3, got {type(steps).__name__}")
     if steps.ndim == 0:
         raise ShapeError("compound_chain3 needs an AT3 with at least one batch axis (the chain)")
     if not -steps.ndim <= axis < steps.ndim:
         raise ShapeError(f"axis {axis} is out of range for batch shape {steps.batch_shape}")
     axis %= steps.ndim
     batch = steps.batch_shape
-    if 0 in batch:  # no elements: no prefixes either
+    if batch[axis] == 0:
+        raise ShapeError(
+            f"compound_chain needs at least one step along axis {axis}; batch shape {batch} "
+            "has none"
+        )
+    if 0 in batch:  # no chains: no prefixes either
         return steps
     kernels = _kernels(math.prod(batch))
     if kernels is None:
@@ -726,6 +759,7 @@ def compound_chain3(steps: AT3, *, axis: int = -1) -> AT3:
     chain = kernels.compound_chain if M >= _SCAN_BELOW else kernels.compound_chain_scan
     To, Co = chain(*planes)
     T, C = (np.moveaxis(_logical(p.reshape(*p.shape[:2], -1), moved), 0, axis) for p in (To, Co))
+    _finite("compound_chain", T, C)
     return AT3._trusted(T, C)
 
 
@@ -738,8 +772,9 @@ def reverse3(a: AT3, *, jacobian: bool = False) -> AT3 | tuple[AT3, FloatArray]:
     ``jacobian=True``; A's cross-covariance with its reversal is then ``C Jᵀ``). Runs the numba
     kernels when enabled, else the numpy ones (module docstring); the Jacobian is numpy's."""
     if not isinstance(a, AT3):
-        raise TypeError(f"expected an AT3, got {type(a).__name__}")
+        raise ArgumentTypeError(f"expected an AT3, got {type(a).__name__}")
     out = _reverse_one(a._mean, a._cov) if a._mean.ndim == 2 else _reverse_batched(a)
+    _finite("reverse", out._mean, out._cov)
     if jacobian:
         return out, se3.inverse(a._mean, jacobians=True)[1]
     return out
@@ -761,9 +796,15 @@ def merge3(*ats: AT3, atol: float = 1e-9, max_iterations: int = 50) -> AT3:
         raise ShapeError("merge3 needs at least one AT3")
     for i, x in enumerate(ats):
         if not isinstance(x, AT3):
-            raise TypeError(f"argument {i} is a {type(x).__name__}, not an AT3")
+            raise ArgumentTypeError(f"argument {i} is a {type(x).__name__}, not an AT3")
+    atol = gaussian.check_tolerance(atol, "atol")
     if len(ats) == 1:
         return ats[0]
+    try:
+        np.broadcast_shapes(*(x.batch_shape for x in ats))
+    except ValueError:
+        shapes = " and ".join(str(x.batch_shape) for x in ats)
+        raise ShapeError(f"merge: batch shapes {shapes} do not broadcast") from None
     # the gains depend on the covariances only: compute them once
     gains, C = [], ats[0]._cov
     for b in ats[1:]:
@@ -789,4 +830,5 @@ def merge3(*ats: AT3, atol: float = 1e-9, max_iterations: int = 50) -> AT3:
             and np.abs(d[..., 3:]).max(initial=0.0) <= 1e-13
         ):
             break
+    _finite("merge", X, C)
     return AT3._trusted(X, C)

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, NoReturn
 
 from relmap import _numba
 from relmap.errors import RelmapError
@@ -352,15 +352,72 @@ def _localize(args: argparse.Namespace) -> int:
     return 0
 
 
+# ------------------------------------------------------------------ shared machinery
+class _Parser(argparse.ArgumentParser):
+    """argparse with relmap's error style: one line ``relmap <command>: error: …``, exit 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _int_in(lo: int, hi: int | None = None, what: str = "an integer") -> Callable[[str], int]:
+    """An argparse type: an integer in ``[lo, hi]`` (no upper bound if ``hi`` is None)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text.strip())
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text[:40]!r}") from None
+        if value < lo or (hi is not None and value > hi):
+            span = f"at least {lo:,}" if hi is None else f"between {lo:,} and {hi:,}"
+            shown = f"{value:,}" if len(text) < 40 else f"a {len(text.strip())}-digit number"
+            raise argparse.ArgumentTypeError(f"must be {span}; got {shown}")
+        return value
+
+    parse.__name__ = what  # argparse names the type in some messages
+    return parse
+
+
+#: Seeds of numpy's generators: non-negative integers (SeedSequence refuses negative ones).
+_seed = _int_in(0, 2**128 - 1, "a seed (a non-negative integer)")
+#: Monte Carlo sample counts: large enough to mean something, small enough to fit in memory.
+MAX_SAMPLES = 10_000_000
+
+
+def _output_file(text: str) -> str:
+    """An argparse type: a file that can be written (checked before any work)."""
+    from relmap.io.atomic import check_writable
+
+    try:
+        check_writable(text)
+    except RelmapError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
+def _output_folder(text: str) -> str:
+    """An argparse type: a folder that can be made or written into (checked before any work)."""
+    from relmap.io.atomic import check_writable_folder
+
+    try:
+        check_writable_folder(text)
+    except RelmapError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``relmap`` command."""
     from relmap import __version__
 
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="relmap",
         description="Spatial uncertainty for robotics (Smith & Cheeseman 1986, and beyond).",
     )
     parser.add_argument("--version", action="version", version=f"relmap {__version__}")
+    parser.add_argument(
+        "--debug", action="store_true", help="on an error, print the full traceback too"
+    )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     demo = sub.add_parser(
         "demo",
@@ -370,11 +427,12 @@ def build_parser() -> argparse.ArgumentParser:
         "with its figures beside it.",
     )
     demo.add_argument(
-        "--seed", type=int, default=0, help="seed of the Monte Carlo checks (default 0)"
+        "--seed", type=_seed, default=0, help="seed of the Monte Carlo checks (default 0)"
     )
     demo.add_argument(
         "--out",
         metavar="DIR",
+        type=_output_folder,
         default="relmap-report",
         help="folder of the report (default relmap-report/ in the current folder)",
     )
@@ -385,7 +443,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     demo.add_argument(
         "--samples",
-        type=int,
+        type=_int_in(100, MAX_SAMPLES),
         default=100_000,
         metavar="N",
         help="Monte Carlo samples of Fig. 1 and §6.3 (default 100000)",
@@ -406,8 +464,13 @@ def build_parser() -> argparse.ArgumentParser:
     val.add_argument("map", metavar="MAP", help="map file (JSON/YAML) or pose graph")
     val.add_argument("src", metavar="FROM", help="source frame")
     val.add_argument("dst", metavar="TO", help="destination frame")
-    val.add_argument("-n", type=int, default=10_000, help="number of samples (default 10000)")
-    val.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    val.add_argument(
+        "-n",
+        type=_int_in(2, MAX_SAMPLES),
+        default=10_000,
+        help="number of samples (default 10000)",
+    )
+    val.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
     val.add_argument("--method", choices=("auto", "reduce", "optimal"), default="auto")
     val.add_argument(
         "--moments",
@@ -463,10 +526,11 @@ def build_parser() -> argparse.ArgumentParser:
     solve.add_argument(
         "--out",
         metavar="FILE",
+        type=_output_file,
         help="write the graph back, vertices at the optimum (legacy EDGE3 graphs as 3-D g2o)",
     )
     solve.add_argument("--json", action="store_true", help="print a JSON summary")
-    solve.add_argument("--max-iterations", type=int, default=100)
+    solve.add_argument("--max-iterations", type=_int_in(1, 1_000_000), default=100)
     solve.set_defaults(run=_solve)
 
     loc = sub.add_parser(
@@ -478,7 +542,9 @@ def build_parser() -> argparse.ArgumentParser:
         "on (MRCLAM: the next robot; Plaza: the first half, scored on the second).",
     )
     loc.add_argument("dataset", metavar="DATASET", help="MRCLAM or CMU Plaza dataset folder")
-    loc.add_argument("--robot", type=int, metavar="N", help="MRCLAM robot 1-5 (default 1)")
+    loc.add_argument(
+        "--robot", type=_int_in(1, 5), metavar="N", help="MRCLAM robot 1-5 (default 1)"
+    )
     loc.add_argument(
         "--associate",
         choices=("signatures", "mahalanobis", "euclidean"),
@@ -488,20 +554,79 @@ def build_parser() -> argparse.ArgumentParser:
     )
     loc.add_argument("--json", action="store_true", help="print one JSON object")
     loc.add_argument(
-        "--plot", metavar="FILE", help="write a PNG of truth, estimate and dead reckoning"
+        "--plot",
+        metavar="FILE",
+        type=_output_file,
+        help="write a PNG of truth, estimate and dead reckoning",
     )
     loc.set_defaults(run=_localize)
+    for command in sub.choices.values():  # --debug after the command too
+        command.add_argument(
+            "--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS
+        )
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``relmap`` console script; returns the exit status."""
+    """Entry point of the ``relmap`` console script; returns the exit status.
+
+    Every error is one line ``relmap <command>: error: …`` on stderr: exit status 2 for bad input
+    (a :class:`relmap.errors.RelmapError`: a malformed file, an unknown frame, an output that
+    cannot be written, …), 1 when the computation fails (:class:`relmap.errors.SolverError`,
+    :class:`relmap.errors.NumericalError`, or an unexpected error, which is a bug). ``--debug``
+    prints the traceback too. A closed pipe (``relmap … | head``) ends the command quietly.
+    """
     args = build_parser().parse_args(argv)
+    prog = f"relmap {args.command}"
     try:
-        return int(args.run(args))
-    except RelmapError as exc:
-        print(f"relmap: error: {exc}", file=sys.stderr)
+        status = int(args.run(args))
+        sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
+        return status
+    except BrokenPipeError:
+        _silence_stdout()
+        return 141  # as a command killed by SIGPIPE
+    except KeyboardInterrupt:
+        print(f"\n{prog}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # the one place that turns errors into a line
+        if args.debug:
+            import traceback
+
+            traceback.print_exc()
+        print(f"{prog}: error: {_describe(exc)}", file=sys.stderr)
+        return _status(exc)
+
+
+def _status(exc: BaseException) -> int:
+    from relmap.errors import NumericalError, SolverError
+
+    if isinstance(exc, RelmapError) and not isinstance(exc, (SolverError, NumericalError)):
         return 2
+    return 1
+
+
+def _describe(exc: BaseException) -> str:
+    """One line for an error: relmap's own message; for anything else its type too."""
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    if isinstance(exc, RelmapError):
+        return text
+    if isinstance(exc, MemoryError):
+        return "out of memory (try a smaller problem)"
+    if isinstance(exc, OSError) and exc.strerror:
+        where = f"{exc.filename}: " if exc.filename else ""
+        return f"{where}{exc.strerror}"
+    return f"unexpected {type(exc).__name__}: {text} (a bug: please report it; --debug shows where)"
+
+
+def _silence_stdout() -> None:
+    """After a closed pipe: point stdout at /dev/null so that Python's exit flush stays quiet."""
+    import os
+
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):
+        pass
 
 
 if __name__ == "__main__":

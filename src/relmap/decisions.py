@@ -64,7 +64,7 @@ import numpy as np
 
 from relmap import gaussian
 from relmap.at import AT
-from relmap.errors import ParameterError, SolverError
+from relmap.errors import NumericalError, ParameterError, SolverError
 from relmap.typing import FloatArray, IntArray
 
 __all__ = ["DoorDecision", "ViewDecision", "in_view", "through_door"]
@@ -218,6 +218,12 @@ def _adaptive(
         left, right = halves[:n], halves[n:]
         fine = left + right
         err = np.abs(fine - coarse)
+        if not np.isfinite(err).all():  # bisecting would not help: stop before memory runs out
+            k = int(elem[np.flatnonzero(~np.isfinite(err))[0]])
+            raise NumericalError(
+                f"{what}: the integrand overflowed the floating-point range (batch element {k} "
+                "of the flattened batch; variances or positions too large)"
+            )
         accept = err <= 0.5 * tol * (hi - lo) / total_width[elem]
         done = error + np.bincount(elem, weights=err, minlength=n_elem) <= tol
         accept |= done[elem]
@@ -613,10 +619,14 @@ def in_view(
     full = (lam1 > 0.0) & ~line
     if full.any():
         args = (m[full], lam1[full], lam2[full], alpha[full], sec)
-        p_full, error[full] = _view_probability_full_rank(*args, tol)
+        try:
+            p_full, error[full] = _view_probability_full_rank(*args, tol)
+            dist = np.sqrt(_view_distance2_full_rank(*args))
+        except np.linalg.LinAlgError:  # inf or NaN met inside: inputs near the float range
+            p_full = dist = np.full(int(full.sum()), np.nan)
         prob[full] = np.clip(p_full, 0.0, 1.0)
-        dist = np.sqrt(_view_distance2_full_rank(*args))
         margin[full] = np.where(mean_inside[full], dist, -dist)
+    _overflowed("in_view", at, prob, error, margin)
     return ViewDecision(
         probability=_finish(prob, batch),
         error=_finish(error, batch),
@@ -626,6 +636,23 @@ def in_view(
         k=k,
         probability_level=p,
     )
+
+
+def _overflowed(what: str, at: AT, *results: FloatArray) -> None:
+    """Raise :class:`NumericalError` where a decision's arithmetic met inf or NaN (variances or
+    positions near the floating-point range, e.g. a covariance of 1e300)."""
+    for r in results:
+        bad = np.isnan(r)
+        if bad.any():
+            raise NumericalError(
+                f"{what}: the computation overflowed the floating-point range (largest "
+                f"variance {float(np.max(at.cov)):.3g}, largest |mean| "
+                f"{float(np.max(np.abs(at.mean))):.3g}): no probability can be given"
+            )
+
+
+#: Most heading windows ``2πj ± θmax`` :func:`through_door` integrates over per AT.
+_MAX_WINDOWS = 1e4
 
 
 # -------------------------------------------------------------------------------- doorway
@@ -748,7 +775,14 @@ def through_door(
         # Heading windows 2πj ± θmax met by θ̂ ± span, in the deviation δ = θ − θ̂.
         j_lo = np.ceil((tc - span - theta_max) / _TWO_PI)
         j_hi = np.floor((tc + span + theta_max) / _TWO_PI)
-        count = np.maximum(j_hi - j_lo + 1, 0).astype(np.int64)
+        windows = np.maximum(j_hi - j_lo + 1, 0)
+        if not (windows <= _MAX_WINDOWS).all():  # σθ beyond ~10⁵ rad (or inf): meaningless
+            k = int(np.flatnonzero(~(windows <= _MAX_WINDOWS))[0])
+            raise NumericalError(
+                f"through_door: the heading's standard deviation {sg[k]:.3g} rad is too large "
+                f"to integrate over its {windows[k]:.3g} heading windows (at most {_MAX_WINDOWS:g})"
+            )
+        count = windows.astype(np.int64)
         owner = np.repeat(np.arange(idx.size), count)
         first = np.repeat(np.cumsum(count) - count, count)
         j = j_lo[owner] + (np.arange(owner.size) - first)
@@ -825,6 +859,7 @@ def through_door(
             - k * sig_c,
             -np.inf,
         )
+    _overflowed("through_door", at, prob, error, slack)
     return DoorDecision(
         probability=_finish(prob, batch),
         error=_finish(error, batch),

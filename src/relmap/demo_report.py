@@ -294,8 +294,13 @@ _AT_HEADER = ["x [m]", "y [m]", "θ [°]", "σx [m]", "σy [m]", "σθ [°]", "a
 
 
 def write_report(demo: Demo, folder: str | os.PathLike[str], progress: Progress = _quiet) -> Path:
-    """Write ``folder/index.html`` with its figures (PNG files beside it); return its path."""
+    """Write ``folder/index.html`` with its figures (PNG files beside it); return its path.
+    The folder is checked first (:class:`relmap.errors.OutputError` before any figure is drawn)."""
     import matplotlib
+
+    from relmap.io.atomic import check_writable_folder
+
+    check_writable_folder(folder)
 
     matplotlib.use("Agg")  # files only: never a display
     from relmap.report import Report

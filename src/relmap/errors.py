@@ -8,17 +8,22 @@ own subclass, so callers can catch exactly what they mean to handle. Messages na
 from __future__ import annotations
 
 __all__ = [
+    "ArgumentTypeError",
     "ChunkError",
     "ClusterError",
     "CovarianceError",
     "DisconnectedError",
+    "DuplicateNameError",
     "FileFormatError",
     "InconsistentMapError",
     "InconsistentMergeError",
     "IrreducibleNetworkError",
     "NonFiniteError",
+    "NotNumericError",
     "NotPositiveSemidefiniteError",
     "NotSymmetricError",
+    "NumericalError",
+    "OutputError",
     "ParameterError",
     "RelmapError",
     "ShapeError",
@@ -28,12 +33,26 @@ __all__ = [
 ]
 
 
+def _shorten(path: str, limit: int = 160) -> str:
+    """A path as shown in a message: a very long one elided in the middle."""
+    return path if len(path) <= limit else f"{path[:100]}…{path[-40:]} ({len(path)} characters)"
+
+
 class RelmapError(Exception):
     """Base class of every error relmap raises on purpose."""
 
 
 class ShapeError(RelmapError, ValueError):
     """An array has the wrong shape (e.g. a mean that is not ``(..., 3)``)."""
+
+
+class NotNumericError(RelmapError, TypeError):
+    """An input that should hold real numbers does not: text, a mapping, None, objects,
+    booleans or complex numbers."""
+
+
+class ArgumentTypeError(RelmapError, TypeError):
+    """An argument of the wrong kind (an integer where an AT is expected, ...)."""
 
 
 class NonFiniteError(RelmapError, ValueError):
@@ -97,6 +116,30 @@ class InconsistentMapError(RelmapError, ValueError):
     """Exactly known ATs (zero variance) that contradict each other around a loop."""
 
 
+class DuplicateNameError(RelmapError, ValueError):
+    """A name (of an AT, a group) that is already taken."""
+
+
+class NumericalError(RelmapError, ArithmeticError):
+    """relmap's own arithmetic left the floating-point range (overflow to inf, or NaN) on valid
+    input: the message names the operation. Nothing non-finite is ever returned as a result."""
+
+
+class OutputError(RelmapError, OSError):
+    """An output (a file, a folder, a device) cannot be written; the message names it and why.
+
+    Raised before any work when the destination is checked
+    (:func:`relmap.io.atomic.check_writable`), and when writing fails.
+    """
+
+    def __init__(self, path: object, message: str) -> None:
+        self.path = str(path)
+        super().__init__(f"{_shorten(self.path)}: {message}")
+
+    def __str__(self) -> str:  # OSError would format its arguments
+        return str(self.args[0]) if self.args else ""
+
+
 class SolverError(RelmapError, RuntimeError):
     """The joint (optimal) estimate failed: no convergence, or an unconstrained direction."""
 
@@ -107,7 +150,8 @@ class FileFormatError(RelmapError, ValueError):
     def __init__(self, path: object, message: str, line: int | None = None) -> None:
         self.path = str(path)
         self.line = line
-        where = f"{self.path}:{line}" if line is not None else self.path
+        shown = _shorten(self.path)
+        where = f"{shown}:{line}" if line is not None else shown
         super().__init__(f"{where}: {message}")
 
 

@@ -26,6 +26,7 @@ import numpy as np
 from relmap.errors import (
     InconsistentMergeError,
     NonFiniteError,
+    NotNumericError,
     NotPositiveSemidefiniteError,
     NotSymmetricError,
     ParameterError,
@@ -36,8 +37,11 @@ from relmap.typing import ArrayLike, FloatArray, SeedLike
 __all__ = [
     "DEFAULT_RTOL",
     "Ellipse",
+    "broadcast",
+    "check_count",
     "check_finite",
     "check_probability",
+    "check_tolerance",
     "confidence_k2",
     "ellipse",
     "fuse",
@@ -45,6 +49,7 @@ __all__ = [
     "inverse_pd",
     "mahalanobis2",
     "probability_inside",
+    "real_array",
     "rotated_covariance",
     "sample",
     "sqrt_psd",
@@ -59,6 +64,59 @@ def _where(index: tuple[int, ...]) -> str:
     return f"[{', '.join(map(str, index))}]" if index else ""
 
 
+def real_array(value: ArrayLike, name: str) -> FloatArray:
+    """``value`` as a new float64 array, or a :class:`NotNumericError` / :class:`ShapeError`
+    naming ``name``: text, mappings, sets, None, objects, booleans and complex numbers are not
+    real numbers, and nested sequences of unequal lengths are not arrays. The one conversion of
+    user numbers at relmap's edge (what numpy alone would cast, cut or reject obscurely)."""
+    if isinstance(value, np.ndarray):
+        raw = value
+    else:
+        if value is None or isinstance(value, (str, bytes, dict, set, frozenset)):
+            raise NotNumericError(f"{name} must be an array of real numbers; got {_kind_of(value)}")
+        try:
+            raw = np.asarray(value)
+        except (ValueError, TypeError) as exc:
+            raise ShapeError(
+                f"{name} must be a rectangular array of real numbers; its rows differ in length "
+                f"or it is not an array ({' '.join(str(exc).split())[:80]})"
+            ) from None
+    kind = raw.dtype.kind
+    if kind not in "fiu":
+        what = {"b": "booleans", "c": "complex numbers", "U": "text", "S": "bytes"}.get(
+            kind, f"{raw.dtype} values"
+        )
+        if kind == "O":
+            what = "objects that are not real numbers (or integers too large for a float)"
+        raise NotNumericError(f"{name} must be an array of real numbers; got {what}")
+    return np.array(raw, dtype=np.float64)
+
+
+def broadcast(what: str, *shapes: tuple[int, ...]) -> tuple[int, ...]:
+    """``np.broadcast_shapes``, or a :class:`ShapeError` naming ``what`` and the shapes."""
+    try:
+        return np.broadcast_shapes(*shapes)
+    except ValueError:
+        shown = " and ".join(str(tuple(s)) for s in shapes)
+        raise ShapeError(f"{what}: shapes {shown} do not broadcast") from None
+
+
+def _kind_of(value: object) -> str:
+    text = repr(value)
+    return f"a {type(value).__name__} {text if len(text) <= 40 else text[:40] + '…'}"
+
+
+def check_tolerance(value: float, name: str) -> float:
+    """``value`` as a float, or :class:`ParameterError` unless it is a finite number >= 0
+    (a NaN tolerance would switch a check off: every comparison with NaN is False)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number)):
+        raise ParameterError(f"{name} must be a non-negative number; got {_kind_of(value)}")
+    v = float(value)
+    if not (np.isfinite(v) and v >= 0.0):
+        raise ParameterError(f"{name} must be a finite non-negative number; got {v}")
+    return v
+
+
 def check_finite(arr: FloatArray, name: str) -> None:
     """Raise :class:`NonFiniteError` naming the first NaN/inf entry of ``arr``."""
     bad = ~np.isfinite(arr)
@@ -69,7 +127,7 @@ def check_finite(arr: FloatArray, name: str) -> None:
 
 def check_probability(p: ArrayLike, name: str = "probability") -> FloatArray:
     """Return ``p`` as a float array, raising :class:`ParameterError` unless 0 < p < 1."""
-    arr = np.asarray(p, dtype=np.float64)
+    arr = real_array(p, name)
     bad = ~((arr > 0.0) & (arr < 1.0))
     if bad.any():
         value = arr[tuple(np.argwhere(bad)[0])] if arr.ndim else arr
@@ -91,7 +149,8 @@ def validate_covariance(
     vectorized: one batched Cholesky factorization of the shifted correlation matrix; only when
     it fails are eigenvalues computed, to find and report the offender.
     """
-    arr = np.array(cov, dtype=np.float64)  # a copy: the caller's array is never aliased
+    rtol = check_tolerance(rtol, "rtol")
+    arr = real_array(cov, name)  # a copy: the caller's array is never aliased
     if arr.ndim < 2 or arr.shape[-1] != arr.shape[-2] or (dim is not None and arr.shape[-1] != dim):
         want = f"({dim}, {dim})" if dim is not None else "(n, n)"
         raise ShapeError(f"{name} must have shape (..., {want[1:-1]}); got {arr.shape}")
@@ -186,6 +245,12 @@ def generalized_inverse(
     N's non-zero columns are unit vectors (in S's own coordinates) spanning the directions
     along which S has no variance at all. ``Nᵀ v`` tells how far a vector v leaves the support.
     """
+    G, null, _ = _generalized_inverse(S, rtol)
+    return G, null
+
+
+def _generalized_inverse(S: FloatArray, rtol: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """:func:`generalized_inverse`, and the eigenvalues of the correlation-scaled S."""
     diag = np.diagonal(S, axis1=-2, axis2=-1)
     positive = diag > 0.0
     inv_s = np.where(positive, 1.0 / np.sqrt(np.where(positive, diag, 1.0)), 0.0)
@@ -201,7 +266,7 @@ def generalized_inverse(
     null = np.where(positive, inv_s, 1.0)[..., :, None] * U * (~keep)[..., None, :]
     norms = np.linalg.norm(null, axis=-2, keepdims=True)
     null = null / np.where(norms > 0.0, norms, 1.0)
-    return G, null
+    return G, null, lam
 
 
 def _sub(a: FloatArray, b: FloatArray) -> FloatArray:
@@ -235,8 +300,16 @@ def fuse(
     the means must agree within ``atol`` or :class:`InconsistentMergeError` is raised.
     Batched; returns ``(mean, cov)``.
     """
+    atol = check_tolerance(atol, "atol")
     m1, C1 = np.asarray(mean1, dtype=np.float64), np.asarray(cov1, dtype=np.float64)
     m2, C2 = np.asarray(mean2, dtype=np.float64), np.asarray(cov2, dtype=np.float64)
+    try:
+        np.broadcast_shapes(m1.shape, m2.shape)
+    except ValueError:
+        raise ShapeError(
+            f"cannot merge {what}: batch shapes {m1.shape[:-1]} and {m2.shape[:-1]} do not "
+            "broadcast"
+        ) from None
     v = minus(m2, m1)  # innovation
     gain = fusion(C1, C2)
     check_agreement(v, gain.null, atol=atol, what=what, components=components)
@@ -292,11 +365,37 @@ def mahalanobis2(
     ``inf``; within it the distance is finite. The caller wraps angle components of
     ``x - mean`` beforehand if there are any.
     """
-    cov = np.asarray(cov, dtype=np.float64)
-    v = np.asarray(x, dtype=np.float64) - np.asarray(mean, dtype=np.float64)
+    atol = check_tolerance(atol, "atol")
+    C = real_array(cov, "cov")
+    xs, mu = real_array(x, "x"), real_array(mean, "mean")
+    if C.ndim < 2 or C.shape[-1] != C.shape[-2] or xs.ndim == 0:
+        raise ShapeError(
+            f"cov must have shape (..., n, n) and x (..., n); got {C.shape}, {xs.shape}"
+        )
+    n = C.shape[-1]
+    if xs.shape[-1] != n or (mu.ndim and mu.shape[-1] != n):
+        raise ShapeError(
+            f"x {xs.shape} and mean {mu.shape} must end in n = {n}, the size of cov {C.shape}"
+        )
+    try:
+        v = xs - mu
+        np.broadcast_shapes(v.shape[:-1], C.shape[:-2])
+    except ValueError:
+        raise ShapeError(
+            f"batch shapes of x {xs.shape}, mean {mu.shape} and cov {C.shape} do not broadcast"
+        ) from None
     check_finite(v, "x - mean")
-    check_finite(cov, "cov")
-    G, null = generalized_inverse(cov)
+    check_finite(C, "cov")
+    G, null, lam = _generalized_inverse(C, DEFAULT_RTOL)
+    diag = np.diagonal(C, axis1=-2, axis2=-1)
+    negative = (lam[..., 0] < -DEFAULT_RTOL * n) | (diag < 0.0).any(axis=-1)
+    if negative.any():
+        index = tuple(int(i) for i in np.argwhere(negative)[0])
+        raise NotPositiveSemidefiniteError(
+            f"cov{_where(index)} is not positive semi-definite: smallest variance "
+            f"{diag[index].min():.3g}, smallest eigenvalue of its correlation matrix "
+            f"{lam[index][0]:.3g}"
+        )
     d2 = np.einsum("...i,...ij,...j->...", v, G, v)
     off_support = np.abs(np.einsum("...ij,...i->...j", null, v)).max(axis=-1)
     return np.where(off_support > atol, np.inf, d2)
@@ -364,12 +463,15 @@ def ellipse(mean: ArrayLike, cov: ArrayLike, probability: float = 0.90) -> Ellip
     eigenvalues λ of C; the major axis makes the angle ``½·atan2(2σxy, σx² - σy²)`` with x (the
     printed ``½·arctan(2B/(A-C))`` gives the minor axis whenever σy > σx).
     """
-    mean = np.asarray(mean, dtype=np.float64)
-    cov = np.asarray(cov, dtype=np.float64)
-    if mean.shape[-1:] != (2,) or cov.shape[-2:] != (2, 2):
-        raise ShapeError(
-            f"ellipse needs mean (..., 2) and cov (..., 2, 2); got {mean.shape}, {cov.shape}"
-        )
+    m = real_array(mean, "mean")
+    if m.shape[-1:] != (2,):
+        raise ShapeError(f"ellipse needs mean (..., 2) and cov (..., 2, 2); got mean {m.shape}")
+    check_finite(m, "mean")
+    return _ellipse(m, validate_covariance(cov, dim=2), probability)
+
+
+def _ellipse(mean: FloatArray, cov: FloatArray, probability: float) -> Ellipse:
+    """:func:`ellipse` of a mean and covariance relmap holds already checked."""
     k2 = float(confidence_k2(probability, 2))
     a, b, c = cov[..., 0, 0], cov[..., 0, 1], cov[..., 1, 1]
     half_sum = 0.5 * (a + c)
@@ -393,7 +495,10 @@ def rotated_covariance(sigma_a: ArrayLike, sigma_b: ArrayLike, angle: ArrayLike)
     ``sigma_a``/``sigma_b`` are the standard deviations along the ellipse's own axes, ``angle``
     the direction of its a-axis (radians, counter-clockwise from x).
     """
-    a, b, t = (np.asarray(v, dtype=np.float64) for v in (sigma_a, sigma_b, angle))
+    a, b, t = (
+        real_array(v, name)
+        for v, name in ((sigma_a, "sigma_a"), (sigma_b, "sigma_b"), (angle, "angle"))
+    )
     for name, v in (("sigma_a", a), ("sigma_b", b)):
         check_finite(v, name)
         if (v < 0).any():
@@ -401,7 +506,7 @@ def rotated_covariance(sigma_a: ArrayLike, sigma_b: ArrayLike, angle: ArrayLike)
     check_finite(t, "angle")
     c, s = np.cos(t), np.sin(t)
     a2, b2 = a * a, b * b
-    shape = np.broadcast_shapes(a.shape, b.shape, t.shape)
+    shape = broadcast("sigma_a, sigma_b and angle", a.shape, b.shape, t.shape)
     out = np.empty((*shape, 2, 2))
     out[..., 0, 0] = c * c * a2 + s * s * b2
     out[..., 1, 1] = s * s * a2 + c * c * b2
@@ -410,25 +515,81 @@ def rotated_covariance(sigma_a: ArrayLike, sigma_b: ArrayLike, angle: ArrayLike)
 
 
 def sqrt_psd(cov: ArrayLike) -> FloatArray:
-    """A square root L with ``L Lᵀ = C`` for a PSD ``C`` (``(..., n, n)``), singular C included.
+    """A square root L with ``L Lᵀ = C`` for a PSD ``C`` (``(..., n, n)``, checked by
+    :func:`validate_covariance`), singular C included.
 
     Uses the eigendecomposition (a Cholesky factor does not exist for singular C); tiny negative
     eigenvalues from rounding are clipped to zero.
     """
-    lam, U = np.linalg.eigh(np.asarray(cov, dtype=np.float64))
+    return _sqrt_psd(validate_covariance(cov))
+
+
+def _sqrt_psd(cov: FloatArray) -> FloatArray:
+    """:func:`sqrt_psd` of a covariance already checked."""
+    lam, U = np.linalg.eigh(cov)
     return U * np.sqrt(np.clip(lam, 0.0, None))[..., None, :]
 
 
 def _rng(seed: SeedLike) -> np.random.Generator:
-    return seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+    """numpy's generator of ``seed``: None, a non-negative integer (or a sequence of them), a
+    ``SeedSequence``, a bit generator or a ``Generator``; anything else a ParameterError."""
+    if isinstance(seed, np.random.Generator):
+        return seed
+    if isinstance(seed, (bool, np.bool_, float, str, bytes)):
+        raise ParameterError(
+            f"seed must be None, a non-negative integer or a numpy Generator; got {seed!r}"
+        )
+    try:
+        return np.random.default_rng(seed)
+    except (TypeError, ValueError):
+        shown = repr(seed)
+        raise ParameterError(
+            "seed must be None, a non-negative integer (or a sequence of them), a SeedSequence "
+            f"or a numpy Generator; got {shown if len(shown) < 60 else shown[:60] + '…'}"
+        ) from None
+
+
+def check_count(n: object, name: str = "number of samples") -> int:
+    """``n`` as an int, or :class:`ParameterError` unless it is a positive integer."""
+    if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, float, np.number)):
+        raise ParameterError(f"{name} must be a positive integer; got {n!r}")
+    if (isinstance(n, (float, np.floating)) and not np.isfinite(n)) or int(n) != n or n < 1:
+        raise ParameterError(f"{name} must be a positive integer; got {n}")
+    return int(n)
 
 
 def sample(mean: ArrayLike, cov: ArrayLike, n: int, seed: SeedLike = None) -> FloatArray:
-    """``n`` draws from ``N(mean, cov)``, shape ``(n, ..., dim)``; singular covariances allowed."""
-    if int(n) != n or n < 1:
-        raise ParameterError(f"number of samples must be a positive integer; got {n}")
-    mean = np.asarray(mean, dtype=np.float64)
-    L = sqrt_psd(cov)
-    batch = np.broadcast_shapes(mean.shape[:-1], L.shape[:-2])
-    z = _rng(seed).standard_normal((int(n), *batch, L.shape[-1]))
+    """``n`` draws from ``N(mean, cov)``, shape ``(n, ..., dim)``; singular covariances allowed.
+    ``mean`` and ``cov`` are checked (:func:`validate_covariance`)."""
+    m = real_array(mean, "mean")
+    check_finite(m, "mean")
+    C = validate_covariance(cov)
+    if m.shape[-1:] != C.shape[-1:]:
+        raise ShapeError(f"mean {m.shape} and cov {C.shape} must agree in size")
+    return _sample(m, C, n, seed)
+
+
+def _sample(mean: FloatArray, cov: FloatArray, n: int, seed: SeedLike) -> FloatArray:
+    """:func:`sample` of a mean and covariance relmap holds already checked."""
+    count = check_count(n)
+    rng = _rng(seed)
+    L = _sqrt_psd(cov)
+    try:
+        batch = np.broadcast_shapes(mean.shape[:-1], L.shape[:-2])
+    except ValueError:
+        raise ShapeError(
+            f"batch shapes of mean {mean.shape} and cov {cov.shape} do not broadcast"
+        ) from None
+    shape = (count, *batch, L.shape[-1])
+    size = float(np.prod(shape, dtype=np.float64)) * 8.0
+    if size > _MAX_SAMPLE_BYTES:
+        raise ParameterError(
+            f"{count:,} samples of shape {shape[1:]} would need {size / 2**30:.3g} GiB "
+            f"(the limit is {_MAX_SAMPLE_BYTES / 2**30:.3g} GiB): draw them in smaller batches"
+        )
+    z = rng.standard_normal(shape)
     return mean + np.einsum("...ij,...j->...i", L, z)
+
+
+#: Largest array of draws :func:`sample` makes at once (bytes); more is surely a mistake.
+_MAX_SAMPLE_BYTES = 2.0**34

@@ -40,6 +40,7 @@ from typing import TYPE_CHECKING, Literal, NamedTuple
 import numpy as np
 
 from relmap.errors import ParameterError, ShapeError
+from relmap.gaussian import check_finite, real_array, validate_covariance
 from relmap.lie import se2
 from relmap.propagate import EUCLIDEAN, SE2, Chart, Moments, unscented
 from relmap.typing import ArrayLike, FloatArray
@@ -74,10 +75,11 @@ def check_method(method: str) -> None:
 
 
 def _poses(mean: ArrayLike, cov: ArrayLike, name: str) -> tuple[FloatArray, FloatArray]:
-    m = np.asarray(mean, dtype=np.float64)
-    C = np.asarray(cov, dtype=np.float64)
+    m = real_array(mean, f"{name} mean")
     if m.ndim == 0 or m.shape[-1] != 3:
         raise ShapeError(f"{name} mean must have shape (..., 3); got {m.shape}")
+    check_finite(m, f"{name} mean")
+    C = validate_covariance(cov, dim=3, name=f"{name} cov")
     if C.ndim < 2 or C.shape[-2:] != (3, 3):
         raise ShapeError(f"{name} cov must have shape (..., 3, 3); got {C.shape}")
     return m, C
@@ -231,7 +233,7 @@ def compound_moments(
     """
     ma, Ca = _poses(mean_a, cov_a, "a")
     mb, Cb = _poses(mean_b, cov_b, "b")
-    batch = np.broadcast_shapes(ma.shape[:-1], Ca.shape[:-2], mb.shape[:-1], Cb.shape[:-2])
+    batch = _broadcast(ma.shape[:-1], Ca.shape[:-2], mb.shape[:-1], Cb.shape[:-2])
     if cross_cov is None:  # independent: the chain recursions, several times faster
         m = np.stack([np.broadcast_to(ma, (*batch, 3)), np.broadcast_to(mb, (*batch, 3))])
         C = np.stack([np.broadcast_to(Ca, (*batch, 3, 3)), np.broadcast_to(Cb, (*batch, 3, 3))])
@@ -251,10 +253,11 @@ def _joint(
     """The 6-D Gaussian of the pair ``(a, b)``: mean (..., 6), covariance (..., 6, 6)."""
     X = None
     if cross_cov is not None:
-        X = np.asarray(cross_cov, dtype=np.float64)
+        X = real_array(cross_cov, "cross_cov")
         if X.ndim < 2 or X.shape[-2:] != (3, 3):
             raise ShapeError(f"cross_cov must have shape (..., 3, 3); got {X.shape}")
-        batch = np.broadcast_shapes(batch, X.shape[:-2])
+        check_finite(X, "cross_cov")
+        batch = _broadcast(batch, X.shape[:-2])
     mu = np.concatenate(
         [np.broadcast_to(ma, (*batch, 3)), np.broadcast_to(mb, (*batch, 3))], axis=-1
     )
@@ -264,7 +267,19 @@ def _joint(
     if X is not None:
         S[..., :3, 3:] = X
         S[..., 3:, :3] = np.swapaxes(X, -1, -2)
+        S = validate_covariance(
+            S, name="the joint covariance [[C_a, cross_cov], [cross_covᵀ, C_b]]"
+        )
     return mu, S
+
+
+def _broadcast(*shapes: tuple[int, ...]) -> tuple[int, ...]:
+    try:
+        return np.broadcast_shapes(*shapes)
+    except ValueError:
+        raise ShapeError(
+            f"batch shapes {' and '.join(map(str, shapes))} do not broadcast"
+        ) from None
 
 
 # Terms of c = z_a + e^{iθ_a} z_b and of Θ = θ_a + θ_b, as (coefficient vector A, frequency w).
@@ -354,7 +369,7 @@ def unscented_compound(
     """
     ma, Ca = _poses(mean_a, cov_a, "a")
     mb, Cb = _poses(mean_b, cov_b, "b")
-    batch = np.broadcast_shapes(ma.shape[:-1], Ca.shape[:-2], mb.shape[:-1], Cb.shape[:-2])
+    batch = _broadcast(ma.shape[:-1], Ca.shape[:-2], mb.shape[:-1], Cb.shape[:-2])
     mu, S = _joint(ma, Ca, mb, Cb, cross_cov, batch)
     return unscented(_compose6, mu, S, chart_in=EUCLIDEAN, chart_out=SE2)
 

@@ -11,8 +11,6 @@ nothing here needs a display or changes global state.
 from __future__ import annotations
 
 import os
-import tempfile
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -310,14 +308,15 @@ def ellipsoid(
 
 
 def save_png(fig: Figure, path: str | os.PathLike[str], *, dpi: int = 100) -> None:
-    """Write ``fig`` as a PNG to ``path`` atomically: a temporary file in the same folder, then
-    ``os.replace``, so a reader never sees a half-written image and a failure leaves none."""
-    target = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".png")
-    os.close(fd)
-    try:
-        fig.savefig(tmp, format="png", dpi=dpi)
-        os.replace(tmp, target)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    """Write ``fig`` as a PNG to ``path`` by relmap's one writer
+    (:func:`relmap.io.atomic.write_bytes_atomic`: atomic for a regular file, a symbolic link
+    followed, a device or FIFO written in place; :class:`relmap.errors.OutputError` if the path
+    cannot be written)."""
+    import io
+
+    from relmap.io.atomic import check_writable, write_bytes_atomic
+
+    check_writable(path)  # before rendering
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    write_bytes_atomic(path, buf.getvalue())

@@ -19,7 +19,7 @@ from typing import NamedTuple
 import numpy as np
 
 from relmap.errors import ParameterError, ShapeError
-from relmap.gaussian import sqrt_psd
+from relmap.gaussian import _sqrt_psd, check_finite, real_array, validate_covariance
 from relmap.lie import se2, se3
 from relmap.typing import ArrayLike, FloatArray
 
@@ -77,6 +77,16 @@ SE2 = Chart(se2.plus, se2.minus)
 SE3 = Chart(se3.plus, se3.minus, point_ndim=2, dof=se3.DOF)
 
 
+def _checked_input(mean: ArrayLike, cov: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """The input mean (real, finite, at least one axis) and covariance (symmetric PSD,
+    :func:`relmap.gaussian.validate_covariance`) of :func:`propagate` and :func:`unscented`."""
+    m = real_array(mean, "mean")
+    if m.ndim == 0:
+        raise ShapeError("mean must have shape (..., n); got a scalar")
+    check_finite(m, "mean")
+    return m, validate_covariance(cov)
+
+
 def numerical_jacobian(
     f: Function,
     x: ArrayLike,
@@ -123,8 +133,7 @@ def propagate(
     ``jacobian`` is the ``(..., m, n)`` matrix, a function of x returning it, or None for the
     numeric one (in the given charts). Exact when f is linear.
     """
-    mean = np.asarray(mean, dtype=np.float64)
-    cov = np.asarray(cov, dtype=np.float64)
+    mean, cov = _checked_input(mean, cov)
     if cov.shape[-2:] != (mean.shape[-1], mean.shape[-1]):
         raise ShapeError(
             f"cov must have shape (..., n, n) with n = {mean.shape[-1]}; got {cov.shape}"
@@ -165,12 +174,14 @@ def unscented(
     average correctly.
     """
     plus, minus = chart_in.plus, chart_out.minus
-    mean = np.asarray(mean, dtype=np.float64)
+    mean, cov = _checked_input(mean, cov)
     n = mean.shape[-1]
     lam = alpha * alpha * (n + kappa) - n
     if not n + lam > 0:
         raise ParameterError(f"alpha²·(n + kappa) must be positive; got {n + lam}")
-    L = sqrt_psd(cov) * np.sqrt(n + lam)  # columns are the sigma directions
+    if cov.shape[-1] != n:
+        raise ShapeError(f"cov must have shape (..., {n}, {n}); got {cov.shape}")
+    L = _sqrt_psd(cov) * np.sqrt(n + lam)  # columns are the sigma directions
     offsets = np.swapaxes(L, -1, -2)  # (..., n, n): row i is column i of L
     batch = np.broadcast_shapes(mean.shape[:-1], offsets.shape[:-2])
     xb = np.broadcast_to(mean[..., None, :], (*batch, n, n))

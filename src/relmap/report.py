@@ -1,9 +1,9 @@
 """A small HTML report writer: headings, paragraphs, tables and figures, written to a folder.
 
 Figures are rendered to PNG when added (so their matplotlib objects can be freed) and written
-beside ``index.html`` when the report is written. Every file is written atomically (a temporary
-file in the same folder, then a rename), the PNGs first and ``index.html`` last, so a reader
-never sees a page that refers to a missing or half-written image.
+beside ``index.html`` when the report is written. Every file is written by relmap's one writer
+(:mod:`relmap.io.atomic`: atomically, with the mode a new file gets), the PNGs first and
+``index.html`` last, so a reader never sees a page that refers to a missing or half-written image.
 """
 
 from __future__ import annotations
@@ -12,13 +12,12 @@ import html
 import io
 import os
 import re
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from relmap.errors import ParameterError
-from relmap.io.atomic import write_text_atomic
+from relmap.io.atomic import make_folder, write_bytes_atomic, write_text_atomic
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
@@ -111,32 +110,12 @@ class Report:
         return list(self._images)
 
     def write(self, folder: str | os.PathLike[str]) -> Path:
-        """Write the figures and ``index.html`` into ``folder`` (created if needed); returns the
-        path of ``index.html``."""
-        out = Path(folder)
-        out.mkdir(parents=True, exist_ok=True)
+        """Write the figures and ``index.html`` into ``folder`` (created if needed) by relmap's
+        one writer (:mod:`relmap.io.atomic`); returns the path of ``index.html``. Raises
+        :class:`relmap.errors.OutputError` when the folder cannot be written."""
+        out = make_folder(folder)
         for name, data in self._images.items():
-            _write_bytes_atomic(out / name, data)
+            write_bytes_atomic(out / name, data)
         index = out / "index.html"
         write_text_atomic(index, self.html())
-        _readable(index)
         return index
-
-
-def _write_bytes_atomic(target: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        _readable(Path(tmp))
-        os.replace(tmp, target)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-def _readable(path: Path) -> None:
-    """Give a written file the permissions a new file gets (temporary files are private)."""
-    umask = os.umask(0)
-    os.umask(umask)
-    path.chmod(0o666 & ~umask)

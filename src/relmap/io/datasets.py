@@ -47,6 +47,7 @@ from typing import Literal, NamedTuple
 import numpy as np
 
 from relmap.errors import FileFormatError, NonFiniteError, ParameterError
+from relmap.io.textfile import read_text
 from relmap.lie import se2
 from relmap.typing import ArrayLike, FloatArray, IntArray
 
@@ -313,15 +314,6 @@ class _Table(NamedTuple):
             )
 
 
-def _read_text(path: Path) -> str:
-    try:
-        return path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise FileFormatError(path, f"cannot read: {exc.strerror}") from None
-    except UnicodeDecodeError as exc:
-        raise FileFormatError(path, f"not a text file (UTF-8): {exc.reason}") from None
-
-
 def _read_table(path: Path, columns: Sequence[str]) -> _Table:
     """Parse a white-space separated table after any leading ``#`` lines, with numpy's C parser.
 
@@ -331,7 +323,7 @@ def _read_table(path: Path, columns: Sequence[str]) -> _Table:
     """
     columns = tuple(columns)
     n_cols = len(columns)
-    lines = _read_text(path).split("\n")
+    lines = read_text(path).split("\n")
     skip = 0
     while skip < len(lines) and lines[skip].lstrip().startswith("#"):
         skip += 1
@@ -414,6 +406,8 @@ def _read_robot(
     odo = _read_table(folder / f"Robot{n}_Odometry.dat", ("t", "v", "ω"))
     odo_t = odo.times()
     gt = _read_table(folder / f"Robot{n}_Groundtruth.dat", ("t", "x", "y", "θ"))
+    if not len(gt.values):
+        raise FileFormatError(gt.path, "no ground-truth records (t x y θ): the file is empty")
     gt_t = gt.times()
     truth = gt.values[:, 1:].copy()
     truth[:, 2] = se2.wrap_angle(truth[:, 2])
@@ -520,6 +514,8 @@ def _mat_array(path: Path, mat: dict[str, object], key: str, n_cols: int) -> Flo
             f"variable {key!r} must be a numeric (n, {n_cols}) array ({what}); "
             f"got {arr.dtype} {arr.shape}",
         )
+    if key == "GT" and not len(arr):
+        raise FileFormatError(path, "variable 'GT' (ground truth) has no rows")
     arr = arr.astype(np.float64)
     bad = ~np.isfinite(arr).all(axis=1)
     if bad.any():
@@ -606,12 +602,16 @@ def recognise(folder: str | os.PathLike[str]) -> DatasetKind | None:
     ``"mrclam"`` needs every MRCLAM file (:func:`read_mrclam`); ``"plaza"`` a ``P_DR.txt``,
     ``P_TD.txt`` and ``P_.mat`` with a common prefix ``P``. None for anything else, including a
     path that is not a folder. Contents are not read. A folder holding the files of both
-    datasets is ambiguous: :class:`relmap.errors.FileFormatError`.
+    datasets is ambiguous, and one holding some MRCLAM files (two or more) but not all is an
+    incomplete MRCLAM folder: :class:`relmap.errors.FileFormatError` (naming the missing files).
     """
     p = Path(folder)
     if not p.is_dir():
         return None
-    mrclam = not _missing(p, _MRCLAM_FILES)
+    missing = _missing(p, _MRCLAM_FILES)
+    if 0 < len(missing) < len(_MRCLAM_FILES) - 1:  # more than one MRCLAM file, not all
+        raise FileFormatError(p, f"an incomplete MRCLAM folder: missing {', '.join(missing)}")
+    mrclam = not missing
     try:
         plaza = bool(_plaza_files(p)[0])
     except FileFormatError:  # several complete Plaza datasets: still Plaza

@@ -28,6 +28,8 @@ from __future__ import annotations
 
 import json
 import os
+import re
+import sys
 from collections.abc import Hashable, Iterable
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -36,10 +38,11 @@ import numpy as np
 
 from relmap.at import AT
 from relmap.at3 import AT3
-from relmap.errors import FileFormatError, RelmapError
-from relmap.io.atomic import write_text_atomic
+from relmap.errors import FileFormatError, ParameterError, RelmapError, ShapeError
+from relmap.io.atomic import check_writable, write_text_atomic
+from relmap.io.textfile import read_text
 
-__all__ = ["ATRecord", "read_records", "write_records"]
+__all__ = ["ATRecord", "read_records", "records_from_text", "write_records"]
 
 FORMAT_VERSION = 1
 _ENTRY_KEYS = {"name", "from", "to", "mean", "sigma", "cov"}
@@ -55,31 +58,102 @@ class ATRecord(NamedTuple):
     at: AT | AT3
 
 
-def _parse(path: Path, text: str) -> Any:
-    if path.suffix.lower() == ".json":
-        try:
-            return json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise FileFormatError(path, f"invalid JSON: {exc.msg}", line=exc.lineno) from None
+def _is_json(path: Path) -> bool:
+    """JSON for a ``.json`` (or ``.json.gz``) name, YAML for any other."""
+    name = path.name.lower().removesuffix(".gz")
+    return name.endswith(".json")
+
+
+def _unique_pairs(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in out:
+            raise _DuplicateKey(key)
+        out[key] = value
+    return out
+
+
+class _DuplicateKey(ValueError):
+    pass
+
+
+def _line_of(text: str, index: int) -> int:
+    """1-based line of character ``index``: lines end at LF only (as grep -n counts them)."""
+    return text.count("\n", 0, max(index, 0)) + 1
+
+
+def _too_long(exc: ValueError) -> str:
+    if "digits" in str(exc):
+        return f"an integer of more than {sys.get_int_max_str_digits()} digits"
+    return str(exc)
+
+
+def _parse_json(path: Path, text: str) -> Any:
+    try:
+        return json.loads(text, object_pairs_hook=_unique_pairs)
+    except json.JSONDecodeError as exc:
+        raise FileFormatError(path, f"invalid JSON: {exc.msg}", line=exc.lineno) from None
+    except _DuplicateKey as exc:
+        raise FileFormatError(path, f"invalid JSON: duplicate key {exc.args[0]!r}") from None
+    except ValueError as exc:  # an integer of more than 4300 digits
+        raise FileFormatError(path, f"invalid JSON: {_too_long(exc)}") from None
+    except RecursionError:
+        raise FileFormatError(path, "invalid JSON: nested too deeply") from None
+
+
+def _yaml_loader():  # type: ignore[no-untyped-def]
+    """yaml's SafeLoader refusing duplicate keys (it would keep the last one silently)."""
     import yaml  # lazy: only map files need it
 
+    class Loader(yaml.SafeLoader):
+        def construct_mapping(self, node, deep=False):  # type: ignore[no-untyped-def]
+            seen: set[object] = set()
+            for key_node, _ in node.value:
+                key = self.construct_object(key_node, deep=True)
+                try:
+                    repeated = key in seen
+                    seen.add(key)
+                except TypeError:  # an unhashable key: yaml reports it below
+                    continue
+                if repeated:
+                    raise yaml.constructor.ConstructorError(
+                        None, None, f"duplicate key {key!r}", key_node.start_mark
+                    )
+            return super().construct_mapping(node, deep=deep)
+
+    return Loader
+
+
+def _parse_yaml(path: Path, text: str) -> Any:
+    import yaml
+
     try:
-        return yaml.safe_load(text)
+        return yaml.load(text, Loader=_yaml_loader())  # a SafeLoader subclass: safe
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
-        line = mark.line + 1 if mark is not None else None
+        line = _line_of(text, mark.index) if mark is not None else None
         raise FileFormatError(
-            path, f"invalid YAML: {getattr(exc, 'problem', exc)}", line=line
+            path, f"invalid YAML: {getattr(exc, 'problem', None) or exc}", line=line
         ) from None
+    except ValueError as exc:  # an integer of more than 4300 digits
+        raise FileFormatError(path, f"invalid YAML: {_too_long(exc)}") from None
+    except RecursionError:
+        raise FileFormatError(path, "invalid YAML: nested too deeply") from None
+
+
+def _parse(path: Path, text: str) -> Any:
+    return _parse_json(path, text) if _is_json(path) else _parse_yaml(path, text)
 
 
 def read_records(path: str | os.PathLike[str]) -> list[ATRecord]:
-    """Read a map file (``.json``, or YAML for any other suffix) into :class:`ATRecord` s."""
+    """Read a map file (``.json``, or YAML for any other suffix; gzip, a BOM, CRLF and pipes
+    accepted: :func:`relmap.io.textfile.read_text`) into :class:`ATRecord` s."""
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise FileFormatError(p, f"cannot read: {exc.strerror}") from None
+    return records_from_text(p, read_text(p))
+
+
+def records_from_text(p: Path, text: str) -> list[ATRecord]:
+    """:func:`read_records` of text already read from the file ``p`` (named in errors)."""
     doc = _parse(p, text)
     if not isinstance(doc, dict):
         raise FileFormatError(p, "expected a mapping with an 'ats' list at the top level")
@@ -87,7 +161,7 @@ def read_records(path: str | os.PathLike[str]) -> list[ATRecord]:
     if unknown:
         raise FileFormatError(p, f"unknown top-level key(s) {sorted(map(str, unknown))}")
     version = doc.get("relmap", FORMAT_VERSION)
-    if version != FORMAT_VERSION:
+    if type(version) is not int or version != FORMAT_VERSION:  # True == 1, 1.0 == 1
         raise FileFormatError(
             p, f"unsupported format version {version!r} (this relmap reads {FORMAT_VERSION})"
         )
@@ -106,7 +180,10 @@ def read_records(path: str | os.PathLike[str]) -> list[ATRecord]:
         where = f"ats[{i}]"
         if not isinstance(entry, dict):
             raise FileFormatError(p, f"{where} must be a mapping")
-        name = str(entry.get("name", f"e{i}"))
+        name = entry.get("name", f"e{i}")
+        if not isinstance(name, (str, int)) or isinstance(name, bool):
+            raise FileFormatError(p, f"{where}: 'name' must be a string or an integer")
+        name = str(name)
         where = f"ats[{i}] ({name!r})"
         if name in seen:
             raise FileFormatError(p, f"{where}: duplicate AT name")
@@ -156,13 +233,51 @@ def _at(entry: dict[str, Any], scale: np.ndarray, scale3: np.ndarray) -> AT | AT
     return AT(mean)
 
 
+#: Decimal numbers that YAML 1.1 leaves as text (an exponent without a dot: ``9e-4``, ``1E3``).
+_YAML11_FLOAT = re.compile(r"[-+]?([0-9]+\.?[0-9]*|\.[0-9]+)[eE][-+]?[0-9]+")
+
+
 def _numbers(value: Any, shape: tuple[int, ...], what: str) -> np.ndarray:
-    if isinstance(value, (str, bytes)) or value is None:
-        raise ValueError(f"{what} must be numbers; got {value!r}")
-    arr = np.asarray(value, dtype=np.float64)
+    """``value`` (nested lists of int/float, never bool or text) as a float array of ``shape``."""
+    flat: list[float] = []
+    stack = [(value, 0)]
+    while stack:  # no recursion: depth is bounded by the shape
+        item, depth = stack.pop()
+        if isinstance(item, list) and depth < len(shape):
+            stack.extend((v, depth + 1) for v in reversed(item))
+        elif isinstance(item, str) and depth == len(shape) and _YAML11_FLOAT.fullmatch(item):
+            flat.append(float(item))  # YAML 1.1 (PyYAML) reads 9e-4, 1e3 as text
+        elif isinstance(item, (int, float)) and not isinstance(item, bool) and depth == len(shape):
+            try:
+                flat.append(float(item))
+            except OverflowError:
+                raise ValueError(f"{what} holds a number too large for a float") from None
+        else:
+            raise ValueError(f"{what} must hold numbers (shape {shape}); got {_brief(item)}")
+    try:
+        arr = np.array(value, dtype=np.float64)
+    except (ValueError, OverflowError):
+        raise ValueError(f"{what} must have shape {shape}; its rows differ in length") from None
     if arr.shape != shape:
         raise ValueError(f"{what} must have shape {shape}; got {arr.shape}")
     return arr
+
+
+def _brief(item: Any) -> str:
+    text = repr(item)
+    return f"{type(item).__name__} {text if len(text) <= 40 else text[:40] + '…'}"
+
+
+def _frame_for_file(frame: object, name: str, key: str) -> str | int:
+    """A frame as map files hold it (a string or an integer), or a clear error at save."""
+    if isinstance(frame, np.integer):
+        return int(frame)
+    if isinstance(frame, (str, int)) and not isinstance(frame, bool):
+        return frame
+    raise ParameterError(
+        f"AT {name!r}: its '{key}' frame {frame!r} is a {type(frame).__name__}; map files "
+        "hold frames named by strings or integers (rename the frames before saving)"
+    )
 
 
 def write_records(
@@ -177,9 +292,12 @@ def write_records(
     records = list(records)
     for r in records:
         if r.at.ndim:
-            raise ValueError(
+            raise ShapeError(
                 f"AT {r.name!r} has batch shape {r.at.batch_shape}; map files hold single ATs"
             )
+        if not isinstance(r.name, str):
+            raise ParameterError(f"AT name {r.name!r} must be a string")
+    check_writable(p)
     doc: dict[str, Any] = {"relmap": FORMAT_VERSION}
     if description:
         doc["description"] = description
@@ -187,8 +305,8 @@ def write_records(
     doc["ats"] = [
         {
             "name": r.name,
-            "from": r.src,
-            "to": r.dst,
+            "from": _frame_for_file(r.src, r.name, "from"),
+            "to": _frame_for_file(r.dst, r.name, "to"),
             "mean": [float(v) for v in (r.at.vector if isinstance(r.at, AT3) else r.at.mean)],
             "cov": [[float(v) for v in row] for row in r.at.cov],
         }

@@ -8,9 +8,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from relmap.errors import FileFormatError
-from relmap.io.mapfile import ATRecord, read_records, write_records
-from relmap.io.posegraph import _KIND_OF_TAG, PoseGraph, read_graph
+from relmap.errors import ParameterError
+from relmap.io.mapfile import ATRecord, records_from_text, write_records
+from relmap.io.posegraph import _KIND_OF_TAG, PoseGraph, graph_from_text
+from relmap.io.textfile import read_text
 from relmap.network.graph import RelationalMap
 
 if TYPE_CHECKING:
@@ -23,28 +24,25 @@ __all__ = ["load_map", "save_map", "solve_graph"]
 _GRAPH_TAGS = frozenset(_KIND_OF_TAG)
 
 
-def _is_pose_graph(path: Path) -> bool:
-    try:
-        with path.open(encoding="utf-8") as fh:
-            for line in fh:
-                head = line.split(None, 1)
-                if head and not head[0].startswith("#"):
-                    return head[0] in _GRAPH_TAGS
-    except (OSError, UnicodeDecodeError):
-        return False
+def _is_pose_graph(text: str) -> bool:
+    """Whether the first record of ``text`` has a pose-graph tag."""
+    for line in text.split("\n"):
+        head = line.split(None, 1)
+        if head and not head[0].startswith("#"):
+            return head[0] in _GRAPH_TAGS
     return False
 
 
 def load_map(path: str | os.PathLike[str]) -> RelationalMap:
     """A map from a map file (JSON or YAML) or a pose graph (g2o 2-D/3-D, TORO, legacy
     ``EDGE3``), told apart by content. Pose-graph vertex ids become integer frames, their poses
-    the initial guess; a 3-D graph gives a map of :class:`relmap.AT3`."""
+    the initial guess; a 3-D graph gives a map of :class:`relmap.AT3`. The file is read once
+    (:func:`relmap.io.textfile.read_text`): a pipe, gzip, a BOM and CRLF are accepted."""
     p = Path(path)
-    if not p.is_file():
-        raise FileFormatError(p, "no such file")
-    if _is_pose_graph(p):
-        return RelationalMap.from_posegraph(read_graph(p))
-    return RelationalMap.from_records(read_records(p))
+    text = read_text(p)
+    if _is_pose_graph(text):
+        return RelationalMap.from_posegraph(graph_from_text(p, text))
+    return RelationalMap.from_records(records_from_text(p, text))
 
 
 def save_map(
@@ -52,10 +50,13 @@ def save_map(
 ) -> None:
     """Write a map as a map file (JSON for ``.json``, YAML otherwise), atomically.
 
-    Dependent groups are not representable in map files yet and raise ``ValueError``.
+    Frames must be strings or integers (numpy integers are written as integers), so that
+    :func:`load_map` reads back the same map; other frames raise
+    :class:`relmap.errors.ParameterError` before anything is written. Dependent groups are not
+    representable in map files yet and raise :class:`relmap.errors.ParameterError`.
     """
     if g.groups:
-        raise ValueError("map files cannot hold dependent ATs (joint groups) yet")
+        raise ParameterError("map files cannot hold dependent ATs (joint groups) yet")
     write_records(
         path, [ATRecord(e.name, e.src, e.dst, e.at) for e in g.edges()], description=description
     )

@@ -105,6 +105,7 @@ from relmap.errors import (
 )
 from relmap.gaussian import DEFAULT_RTOL
 from relmap.io.atomic import write_text_atomic
+from relmap.io.textfile import read_text
 from relmap.lie import SE3, Group, se2, se3, so3
 from relmap.typing import ArrayLike, FloatArray, IntArray
 
@@ -374,7 +375,7 @@ def _parse(
 
 
 def _int(path: Path, tag: str, token: str, line: int) -> int:
-    if _INT.fullmatch(token) and -(2**63) <= int(token) < 2**63:
+    if _INT.fullmatch(token) and len(token) <= 20 and -(2**63) <= int(token) < 2**63:
         return int(token)
     raise FileFormatError(path, f"{tag}: vertex id {token!r} is not a (64-bit) integer", line=line)
 
@@ -561,12 +562,12 @@ def read_graph(path: str | os.PathLike[str]) -> PoseGraph:
     symmetric positive definite.
     """
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise FileFormatError(p, f"cannot read: {exc.strerror}") from None
-    except UnicodeDecodeError as exc:
-        raise FileFormatError(p, f"not a text file (UTF-8): {exc.reason}") from None
+    return graph_from_text(p, read_text(p))
+
+
+def graph_from_text(p: Path, text: str) -> PoseGraph:
+    """:func:`read_graph` of text already read (:func:`relmap.io.textfile.read_text`) from the
+    file ``p`` (named in errors): a pipe can be read only once."""
     fixed_list: list[int] = []
     fixed_lines: list[int] = []
     fast = _read_fast(p, text)

@@ -41,8 +41,9 @@ import numpy as np
 
 from relmap._layout import components_outermost, matrix, stack_last
 from relmap.at import AT, compound, compound_chain
-from relmap.errors import ParameterError, ShapeError
-from relmap.gaussian import check_finite
+from relmap.at3 import _finite
+from relmap.errors import ArgumentTypeError, ParameterError, ShapeError
+from relmap.gaussian import check_finite, real_array
 from relmap.lie import se2
 from relmap.typing import ArrayLike, FloatArray
 
@@ -68,15 +69,24 @@ def _sym2(e: Sym2) -> FloatArray:
     return matrix([[s00, s01], [s01, s11]], np.shape(s00))
 
 
+def _number(value: object, name: str) -> float:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number)):
+        raise ParameterError(f"{name} must be a number; got {value!r}")
+    try:
+        return float(value)
+    except OverflowError:
+        raise ParameterError(f"{name} is too large for a float") from None
+
+
 def _positive(value: float, name: str) -> float:
-    v = float(value)
+    v = _number(value, name)
     if not np.isfinite(v) or v <= 0:
         raise ParameterError(f"{name} must be a positive number; got {value}")
     return v
 
 
 def _non_negative(value: float, name: str) -> float:
-    v = float(value)
+    v = _number(value, name)
     if not np.isfinite(v) or v < 0:
         raise ParameterError(f"{name} must be non-negative; got {value}")
     return v
@@ -109,7 +119,7 @@ class DiffDrive:
 
 
 def _pairs(u: ArrayLike, name: str) -> FloatArray:
-    arr = np.asarray(u, dtype=np.float64)
+    arr = real_array(u, name)
     if arr.ndim == 0 or arr.shape[-1] != 2:
         raise ShapeError(f"{name} must have shape (..., 2); got {arr.shape}")
     check_finite(arr, name)
@@ -173,7 +183,9 @@ class _Noise:
         given = dict(zip(self._fields, values, strict=False)) | named
         unknown = set(given) - set(self._fields)
         if unknown:
-            raise TypeError(f"unknown parameter(s) {sorted(unknown)} of {type(self).__name__}")
+            raise ArgumentTypeError(
+                f"unknown parameter(s) {sorted(unknown)} of {type(self).__name__}"
+            )
         for name in self._fields:
             object.__setattr__(self, name, _non_negative(given.get(name, 0.0), name))
 
@@ -406,6 +418,7 @@ def dead_reckon(
         m = drive.motion(m)
     start = AT.identity() if start is None else start
     steps = _step_ats(m, noise, integration, drive)
+    _finite("dead reckoning (the steps' covariance)", steps.mean, steps.cov)
     n = len(m)
     mean = components_outermost(np.empty((n + 1, 3)), 1)
     cov = components_outermost(np.empty((n + 1, 3, 3)), 2)
@@ -417,9 +430,7 @@ def dead_reckon(
 def increments_from_velocities(t: ArrayLike, v: ArrayLike, w: ArrayLike) -> FloatArray:
     """Steps ``(Δs, Δθ)`` (N-1, 2) from logged velocities: each sample ``(v, ω)`` held over
     ``dt`` until the next time stamp (s, m/s, rad/s). Time must not go backwards."""
-    t = np.asarray(t, dtype=np.float64)
-    v = np.asarray(v, dtype=np.float64)
-    w = np.asarray(w, dtype=np.float64)
+    t, v, w = real_array(t, "t"), real_array(v, "v"), real_array(w, "ω")
     if t.ndim != 1 or v.shape != t.shape or w.shape != t.shape:
         raise ShapeError(
             f"t, v and ω must be 1-D of one length; got {t.shape}, {v.shape}, {w.shape}"
@@ -430,4 +441,6 @@ def increments_from_velocities(t: ArrayLike, v: ArrayLike, w: ArrayLike) -> Floa
     if (dt < 0).any():
         k = int(np.flatnonzero(dt < 0)[0])
         raise ParameterError(f"time goes backwards at sample {k + 1}: {t[k]} → {t[k + 1]}")
-    return np.column_stack([v[:-1] * dt, w[:-1] * dt])
+    out = np.column_stack([v[:-1] * dt, w[:-1] * dt])
+    _finite("increments_from_velocities (v·dt, ω·dt)", out)
+    return out

@@ -23,6 +23,7 @@ import numpy as np
 
 from relmap import gaussian
 from relmap.at import AT
+from relmap.at3 import _finite
 from relmap.errors import ParameterError, ShapeError
 from relmap.lie import se2
 from relmap.propagate import SE2, Chart, propagate, unscented
@@ -204,7 +205,7 @@ def _to_polar(x: FloatArray) -> FloatArray:
 
 
 def _triples(mean: ArrayLike, cov: ArrayLike, what: str) -> tuple[FloatArray, FloatArray]:
-    m = np.asarray(mean, dtype=np.float64)
+    m = gaussian.real_array(mean, f"{what} mean")
     if m.ndim == 0 or m.shape[-1] != 3:
         raise ShapeError(f"{what} mean must have shape (..., 3); got {m.shape}")
     gaussian.check_finite(m, f"{what} mean")
@@ -228,6 +229,7 @@ def polar_to_cartesian(mean: ArrayLike, cov: ArrayLike, method: Method = "linear
         out = unscented(_to_cartesian, m, C, chart_in=POLAR, chart_out=SE2)
     else:
         raise ParameterError(f"method must be 'linear' or 'unscented'; got {method!r}")
+    _finite("polar_to_cartesian", out.mean, out.cov)
     return AT._trusted(out.mean, out.cov)
 
 
