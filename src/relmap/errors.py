@@ -11,10 +11,12 @@ __all__ = [
     "CovarianceError",
     "DisconnectedError",
     "FileFormatError",
+    "FrameError",
     "InconsistentMapError",
     "InconsistentMergeError",
     "IrreducibleNetworkError",
     "NonFiniteError",
+    "NumericalError",
     "NotPositiveSemidefiniteError",
     "NotSymmetricError",
     "ParameterError",
@@ -67,6 +69,16 @@ class UnknownFrameError(RelmapError, KeyError):
 
     def __str__(self) -> str:  # KeyError would quote the message
         return str(self.args[0]) if self.args else ""
+
+
+#: The name the relational-map layer uses for a frame that is not in the map (an id unknown to
+#: a map, a solution or a file).
+FrameError = UnknownFrameError
+
+
+class NumericalError(RelmapError, ArithmeticError):
+    """A computation left the range of floating point (an overflow to infinity or NaN) on
+    inputs that were finite: the message names the step."""
 
 
 class UnknownATError(RelmapError, KeyError):

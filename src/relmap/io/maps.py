@@ -6,8 +6,6 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import numpy as np
-
 from relmap.errors import FileFormatError
 from relmap.io.mapfile import ATRecord, read_records, write_records
 from relmap.io.posegraph import _KIND_OF_TAG, PoseGraph, read_graph
@@ -68,29 +66,12 @@ def solve_graph(
     max_iterations: int = 100,
     rtol: float | None = None,
 ) -> Solution:
-    """Optimize a whole pose graph from the file's initial guess (the optimal method).
-
-    The anchor is the first ``FIX`` vertex if the file has one, else the first vertex; it
-    stays at its file pose. Returns the :class:`relmap.network.optimal.Solution` (poses in
-    :attr:`PoseGraph.vertex_ids` order). ``rtol``: the convergence tolerance of
-    :func:`relmap.network.optimal.optimize` (default there).
+    """Optimize a whole pose graph from the file's initial guess: the map of the graph
+    (:meth:`RelationalMap.from_posegraph`) solved by :meth:`RelationalMap.solve` (the network
+    layer's :func:`relmap.network.optimal.solve_map`). The anchor is the first ``FIX`` vertex
+    if the file has one, else the first vertex; it stays at its file pose. Poses come in
+    :attr:`Solution.frames` order (the vertex ids); :meth:`Solution.relative` takes ids.
     """
-    from relmap.network.optimal import optimize
-    from relmap.network.problem import Problem
-
-    i, j = graph.edge_indices()
-    anchor = int(graph.index_of(graph.fixed[:1])[0]) if len(graph.fixed) else 0
-    problem = Problem(
-        len(graph.vertex_ids),
-        i,
-        j,
-        graph.measurements.mean,
-        graph.measurements.cov,
-        [],
-        np.array(graph.poses),
-        anchor,
-        [f"e{k}" for k in range(len(i))],
-        graph.measurements.group,
+    return RelationalMap.from_posegraph(graph).solve(
+        progress=progress, max_iterations=max_iterations, rtol=rtol
     )
-    options = {} if rtol is None else {"rtol": rtol}
-    return optimize(problem, progress=progress, max_iterations=max_iterations, **options)
