@@ -467,9 +467,9 @@ def merge(
     ``E[δA δBᵀ]``, two ATs) or ``joint_cov`` (``(..., dof·k, dof·k)``, k ATs, diagonal blocks
     their own covariances) give the best linear unbiased merge:
     ``K = (C₁ - C₁₂) S⁺``, ``S = C₁ + C₂ - C₁₂ - C₂₁``, covariance
-    ``(I-K) C₁ (I-K)ᵀ + K C₂ Kᵀ + (I-K) C₁₂ Kᵀ + K C₂₁ (I-K)ᵀ``; k ATs are merged one after
-    the other, carrying the merged estimate's cross-covariance with the rest
-    (``(I-K) C₁ₖ + K C₂ₖ``). A joint covariance that is not symmetric PSD, or whose diagonal
+    ``C₁ - K (C₁ - C₁₂)ᵀ``; for k ATs the same from the differences ``d_j = x̂_j ⊟ x̂₁``:
+    ``x̂ = x̂₁ - Cov(e₁, d) Cov(d)⁺ d`` (generalized least squares with the joint
+    covariance, written so that exactly known components are allowed). A joint covariance that is not symmetric PSD, or whose diagonal
     blocks differ from the ATs' covariances, raises a :class:`relmap.errors.CovarianceError`
     naming it.
     """
@@ -537,29 +537,26 @@ def _merge_correlated(
         raise NotPositiveSemidefiniteError(
             f"{exc}: the cross-covariances are impossible for these ATs' covariances"
         ) from None
-    blocks = [
-        [joint[..., b * i : b * i + b, b * j : b * j + b] for j in range(k)] for i in range(k)
-    ]
-    mean = np.broadcast_to(ats[0].mean, (*shape, *group.point_shape))
-    C = blocks[0][0]
-    cross = list(blocks[0])  # Cov(merged, AT j)
+    # BLUE from the first AT and the differences d_j = z_j ⊟ z_1 (x cancels from them):
+    # x̂ = z_1 - Cov(e_1, d) Cov(d)⁺ d, C = C_1 - Cov(e_1, d) Cov(d)⁺ Cov(e_1, d)ᵀ.
     eye = np.eye(b)
-    for n in range(1, k):
-        C12, C2 = cross[n], blocks[n][n]
-        C21 = np.swapaxes(C12, -1, -2)
-        S = C + C2 - C12 - C21
-        G, null = gaussian.generalized_inverse(0.5 * (S + np.swapaxes(S, -1, -2)))
-        K = (C - C12) @ G
-        v = group.minus(ats[n].mean, mean)
-        gaussian.check_agreement(
-            v, null, atol=atol, what=f"AT #{n} into the preceding ones (correlated)"
-        )
-        mean = group.plus(mean, np.einsum("...ij,...j->...i", K, v))
-        I_K = eye - K
-        Kt, I_Kt = np.swapaxes(K, -1, -2), np.swapaxes(I_K, -1, -2)
-        C = I_K @ C @ I_Kt + K @ C2 @ Kt + I_K @ C12 @ Kt + K @ C21 @ I_Kt
-        C = 0.5 * (C + np.swapaxes(C, -1, -2))
-        cross = [I_K @ cross[j] + K @ blocks[n][j] for j in range(k)]
+    D = np.zeros((b * (k - 1), b * k))
+    for j in range(1, k):
+        D[b * (j - 1) : b * j, :b] = -eye
+        D[b * (j - 1) : b * j, b * j : b * j + b] = eye
+    Dt = D.T
+    S = D @ joint @ Dt
+    X = joint[..., :b, :] @ Dt  # Cov(e_1, d)
+    G, null = gaussian.generalized_inverse(0.5 * (S + np.swapaxes(S, -1, -2)))
+    mean0 = np.broadcast_to(ats[0].mean, (*shape, *group.point_shape))
+    d = np.concatenate(
+        [np.broadcast_to(group.minus(a.mean, ats[0].mean), (*shape, b)) for a in ats[1:]], -1
+    )
+    gaussian.check_agreement(d, null, atol=atol, what="the correlated ATs")
+    K = X @ G
+    mean = group.plus(mean0, -np.einsum("...ij,...j->...i", K, d))
+    C = joint[..., :b, :b] - K @ np.swapaxes(X, -1, -2)
+    C = 0.5 * (C + np.swapaxes(C, -1, -2))
     return kind._trusted(mean, C)
 
 

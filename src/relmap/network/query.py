@@ -141,6 +141,8 @@ def query(
     if method not in METHODS:
         raise ParameterError(f"method must be one of {', '.join(METHODS)}; got {method!r}")
     check_method(moments)
+    src = src.item() if isinstance(src, np.generic) else src  # np.int64(5) is frame 5
+    dst = dst.item() if isinstance(dst, np.generic) else dst
     for frame in (src, dst):
         if not g.has_frame(frame):
             raise UnknownFrameError(f"no frame {frame!r} in the map")

@@ -78,7 +78,7 @@ import numpy as np
 from relmap import moments as _moments
 from relmap.at import AT, compound, merge, reverse
 from relmap.at3 import AT3
-from relmap.errors import IrreducibleNetworkError, ParameterError
+from relmap.errors import IrreducibleNetworkError, NumericalError, ParameterError
 from relmap.lie import Group
 
 __all__ = ["Reduction", "reduce_network"]
@@ -656,7 +656,18 @@ def _consistent_mesh(
     d, b = len(legs), group.dof
     T = [_chart_of_origin(group, leg.mean) for leg in legs]
     S = [_congruence(np.linalg.inv(Ti), leg.cov) for Ti, leg in zip(T, legs, strict=True)]
-    # ξ_k - ξ_0 (k ≥ 1) seen through the star: Cov = S_0 + δ_kl S_k
+    # Directions every leg knows exactly (e.g. headings without error) stay exact: the mesh is
+    # built on the other directions, U spanning them.
+    lam, U = np.linalg.eigh(sum(S))
+    keep = lam > 1e-12 * np.abs(lam).max(axis=-1, keepdims=True)
+    r = keep.sum(axis=-1)
+    if not np.all(r == r.flat[0]) or r.flat[0] == 0:
+        return None
+    U = U[..., :, b - int(r.flat[0]) :]
+    Ut = np.swapaxes(U, -1, -2)
+    S = [Ut @ Sk @ U for Sk in S]
+    c = U.shape[-1]
+    # ξ_k - ξ_0 (k ≥ 1) seen through the star: Cov = S_0 + δ_km S_k
     P = np.concatenate(
         [
             np.concatenate([S[0] + (S[k] if k == m else 0.0) for m in range(1, d)], axis=-1)
@@ -670,7 +681,7 @@ def _consistent_mesh(
     H = 0.5 * (H + np.swapaxes(H, -1, -2))
 
     def block(k: int, m: int) -> FloatArray:
-        return H[..., b * (k - 1) : b * k, b * (m - 1) : b * m]
+        return H[..., c * (k - 1) : c * k, c * (m - 1) : c * m]
 
     G: dict[tuple[int, int], FloatArray] = {}
     for k in range(1, d):
@@ -684,7 +695,8 @@ def _consistent_mesh(
         if not np.all(np.linalg.eigvalsh(Gpq) > 1e-12 * np.abs(Gpq).max()):
             return None  # no finite, positive definite AT carries this conductance
         mean, _, Jq = group.between(legs[p].mean, legs[q].mean, jacobians=True)
-        out.append(((p, q), mean, _congruence(Jq @ T[q], np.linalg.inv(Gpq))))
+        Spq = U @ np.linalg.inv(Gpq) @ Ut
+        out.append(((p, q), mean, _congruence(Jq @ T[q], Spq)))
     return out
 
 
@@ -745,6 +757,8 @@ def reduce_network(
     """
     if on_irreducible not in ("raise", "drop"):
         raise ParameterError(f"on_irreducible must be 'raise' or 'drop'; got {on_irreducible!r}")
+    s, t = _plain(s), _plain(t)
+    edges = [(name, _plain(u), _plain(v), at) for name, u, v, at in edges]
     if delta_y not in DELTA_Y:
         raise ParameterError(f"delta_y must be one of {', '.join(DELTA_Y)}; got {delta_y!r}")
     _moments.check_method(moments)
@@ -784,10 +798,26 @@ def reduce_network(
         )
     definitions: dict[str, str] = {}
     reducer = _Reducer(s, t, cross, definitions, moments, delta_y)
-    at, expr, dropped = _reduce_or_drop(reducer, st, on_irreducible, criterion, progress)
+    with np.errstate(over="ignore", invalid="ignore"):
+        try:
+            at, expr, dropped = _reduce_or_drop(reducer, st, on_irreducible, criterion, progress)
+            finite = bool(np.all(np.isfinite(at.cov)) and np.all(np.isfinite(at.mean)))
+        except np.linalg.LinAlgError:
+            finite = False
+    if not finite:
+        raise NumericalError(
+            f"the reduction from {s!r} to {t!r} overflowed (inf/NaN): the ATs' means or "
+            "covariances are too large for floating point"
+        )
     text = _render(expr)
     at = _checked_psd(at, text, definitions)
     return Reduction(at, text, dropped, definitions)
+
+
+def _plain(frame: Frame) -> Frame:
+    """A numpy scalar frame (``np.int64(5)``) as the Python value it equals (``5``): the
+    working network compares frames with ``==``, which numpy would broadcast."""
+    return frame.item() if isinstance(frame, np.generic) else frame
 
 
 def _checked_psd(at: AT | AT3, expression: str, definitions: dict[str, str]) -> AT | AT3:
