@@ -522,7 +522,7 @@ class _Reducer:
                 st.drop(k)
             kind = type(oriented[0][0])
             for i, ((p, q), mean, cov) in enumerate(mesh):
-                name = f"M{_sub(n)}{_LETTERS[i]}"
+                name = f"M{_sub(n)}{_letters(i)}"
                 self.definitions[name] = (
                     f"{what} of the star {_short(star, 200)}: {ends[p]!r}→{ends[q]!r}"
                 )
@@ -698,6 +698,11 @@ def _consistent_mesh(
         Spq = U @ np.linalg.inv(Gpq) @ Ut
         out.append(((p, q), mean, _congruence(Jq @ T[q], Spq)))
     return out
+
+
+def _letters(i: int) -> str:
+    """a, b, …, z, aa, ab, …: the i-th name of a star-mesh's ATs."""
+    return _LETTERS[i] if i < len(_LETTERS) else _letters(i // 26 - 1) + _LETTERS[i % 26]
 
 
 def _short(text: str, limit: int = 80) -> str:
