@@ -488,7 +488,9 @@ def test_cli_query_answers_several_pairs_with_one_load(tmp_path, capsys):
 
     g = bridge(1.0)
     path = tmp_path / "bridge.yaml"
-    rm.io.save_map(path, g)
+    from relmap.io import save_map
+
+    save_map(path, g)
     assert main(["query", str(path), "w", "u", "t", "v", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert [(o["from"], o["to"]) for o in out] == [("w", "u"), ("t", "v")]
@@ -504,7 +506,9 @@ def test_cli_summarizes_long_expressions(tmp_path, capsys):
     for k in range(120):
         g.add(f"frame{k}", f"frame{k + 1}", rm.AT.from_sigmas([1, 0, 0], [0.1, 0.1, 0.01]))
     path = tmp_path / "chain.yaml"
-    rm.io.save_map(path, g)
+    from relmap.io import save_map
+
+    save_map(path, g)
     assert main(["query", str(path), "frame0", "frame120"]) == 0
     text = capsys.readouterr().out
     assert max(len(line) for line in text.splitlines()) < 400 and "--verbose" in text
