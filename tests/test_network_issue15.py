@@ -388,7 +388,9 @@ def test_unanchored_component_is_refused_naming_it(kind):
         g.solve("a")
     with pytest.raises(errors.DisconnectedError, match="'x'"):
         g.query("a", "x")
-    np.testing.assert_allclose(g.submap(["a", "b", "c"]).solve("a").pose("a"), g.at_type.group.identity(()))
+    np.testing.assert_allclose(
+        g.submap(["a", "b", "c"]).solve("a").pose("a"), g.at_type.group.identity(())
+    )
 
 
 def test_vertices_without_edges_are_named(tmp_path):

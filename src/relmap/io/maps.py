@@ -66,12 +66,26 @@ def solve_graph(
     max_iterations: int = 100,
     rtol: float | None = None,
 ) -> Solution:
-    """Optimize a whole pose graph from the file's initial guess: the map of the graph
-    (:meth:`RelationalMap.from_posegraph`) solved by :meth:`RelationalMap.solve` (the network
-    layer's :func:`relmap.network.optimal.solve_map`). The anchor is the first ``FIX`` vertex
+    """Optimize a whole pose graph from the file's initial guess (the network layer's
+    :func:`relmap.network.optimal.solve_frames` on the graph's arrays; the same as
+    ``RelationalMap.from_posegraph(graph).solve()``). The anchor is the first ``FIX`` vertex
     if the file has one, else the first vertex; it stays at its file pose. Poses come in
-    :attr:`Solution.frames` order (the vertex ids); :meth:`Solution.relative` takes ids.
+    :attr:`PoseGraph.vertex_ids` order; :meth:`Solution.relative` and friends take vertex
+    ids. A vertex without edges, or a part of the graph not linked to the anchor, is refused
+    with a :class:`relmap.errors.SolverError` naming them.
     """
-    return RelationalMap.from_posegraph(graph).solve(
-        progress=progress, max_iterations=max_iterations, rtol=rtol
+    from relmap.network.optimal import solve_frames
+
+    i, j = graph.edge_indices()
+    anchor = int(graph.index_of(graph.fixed[:1])[0]) if len(graph.fixed) else 0
+    return solve_frames(
+        graph.vertex_ids.tolist(),
+        i,
+        j,
+        graph.measurements,
+        graph.poses,
+        anchor,
+        progress=progress,
+        max_iterations=max_iterations,
+        rtol=rtol,
     )

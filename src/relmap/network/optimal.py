@@ -37,7 +37,15 @@ from relmap.typing import FloatArray, IntArray
 if TYPE_CHECKING:
     from relmap.network.graph import RelationalMap
 
-__all__ = ["Solution", "Solved", "optimize", "problem_from_map", "solve_map", "solve_relative"]
+__all__ = [
+    "Solution",
+    "Solved",
+    "optimize",
+    "problem_from_map",
+    "solve_frames",
+    "solve_map",
+    "solve_relative",
+]
 
 Frame = Hashable
 Progress = Callable[[int, float], None]
@@ -575,18 +583,22 @@ def optimize(
     max_iterations: int = 100,
     rtol: float = 1e-10,
     atol: float = 1e-9,
-    xtol: float = 1e-12,
+    xtol: float = 1e-13,
     progress: Progress | None = None,
 ) -> Solution:
     """Minimize ``Σ rᵀ Σ⁻¹ r`` over the frame poses, the anchor fixed, from ``p.guess``.
 
-    **Stopping rule** (on the step as well as the decrease): converged when the undamped
-    (Gauss-Newton) step ``δ`` at the current poses both predicts a decrease below ``rtol``
-    relatively and is negligible, ``max|δ| ≤ xtol·(1 + max|t|)`` (t the poses' translations,
-    m; δ in m and rad), or when the last accepted step lowered the objective only by rounding
-    (``≤ 1e-13`` relatively: nothing more can be had in floating point). The factorization
-    that proved it is the one at the returned poses, kept for covariances; on small maps one
-    further Gauss-Newton step then moves the estimate by less than about 1e-12 relatively.
+    **Stopping rule** (on the decrease, then on the step): the iterations end when the
+    undamped (Gauss-Newton) step at the current poses predicts a decrease below ``rtol``
+    relatively, or the last accepted step lowered the objective only by rounding. Gauss-Newton
+    converges only linearly when the residuals are not zero, so the poses are then polished
+    with the factorization at hand (chord steps ``δ = -H⁻¹ g`` with the gradient recomputed,
+    no new factorization, at most 20) until the step is negligible,
+    ``max|δ| ≤ xtol·(1 + max|t|)`` (t the poses' translations, m; δ in m and rad) or stops
+    lowering the objective; the normal matrix is factorized once more at the final poses for
+    the covariances. One further Gauss-Newton step then moves the estimate by less than about
+    1e-12 relatively. The covariances come from the factorization at the point before that step (it
+    differs from the one after it by O(|δ|), about 1e-7 relatively at the default ``rtol``).
     ``Solution.converged`` is False when ``max_iterations`` ended the loop instead. An
     objective that overflows raises :class:`relmap.errors.NumericalError`.
 
@@ -649,10 +661,23 @@ def optimize(
         predicted = -float(np.einsum("i,i->", grad, delta))
         if lam:
             predicted += lam * float(np.einsum("i,i,i->", delta, diag, delta))
-        if lam == 0.0 and predicted <= rtol * max(cost, 1e-300):
-            small = float(np.abs(delta).max(initial=0.0)) <= xtol * scale
-            if small or stalled:
-                break
+        if lam == 0.0 and (predicted <= rtol * max(cost, 1e-300) or stalled):
+            # Converged in the objective. Polish the poses to rounding with the factorization
+            # at hand (chord steps: no new factorization), then factorize once at the final
+            # poses for the covariances, if they moved.
+            moved = False
+            for _ in range(_POLISH_STEPS):
+                if float(np.abs(delta).max(initial=0.0)) <= xtol * scale:
+                    break
+                trial = linearize(step(state, delta))
+                if not trial[0] <= cost * (1.0 + 1e-13) + 1e-300:
+                    break
+                state, moved = step(state, delta), True
+                cost, poses, data, grad = trial
+                delta = -factor.solve(grad)
+            if moved:
+                undamped_at_current = False
+            break
         if iterations >= max_iterations:
             converged = False
             break
@@ -683,6 +708,10 @@ def optimize(
     if not undamped_at_current:
         factor.factorize(data)  # the undamped normal matrix at the optimum, for covariances
     return Solution(p, param, poses, factor, iterations, initial, cost, data, converged)
+
+
+#: chord steps (with the last factorization) that polish a converged solution to rounding
+_POLISH_STEPS = 20
 
 
 def _translations(group: Group, poses: FloatArray) -> FloatArray:
@@ -761,68 +790,104 @@ def solve_map(
     """Optimize every frame of a map jointly (the optimal method over the whole network).
 
     ``anchor`` (default :attr:`RelationalMap.anchor`: a pose graph's first ``FIX`` vertex,
-    else its first vertex) stays at its guess (pose graphs: the file's pose; otherwise the
-    identity). Poses come in :attr:`Solution.frames` order. A map whose frames are not all
-    linked to the anchor (a second component, or vertices without edges) is refused with a
-    :class:`SolverError` naming them: nothing would fix their poses.
+    else its first vertex) stays at its guess (the map's guesses, e.g. a pose graph's; else
+    the identity, the others compounded along a spanning tree). Poses come in
+    :attr:`Solution.frames` order (:attr:`RelationalMap.frames`). See :func:`solve_frames`.
     """
     if anchor is None:
         anchor = g.anchor
     if anchor is None or not g.has_frame(anchor):
         raise UnknownFrameError(f"no frame {anchor!r} in the map to anchor the solve")
-    _check_connected(g, anchor)
+    frames = g.frames
     names = list(g.ends())
-    problem, _ = problem_from_map(g, names, anchor, keep_guess=True, frames=g.frames)
+    index = {f: k for k, f in enumerate(frames)}
+    _check_connected(frames, *_rows(g, names, index), index[anchor])
+    problem, _ = problem_from_map(g, names, anchor, keep_guess=True, frames=frames)
     options = {} if rtol is None else {"rtol": rtol}
     return optimize(problem, progress=progress, max_iterations=max_iterations, **options)
 
 
-def _check_connected(g: RelationalMap, anchor: Frame) -> None:
-    """Raise :class:`SolverError` naming the frames not linked to ``anchor`` by ATs."""
-    incidence, ends = g.incidence(), g.ends()
-    seen, stack = {anchor}, [anchor]
-    while stack:
-        f = stack.pop()
-        for nm in incidence[f]:
-            a, b = ends[nm]
-            for h in (a, b):
-                if h not in seen:
-                    seen.add(h)
-                    stack.append(h)
-    if len(seen) == len(incidence):
-        return
-    alone = [f for f, names in incidence.items() if not names]
-    parts: list[list[Frame]] = []
-    rest = {f for f, names in incidence.items() if names and f not in seen}
-    while rest:
-        root = min(rest, key=str)
-        comp, stack = {root}, [root]
-        while stack:
-            f = stack.pop()
-            for nm in incidence[f]:
-                for h in ends[nm]:
-                    if h not in comp:
-                        comp.add(h)
-                        stack.append(h)
-        parts.append(sorted(comp, key=str))
-        rest -= comp
+def solve_frames(
+    frames: Sequence[Frame],
+    i: IntArray,
+    j: IntArray,
+    ats: AT | AT3,
+    guess: FloatArray,
+    anchor: int,
+    *,
+    progress: Progress | None = None,
+    max_iterations: int = 100,
+    rtol: float | None = None,
+) -> Solution:
+    """Optimize frames ``frames`` linked by the batch ``ats`` (AT k: frame ``j[k]`` seen from
+    ``i[k]``, rows into ``frames``) from the poses ``guess``, the frame at row ``anchor``
+    fixed. Frames not linked to the anchor (a second component, frames without an AT) are
+    refused with a :class:`SolverError` naming them: nothing would fix their poses. This is
+    the array form a pose-graph file gives (:func:`relmap.io.solve_graph`)."""
+    _check_connected(frames, i, j, anchor)
+    m = len(i)
+    problem = Problem(
+        len(frames),
+        np.asarray(i, dtype=np.int64),
+        np.asarray(j, dtype=np.int64),
+        ats.mean,
+        ats.cov,
+        [],
+        np.array(guess),
+        anchor,
+        [f"e{k}" for k in range(m)],
+        ats.group,
+        list(frames),
+    )
+    options = {} if rtol is None else {"rtol": rtol}
+    return optimize(problem, progress=progress, max_iterations=max_iterations, **options)
 
-    def few(frames: Sequence[Frame]) -> str:
-        shown = ", ".join(map(repr, frames[:5]))
-        return f"{len(frames)} frames ({shown}{', …' if len(frames) > 5 else ''})"
+
+def _rows(
+    g: RelationalMap, names: Sequence[str], index: dict[Frame, int]
+) -> tuple[IntArray, IntArray]:
+    ends = g.ends()
+    i = np.fromiter((index[ends[n][0]] for n in names), dtype=np.int64, count=len(names))
+    j = np.fromiter((index[ends[n][1]] for n in names), dtype=np.int64, count=len(names))
+    return i, j
+
+
+def _check_connected(frames: Sequence[Frame], i: IntArray, j: IntArray, anchor: int) -> None:
+    """Raise :class:`SolverError` naming the frames that no chain of ATs links to the anchor
+    (one vectorized connected-components pass)."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(frames)
+    adj = sp.coo_matrix((np.ones(len(i)), (i, j)), shape=(n, n))
+    count, label = connected_components(adj, directed=False)
+    if count <= 1:
+        return
+    degree = np.bincount(np.concatenate([i, j]), minlength=n)
+    alone = [frames[k] for k in np.flatnonzero(degree == 0)]
+    others = [
+        [frames[k] for k in np.flatnonzero(label == c)]
+        for c in range(count)
+        if c != label[anchor] and degree[label == c].any()
+    ]
+
+    def few(part: Sequence[Frame]) -> str:
+        shown = ", ".join(map(repr, part[:5]))
+        return f"{len(part)} frames ({shown}{', …' if len(part) > 5 else ''})"
 
     what = []
-    if parts:
+    if others:
         what.append(
-            f"{len(parts)} more connected component(s) with no anchor: "
-            + "; ".join(few(c) for c in parts[:3])
+            f"{len(others)} more connected component(s) with no anchor: "
+            + "; ".join(few(c) for c in others[:3])
         )
     if alone:
         what.append(f"{few(alone)} without any AT")
+    reached = int((label == label[anchor]).sum())
     raise SolverError(
-        f"the map is not connected: the anchor {anchor!r} reaches {len(seen)} frames, but "
-        + " and ".join(what)
-        + "; solve each component separately (RelationalMap.submap) or query frames within one"
+        f"the map is not connected: the anchor {frames[anchor]!r} reaches {reached} frames, "
+        "but " + " and ".join(what) + "; solve each component separately "
+        "(RelationalMap.submap) or query frames within one"
     )
 
 
