@@ -273,7 +273,7 @@ def test_joint_estimate_is_consistent_by_monte_carlo():
     m, truth = noisy_map(8)
     names = [e.name for e in m.edges()]
     covs = np.stack([m.edge(n).at.cov for n in names])
-    problem, index = optimal.problem_from_map(m, names, "a")
+    problem, _ = optimal.problem_from_map(m, names, "a")
     true_rel = se3.between(truth["a"], truth["e"])
     g = rng(9)
     trials, d2, errors = 300, [], []

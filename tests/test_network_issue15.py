@@ -12,7 +12,7 @@ import pytest
 
 import relmap as rm
 from relmap import errors
-from relmap.lie import se2, se3
+from relmap.lie import se2
 from relmap.network import optimal
 from relmap.network.reduce import reduce_network
 
@@ -401,7 +401,7 @@ def test_vertices_without_edges_are_named(tmp_path):
         "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nVERTEX_SE2 7 5 5 0\n"
         "EDGE_SE2 0 1 1 0 0 100 0 0 100 0 1000\n"
     )
-    with pytest.raises(errors.SolverError, match="1 frames \\(7\\) without any AT"):
+    with pytest.raises(errors.SolverError, match=r"1 frames \(7\) without any AT"):
         solve_graph(read_graph(path))
 
 
@@ -451,7 +451,6 @@ def test_sense_bad_input_is_a_relmap_error():
 
 def test_to_euler_warns_near_the_pole():
     from relmap.at3 import PoleWarning
-
     from relmap.lie import so3
 
     def pose(pitch_deg):
@@ -473,7 +472,7 @@ def test_bad_queries_name_what_was_wrong():
     g = _two_components()
     with pytest.raises(errors.FrameError, match="'nowhere'"):
         g.query("a", "nowhere")
-    with pytest.raises(errors.DisconnectedError, match="'a'.*'z'"):
+    with pytest.raises(errors.DisconnectedError, match=r"'a'.*'z'"):
         g.query("a", "z", method="reduce")
     exact = rm.RelationalMap()
     exact.add("a", "b", rm.AT([1.0, 0.0, 0.0]))

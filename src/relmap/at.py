@@ -469,8 +469,9 @@ def merge(
     ``K = (C₁ - C₁₂) S⁺``, ``S = C₁ + C₂ - C₁₂ - C₂₁``, covariance
     ``C₁ - K (C₁ - C₁₂)ᵀ``; for k ATs the same from the differences ``d_j = x̂_j ⊟ x̂₁``:
     ``x̂ = x̂₁ - Cov(e₁, d) Cov(d)⁺ d`` (generalized least squares with the joint
-    covariance, written so that exactly known components are allowed). A joint covariance that is not symmetric PSD, or whose diagonal
-    blocks differ from the ATs' covariances, raises a :class:`relmap.errors.CovarianceError`
+    covariance, written so that exactly known components are allowed). A joint covariance
+    that is not symmetric PSD, or whose diagonal blocks differ from the ATs' covariances,
+    raises a :class:`relmap.errors.CovarianceError` (or :class:`~relmap.errors.ShapeError`)
     naming it.
     """
     if not ats:

@@ -300,7 +300,7 @@ def _solve(args: argparse.Namespace) -> int:
             f"{args.graph}: {summary['poses']} poses, {summary['edges']} edges; "
             f"error {sol.initial_error:.6g} → {sol.final_error:.6g} "
             f"in {sol.iterations} iterations"
-            + ("" if sol.converged else f" (NOT converged: stopped at --max-iterations)")
+            + ("" if sol.converged else " (NOT converged: stopped at --max-iterations)")
             + f", {seconds:.2f} s"
             + (f"; written to {args.out}" if args.out else "")
         )

@@ -1,4 +1,4 @@
-"""The paper's reduction (§5): compounding, merging and the Delta-Y transformation.
+"""The paper's reduction (§5): compounding, merging, Delta-Y (first-order consistent) and Y→Δ.
 
 To estimate the AT from frame s to frame t, mark both, then repeat until one AT links them:
 compound the two ATs through any unmarked frame that has exactly two (step 2), and merge
@@ -8,25 +8,77 @@ ATs merged point the query's way: merging does not commute with reversal when th
 error, and this fixes one orientation.
 
 When neither step applies (the Wheatstone bridge of Fig. 3), a triangle of ATs (Delta) is
-replaced by an equivalent star (Y) around a new frame o (Fig. 4): with the triangle's corners
-w, t, v and ATs A (w→t), B (w→v), C (t→v),
+replaced by an equivalent star (Y) around a new frame o (Fig. 4), and when there is no
+triangle to use, a star by a triangle (Y→Δ), or more generally an unmarked frame with d ≤
+:data:`MESH_MAX_DEGREE` ATs by ATs between every two of its neighbours (star-mesh). Delta-Y is
+applied where it lets a series step follow (a corner with three ATs keeps two); Y→Δ and
+star-mesh (the fewest ATs first) each remove a frame; so ATs + frames decrease at every
+round, and the reduction ends.
 
-    A' = A ⊗ (B ⊕ Cᴿ),  B' = B ⊗ (A ⊕ C),  C' = C ⊗ (Aᴿ ⊕ B),
-    X: w→o with identity mean,  Y: o→v with mean B',  Z: o→t with mean A',
-    C_X = ½(C_A' + C_B' - K C_C' Kᵀ),  C_Y = ½(-C_A' + C_B' + K C_C' Kᵀ),
-    C_Z = ½(C_A' - C_B' + K C_C' Kᵀ),
+**The first-order picture** (relmap's derivation; the paper has none). Express every frame f
+by a perturbation ξ_f of a common frame (the triangle's or star's first corner w): the chart
+perturbation of f's pose p_f is ``δp_f = T(p_f) ξ_f`` with ``T(p) = ∂(a ⊕ p)/∂a`` at the
+identity (``[[1, 0, -y], [0, 1, x], [0, 0, 1]]`` in the plane, ``[[I, -[t]×], [0, I]]`` in
+3-D). These T commute and compose additively, and an AT e from frame i to j measures, to
+first order, ``δz_e = M_e (ξ_j - ξ_i)`` with ``M_e = J_j T(p_j)`` (J_j the Jacobian of
+``between(p_i, p_j)`` in p_j). So in ξ coordinates a relational map is a linear network of
+matrix-valued "resistances" ``S_e = M_e⁻¹ C_e M_e⁻ᵀ``: compounding adds them, merging is their
+parallel combination, and both are exact to first order. Delta-Y and star-mesh are the
+resistor-network transforms with matrices:
 
-with K = blkdiag(R(θ_A), 1) rotating C' from t's frame into w's (Eq. 3's K; in 3-D the same
-Jacobian of ``A ⊕ ·``, blkdiag(R_A, R_A)). The paper prints
-``K C_C Kᵀ`` (which gives negative variances even in one dimension) and a second, asymmetric
-form; relmap uses C_C' and symmetrizes. The star's covariances may be indefinite: they are
-intermediate quantities, never validated. **Delta-Y is exact only in the linear, isotropic
-case** (no angular error, position covariances σ²I), where it equals the Delta-Y rule of
-resistor networks; otherwise it is an approximation, and the optimal method is the reference.
+- **Delta-Y (default, ``delta_y="consistent"``).** Triangle A (w→t), B (w→v), C (t→v), star
+  X (w→o), Y (o→v), Z (o→t), o at w. Seen from w, the triangle gives (ξ_t, ξ_v) the joint
+  covariance ``P_tt = S_A - S_A Σ⁻¹ S_A``, ``P_vv = S_B - S_B Σ⁻¹ S_B``,
+  ``P_tv = S_A Σ⁻¹ S_B`` (Σ = S_A + S_B + S_C, a generalized inverse when singular); the
+  star gives ``[[S_X + S_Z, S_X], [S_X, S_X + S_Y]]``. Hence ``S_X = sym(P_tv)``,
+  ``S_Z = P_tt - S_X``, ``S_Y = P_vv - S_X``, then ``C_X = S_X``,
+  ``C_Y = T(p_v) S_Y T(p_v)ᵀ``, ``C_Z = T(p_t) S_Z T(p_t)ᵀ`` with the corners' means
+  ``p_t = A ⊗ (B ⊕ Cᴿ)``, ``p_v = B ⊗ (A ⊕ C)`` (the paper's A', B'). The star reproduces
+  the triangle's corner covariance (21 numbers) in all but the antisymmetric part of
+  ``P_tv`` (3 numbers): a star of three independent ATs has 18. That part vanishes when
+  the S commute — the linear isotropic case (the resistor bridge), and, measured, isotropic
+  positions with heading error — where Delta-Y is exact to first order; otherwise it is
+  the only error. Measured on the bridge (demo report, ``relmap demo``): with the
+  fig3.json errors (σx = σy = 5 cm) at σθ = 0.5°-10° the w→u covariance equals the
+  optimal estimate's to rounding (the paper's formulas: 3%-80% off) and w→u equals the
+  reversed u→w; with σy = 1 cm it is 0.2%-3.9% off the optimal estimate (paper: 5%-15%) and
+  0.2%-7.6% off the reversed u→w. As an estimator re-run on sampled maps it agrees with its
+  prediction within 1.3% at σθ ≤ 5° (isotropic), but at σy = 1 cm, 5° its spread is 19%
+  larger than predicted (the optimal estimator: 4 ± 3%): its merge weights, computed at the
+  sampled means from approximate star covariances, are not the best ones there.
+- **Delta-Y as printed (``delta_y="paper"``)**: ``A' = A ⊗ (B ⊕ Cᴿ)``,
+  ``B' = B ⊗ (A ⊕ C)``, ``C' = C ⊗ (Aᴿ ⊕ B)``, X: w→o identity mean, Y: o→v mean B',
+  Z: o→t mean A', ``C_X = ½(C_A' + C_B' - K C_C' Kᵀ)``, ``C_Y = ½(-C_A' + C_B' + K C_C'
+  Kᵀ)``, ``C_Z = ½(C_A' - C_B' + K C_C' Kᵀ)``, K = blkdiag(R(θ_A), 1) (in 3-D the Jacobian
+  of ``A ⊕ ·``). The paper prints ``K C_C Kᵀ`` (negative variances even in one dimension)
+  and a second, asymmetric form; this uses C_C' and symmetrizes. It ignores how compounding
+  carries heading error into position (the T above), so it is exact only without angular
+  error, with isotropic positions.
+- **Y→Δ and star-mesh**: legs o→a_k (k = 0…d-1), seen from a_0: ``Cov(ξ_k - ξ_0) =
+  S_0 + δ_km S_k``; its inverse H is the grounded information of the mesh, so the mesh ATs
+  have conductances ``G_km = -sym(H_km)`` and ``G_0k = H_kk - Σ_m G_km``, covariances
+  ``M G⁻¹ Mᵀ``. Exact for commuting S (the linear isotropic grid); otherwise only the
+  antisymmetric parts of the cross terms are lost. Directions every leg knows exactly stay
+  exact; a mesh AT that would not be positive definite, or legs that know different
+  directions exactly, make the step unavailable.
 
-If even Delta-Y cannot reduce the network, :class:`IrreducibleNetworkError` names the loop;
-with ``on_irreducible="drop"`` the loop-forming AT whose deletion gives the smallest result
-(by ``criterion``) is deleted instead (the paper's "best deletion"), and reported.
+The star's (and mesh's) covariances may be indefinite: they are intermediate quantities,
+never validated. **The result is**: its covariance is symmetric PSD (eigenvalues below zero
+only by rounding clipped), or :class:`IrreducibleNetworkError` names the approximate steps
+that made it indefinite — never an exit status 0 with an impossible answer.
+
+If even these steps cannot reduce the network, :class:`IrreducibleNetworkError` says how big
+the rest is; with ``on_irreducible="drop"`` the loop-forming ATs are deleted one at a time,
+greedily (each time the one whose deletion lets the rest reduce with the smallest result by
+``criterion``; if none does, the one that leaves least), and reported. Best deletion is
+refused at once, pointing to ``method='optimal'``, on networks with more than
+:data:`DROP_MAX_INPUT_LOOPS` independent loops, or when more than :data:`DROP_MAX_LOOPS`
+remain: it would discard most of the information (every real pose graph of the shared data
+but ring.g2o is refused within about a second; ring.g2o is answered).
+
+Dependent ATs (:meth:`RelationalMap.add_joint`): a dependent pair of given ATs compounds with
+its cross-covariance (§3.2), parallel dependent given ATs merge with their joint covariance
+(§4.2, :func:`relmap.merge` with ``joint_cov``); anything else involving them raises.
 
 The reduction runs on batched ATs as well (all ATs with one batch shape), which Monte Carlo
 validation uses; best deletion needs single ATs. It runs unchanged on 3-D ATs (:class:`AT3`).
@@ -80,6 +132,7 @@ from relmap.at import AT, compound, merge, reverse
 from relmap.at3 import AT3
 from relmap.errors import IrreducibleNetworkError, NumericalError, ParameterError
 from relmap.lie import Group
+from relmap.typing import FloatArray
 
 __all__ = ["Reduction", "reduce_network"]
 
@@ -265,23 +318,6 @@ class _Reducer:
         return (a, b) if st.rank[a] <= st.rank[b] else (b, a)
 
     # ---------------------------------------------------------------- the steps
-    def prune(self, st: _State) -> bool:
-        changed = False
-        for k in [k for k, e in st.edges.items() if e.u == e.v]:
-            st.drop(k)
-            changed = True
-        queue = deque(st.incident)
-        while queue:
-            f = queue.popleft()
-            if f in (self.s, self.t) or f not in st.incident or len(st.incident[f]) != 1:
-                continue
-            (k,) = st.incident[f]
-            other = st.other(k, f)
-            st.drop(k)
-            changed = True
-            queue.append(other)
-        return changed
-
     def merge_parallel(self, st: _State) -> bool:
         pairs: dict[frozenset[Frame], list[int]] = {}
         for k, e in st.edges.items():
@@ -342,13 +378,6 @@ class _Reducer:
                 joint[..., b * i : b * i + b, b * j : b * j + b] = Xij
                 joint[..., b * j : b * j + b, b * i : b * i + b] = np.swapaxes(Xij, -1, -2)
         return joint
-
-    def compound_series(self, st: _State) -> bool:
-        for m in sorted(st.incident, key=lambda f: st.rank[f]):
-            if self.can_compound(st, m):
-                self.compound_at(st, m)
-                return True
-        return False
 
     def can_compound(self, st: _State, m: Frame) -> bool:
         """Whether frame m is an unmarked frame with exactly two ATs to two other frames."""
