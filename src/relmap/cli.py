@@ -141,7 +141,7 @@ def _query(args: argparse.Namespace) -> int:
         raise ParameterError(
             f"give frames in pairs FROM TO [FROM TO ...]; got {len(frames)} frame names"
         )
-    bar = TerminalProgress("best deletion")
+    bar = TerminalProgress("reduction")
     try:
         with _numba.one_shot():
             g = load_map(args.map)
@@ -152,7 +152,7 @@ def _query(args: argparse.Namespace) -> int:
                 pairs,
                 method=args.method,
                 on_irreducible=args.on_irreducible,
-                progress=lambda done, total: bar.update(f"trying AT {done} of {total}"),
+                progress=lambda done, total: bar.update(f"{done} of {total}"),
             )
     finally:
         bar.close()

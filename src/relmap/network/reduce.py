@@ -272,6 +272,7 @@ class _Reducer:
         self.ids = count(1_000_000)
         self.stars = count(1)
         self.meshes = count(1)
+        self.progress: Callable[[int, int], None] | None = None
 
     # -------------------------------------------------------------- orientation
     def oriented(self, st: _State, k: int, a: Frame) -> tuple[AT | AT3, object]:
@@ -621,7 +622,10 @@ class _Reducer:
         remains. Every Delta-Y applied lets a series step follow, and every Y→Δ removes a
         frame, so ATs + frames decrease at every round: the loop ends."""
         self.series_parallel(st)
+        total = len(st.edges)
         while not self.done(st):
+            if self.progress:
+                self.progress(total - len(st.edges), total)
             tri = next((tri for tri in self.triangles(st) if self.helps(st, tri)), None)
             if tri is not None:
                 self.delta_y(st, tri)
@@ -783,7 +787,9 @@ def reduce_network(
     ``"first_order"`` (Eqs. 1-7), ``"exact"`` or ``"unscented"`` (SE(2) only; module
     docstring: what they mean where merging follows compounding). ``delta_y`` is
     ``"consistent"`` (default: the first-order-consistent star) or ``"paper"`` (the paper's
-    formulas, to reproduce it). ``progress(done, total)`` is called during best deletion.
+    formulas, to reproduce it). ``progress(done, total)`` is called as Delta-Y / Y→Δ rounds
+    go on (ATs reduced of those left after series-parallel steps) and during best deletion
+    (deletions tried).
 
     The result's covariance is symmetric PSD (rounding below 1e-9 of its scale clipped);
     when the approximations of Delta-Y / Y→Δ give an indefinite one,
@@ -832,6 +838,7 @@ def reduce_network(
         )
     definitions: dict[str, str] = {}
     reducer = _Reducer(s, t, cross, definitions, moments, delta_y)
+    reducer.progress = progress
     with np.errstate(over="ignore", invalid="ignore"):
         try:
             at, expr, dropped = _reduce_or_drop(reducer, st, on_irreducible, criterion, progress)
