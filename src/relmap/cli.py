@@ -231,9 +231,17 @@ def _print_at3(at: AT3, src: object) -> None:
     x, y, z = at.translation
     print(f"  translation  x = {x:.6g} m   y = {y:.6g} m   z = {z:.6g} m")
     print("  rotation     q = [" + ", ".join(f"{v:.6g}" for v in at.quaternion) + "] (qx qy qz qw)")
+    import warnings
+
+    from relmap.at3 import PoleWarning
+
     try:
-        r, p, yaw = np.degrees(at.to_euler()[0][3:])
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", PoleWarning)
+            r, p, yaw = np.degrees(at.to_euler()[0][3:])
         print(f"               roll {r:.4g}°, pitch {p:.4g}°, yaw {yaw:.4g}° (R = Rz Ry Rx)")
+        if caught:
+            print("               (near the pole: roll and yaw poorly determined; use q)")
     except ParameterError:
         print("               at the Euler pole (pitch ±90°): no roll/yaw")
     s = at.sigmas
