@@ -141,13 +141,12 @@ def test_delta_y_and_best_deletion_run_in_3d_close_to_optimal():
     # an approximation: within a fraction of a σ of the optimum (measured 0.23 σ)
     err = se3.minus(red.at.matrix, opt.at.matrix) / opt.at.sigmas
     assert np.abs(err).max() < 0.5
-    # K5 cannot be reduced even with Delta-Y: best deletion
+    # K5 is not reducible by Delta-Y, but by star-mesh elimination (beyond the paper)
     k5, _ = noisy_map(3, edges=[(u, v) for i, u in enumerate(FRAMES) for v in FRAMES[i + 1 :]])
-    with pytest.raises(rm.errors.IrreducibleNetworkError):
-        k5.query("a", "e", method="reduce")
-    dropped = k5.query("a", "e", method="reduce", on_irreducible="drop")
-    assert dropped.dropped
-    assert np.abs(se3.minus(dropped.at.matrix, k5.query("a", "e").at.matrix)).max() < 0.1
+    red5 = k5.query("a", "e", method="reduce")
+    assert any(name.startswith("M") for name in red5.definitions)
+    err5 = se3.minus(red5.at.matrix, k5.query("a", "e").at.matrix) / red5.at.sigmas
+    assert np.abs(err5).max() < 0.5
 
 
 def test_planar_network_embedded_in_3d_gives_the_planar_answers():
@@ -274,7 +273,7 @@ def test_joint_estimate_is_consistent_by_monte_carlo():
     m, truth = noisy_map(8)
     names = [e.name for e in m.edges()]
     covs = np.stack([m.edge(n).at.cov for n in names])
-    problem, index = optimal.problem_from_map(m, names, "a")
+    problem, _ = optimal.problem_from_map(m, names, "a")
     true_rel = se3.between(truth["a"], truth["e"])
     g = rng(9)
     trials, d2, errors = 300, [], []
@@ -284,7 +283,7 @@ def test_joint_estimate_is_consistent_by_monte_carlo():
         noise = np.einsum("kij,kj->ki", np.linalg.cholesky(covs), g.normal(size=(len(names), 6)))
         z = se3.plus(true_z, noise)
         sol = optimal.optimize(problem._replace(z=z))
-        est = sol.relative(0, index["e"])
+        est = sol.relative("a", "e")  # frame ids
         err = se3.minus(est.matrix, true_rel)
         errors.append(err)
         d2.append(err @ np.linalg.solve(est.cov, err))

@@ -91,11 +91,12 @@ def test_the_batched_reduction_equals_one_query_per_sample():
         np.testing.assert_allclose(v.samples.samples[k], one, atol=1e-12)
 
 
-def test_delta_y_with_angular_error_is_caught():
-    """With heading errors Delta-Y is an approximation: the check sees it."""
+def test_delta_y_with_angular_error_agrees_with_monte_carlo():
+    """With heading errors the (default, first-order-consistent) Delta-Y agrees with the
+    sampled spread within a few percent (the paper's formulas were 16% off at 1°)."""
     v = validate_query(bridge_map(np.radians(1.0)), "w", "u", method="reduce", n=20_000)
     a = v.agreement
-    assert a.cov_rel_error > 5 * a.cov_rel_standard_error
+    assert a.cov_rel_error < 4 * a.cov_rel_standard_error + 0.02
 
 
 def test_bad_requests():

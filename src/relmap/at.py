@@ -525,7 +525,12 @@ def reverse(a: AT, *, jacobian: bool = False) -> AT | tuple[AT, FloatArray]:
     return out
 
 
-def merge(*ats: AT, atol: float = 1e-9) -> AT:
+def merge(
+    *ats: AT,
+    atol: float = 1e-9,
+    cross_cov: ArrayLike | None = None,
+    joint_cov: ArrayLike | None = None,
+) -> AT:
     """Merge parallel ATs of the same relation ``A ⊗ B ⊗ …`` (Eqs. 8-10); order-independent.
 
     Pairwise Kalman update ``K = C₁ (C₁ + C₂)⁻¹``, ``x̂ = x̂₁ + K (x̂₂ ⊟ x̂₁)`` with the heading
@@ -534,12 +539,27 @@ def merge(*ats: AT, atol: float = 1e-9) -> AT:
     loses about 1%). Components with zero variance (exactly known) are allowed. When
     ``C₁ + C₂`` is singular the update uses a generalized inverse, provided the means agree,
     within ``atol`` (metres/radians), along the directions both know exactly; otherwise
-    :class:`InconsistentMergeError` is raised. The inputs are assumed independent.
-    :class:`AT3` inputs merge in 3-D (:func:`relmap.at3.merge3`).
+    :class:`InconsistentMergeError` is raised. The inputs are assumed independent unless
+    ``cross_cov`` or ``joint_cov`` says otherwise. :class:`AT3` inputs merge in 3-D
+    (:func:`relmap.at3.merge3`).
+
+    **Correlated ATs** (the paper's §4.2 extension): ``cross_cov`` (``(..., dof, dof)``,
+    ``E[δA δBᵀ]``, two ATs) or ``joint_cov`` (``(..., dof·k, dof·k)``, k ATs, diagonal blocks
+    their own covariances) give the best linear unbiased merge:
+    ``K = (C₁ - C₁₂) S⁺``, ``S = C₁ + C₂ - C₁₂ - C₂₁``, covariance
+    ``C₁ - K (C₁ - C₁₂)ᵀ``; for k ATs the same from the differences ``d_j = x̂_j ⊟ x̂₁``:
+    ``x̂ = x̂₁ - Cov(e₁, d) Cov(d)⁺ d`` (generalized least squares with the joint
+    covariance, written so that exactly known components are allowed). A joint covariance
+    that is not symmetric PSD, or whose diagonal blocks differ from the ATs' covariances,
+    raises a :class:`relmap.errors.CovarianceError` (or :class:`~relmap.errors.ShapeError`)
+    naming it.
     """
     if not ats:
         raise ShapeError("merge needs at least one AT")
     atol = gaussian.check_tolerance(atol, "atol")
+
+    if cross_cov is not None or joint_cov is not None:
+        return _merge_correlated(ats, cross_cov, joint_cov, atol)  # type: ignore[return-value]
     if isinstance(ats[0], AT3):
         return merge3(*ats, atol=atol)  # type: ignore[arg-type,return-value]
     _check_types(ats)
@@ -549,6 +569,80 @@ def merge(*ats: AT, atol: float = 1e-9) -> AT:
     if len(ats) > 1:
         _finite("merge", result.mean, result.cov)
     return result
+
+
+def _merge_correlated(
+    ats: Sequence[AT | AT3],
+    cross_cov: ArrayLike | None,
+    joint_cov: ArrayLike | None,
+    atol: float,
+) -> AT | AT3:
+    """:func:`merge` of ATs with a cross-covariance (two) or a joint covariance (k)."""
+    from relmap.errors import NotPositiveSemidefiniteError
+
+    kind = type(ats[0])
+    if any(type(a) is not kind for a in ats):
+        raise TypeError("cannot merge ATs of different kinds (AT with AT3)")
+    group, k = ats[0].group, len(ats)
+    b = group.dof
+    if cross_cov is not None and joint_cov is not None:
+        raise ParameterError("give cross_cov (two ATs) or joint_cov (any number), not both")
+    shape = np.broadcast_shapes(*(a.batch_shape for a in ats))
+    if cross_cov is not None:
+        if k != 2:
+            raise ShapeError(f"cross_cov is for two ATs; got {k} (give joint_cov instead)")
+        X = np.asarray(cross_cov, dtype=np.float64)
+        if X.shape[-2:] != (b, b):
+            raise ShapeError(f"cross_cov must have shape (..., {b}, {b}); got {X.shape}")
+        gaussian.check_finite(X, "cross_cov")
+        C1, C2 = (
+            np.broadcast_to(ats[0].cov, (*shape, b, b)),
+            np.broadcast_to(ats[1].cov, (*shape, b, b)),
+        )
+        X = np.broadcast_to(X, (*shape, b, b))
+        joint = np.block([[C1, X], [np.swapaxes(X, -1, -2), C2]])
+        name = "the joint covariance of the two ATs (with cross_cov)"
+    else:
+        joint = np.asarray(joint_cov, dtype=np.float64)
+        if joint.shape[-2:] != (b * k, b * k):
+            raise ShapeError(
+                f"joint_cov of {k} ATs must have shape (..., {b * k}, {b * k}); got {joint.shape}"
+            )
+        joint = np.broadcast_to(joint, (*shape, b * k, b * k))
+        name = "joint_cov"
+        for i, a in enumerate(ats):
+            block = joint[..., b * i : b * i + b, b * i : b * i + b]
+            if not np.allclose(block, a.cov, rtol=1e-9, atol=1e-12):
+                raise ShapeError(
+                    f"joint_cov's diagonal block {i} differs from the covariance of AT #{i}"
+                )
+    try:
+        joint = gaussian.validate_covariance(joint, name=name)
+    except NotPositiveSemidefiniteError as exc:
+        raise NotPositiveSemidefiniteError(
+            f"{exc}: the cross-covariances are impossible for these ATs' covariances"
+        ) from None
+    # BLUE from the first AT and the differences d_j = z_j ⊟ z_1 (x cancels from them):
+    # x̂ = z_1 - Cov(e_1, d) Cov(d)⁺ d, C = C_1 - Cov(e_1, d) Cov(d)⁺ Cov(e_1, d)ᵀ.
+    eye = np.eye(b)
+    D = np.zeros((b * (k - 1), b * k))
+    for j in range(1, k):
+        D[b * (j - 1) : b * j, :b] = -eye
+        D[b * (j - 1) : b * j, b * j : b * j + b] = eye
+    Dt = D.T
+    S = D @ joint @ Dt
+    X = joint[..., :b, :] @ Dt  # Cov(e_1, d)
+    G, null = gaussian.generalized_inverse(0.5 * (S + np.swapaxes(S, -1, -2)))
+    mean0 = np.broadcast_to(ats[0].mean, (*shape, *group.point_shape))
+    d = np.concatenate(
+        [np.broadcast_to(group.minus(a.mean, ats[0].mean), (*shape, b)) for a in ats[1:]], -1
+    )
+    gaussian.check_agreement(d, null, atol=atol, what="the correlated ATs")
+    K = X @ G
+    mean = group.plus(mean0, -np.einsum("...ij,...j->...i", K, d))
+    C = joint[..., :b, :b] - K @ np.swapaxes(X, -1, -2)
+    C = 0.5 * (C + np.swapaxes(C, -1, -2))
+    return kind._trusted(mean, C)
 
 
 def _merge_pair(a: AT, b: AT, atol: float, position: int) -> AT:

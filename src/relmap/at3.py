@@ -344,8 +344,27 @@ class AT3:
         The Euler covariance is ``E⁻¹ C_φ E⁻ᵀ`` with E the Euler-rate matrix: its entries grow
         like ``1/cos(pitch)`` near the pole — the singularity of §7 — and at the pole
         (gimbal lock) :class:`ParameterError` is raised rather than an infinite covariance.
+        Near the pole the first order is wrong long before it is infinite: when the pitch is
+        within :data:`POLE_SIGMAS` rotation σ (√ of the largest eigenvalue of the rotation
+        covariance) of ±90°, roll and yaw are not separately determined by the distribution,
+        and a :class:`PoleWarning` says so (the numbers are still returned).
         """
         rpy = so3.to_euler(self.rotation)
+        distance = np.pi / 2 - np.abs(rpy[..., 1])
+        sigma = np.sqrt(np.maximum(np.linalg.eigvalsh(self._cov[..., 3:, 3:])[..., -1], 0.0))
+        near = distance < POLE_SIGMAS * sigma
+        if np.any(near):
+            import warnings
+
+            k = tuple(int(i) for i in np.argwhere(near)[0]) if near.ndim else ()
+            warnings.warn(
+                f"Euler angles near the pole{' at batch element ' + str(k) if k else ''}: "
+                f"pitch is {np.degrees(distance[k]):.3g}° from ±90° with a rotation σ of "
+                f"{np.degrees(sigma[k]):.3g}° (within {POLE_SIGMAS:g}σ); the first-order roll "
+                "and yaw covariance does not describe the distribution there",
+                PoleWarning,
+                stacklevel=2,
+            )
         J = np.zeros((*self.batch_shape, 6, 6))
         J[..., :3, :3] = np.eye(3)
         J[..., 3:, 3:] = np.linalg.inv(_euler_rates(rpy))
@@ -385,6 +404,15 @@ class AT3:
         if c.shape[-1:] == (36,):
             c = c.reshape(*c.shape[:-1], 6, 6)
         return cls(translation, quaternion, c)
+
+
+#: :meth:`AT3.to_euler` warns when the pitch is within this many rotation σ of ±90°
+POLE_SIGMAS = 3.0
+
+
+class PoleWarning(UserWarning):
+    """Euler angles near their pole (pitch ±90°): roll and yaw are poorly determined and their
+    first-order covariance is not to be trusted (:meth:`AT3.to_euler`)."""
 
 
 def _sym(C: FloatArray) -> FloatArray:

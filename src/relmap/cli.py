@@ -153,44 +153,91 @@ def _frame(g, name: str):  # type: ignore[no-untyped-def]
     return matches[0]
 
 
+def _summary(text: str | None, verbose: bool, limit: int = 300) -> str | None:
+    """``text`` cut to ``limit`` characters unless ``verbose`` (the full text is in --json)."""
+    if text is None or verbose or len(text) <= limit:
+        return text
+    return f"{text[: limit - 40]}… ({len(text)} characters; --verbose or --json for all)"
+
+
 def _query(args: argparse.Namespace) -> int:
     import json
 
+    from relmap._progress import TerminalProgress
+    from relmap.errors import ParameterError
+    from relmap.io import load_map
+
+    frames = [args.src, args.dst, *args.more]
+    if len(frames) % 2:
+        raise ParameterError(
+            f"give frames in pairs FROM TO [FROM TO ...]; got {len(frames)} frame names"
+        )
+    bar = TerminalProgress("reduction")
+    try:
+        with _numba.one_shot():
+            g = load_map(args.map)
+            pairs = [
+                (_frame(g, frames[k]), _frame(g, frames[k + 1])) for k in range(0, len(frames), 2)
+            ]
+            estimates = g.query_many(
+                pairs,
+                method=args.method,
+                on_irreducible=args.on_irreducible,
+                progress=lambda done, total: bar.update(f"{done} of {total}"),
+            )
+    finally:
+        bar.close()
+    if args.json:
+        outs = [_query_json(est) for est in estimates]
+        print(json.dumps(outs[0] if len(outs) == 1 else outs))
+        return 0
+    for k, est in enumerate(estimates):
+        if k:
+            print()
+        _print_estimate(est, args.verbose)
+    return 0
+
+
+def _query_json(est) -> dict:  # type: ignore[no-untyped-def,type-arg]
+    from relmap.at3 import AT3
+
+    at = est.at
+    return {
+        "from": est.src,
+        "to": est.dst,
+        "method": est.method,
+        "expression": est.expression,
+        "definitions": est.definitions,
+        "mean": (at.vector if isinstance(at, AT3) else at.mean).tolist(),
+        "cov": at.cov.tolist(),
+        "iterations": est.iterations,
+        "converged": est.converged,
+        "dropped": list(est.dropped),
+    }
+
+
+def _print_estimate(est, verbose: bool) -> None:  # type: ignore[no-untyped-def]
     import numpy as np
 
     from relmap.at3 import AT3
-    from relmap.io import load_map
 
-    with _numba.one_shot():
-        g = load_map(args.map)
-        src, dst = _frame(g, args.src), _frame(g, args.dst)
-        est = g.query(src, dst, method=args.method, on_irreducible=args.on_irreducible)
-    at = est.at
-    spatial = isinstance(at, AT3)
-    if args.json:
-        out = {
-            "from": src,
-            "to": dst,
-            "method": est.method,
-            "expression": est.expression,
-            "mean": (at.vector if spatial else at.mean).tolist(),
-            "cov": at.cov.tolist(),
-            "iterations": est.iterations,
-            "dropped": list(est.dropped),
-        }
-        print(json.dumps(out))
-        return 0
+    at, src, dst = est.at, est.src, est.dst
     how = est.method + (f", {est.iterations} iterations" if est.iterations is not None else "")
+    if est.converged is False:
+        how += ", NOT converged"
     print(f"AT of frame {dst} seen from frame {src} ({how})")
     if est.expression:
-        print(f"  expression: {est.expression}")
-        for name, meaning in est.definitions.items():
-            print(f"    {name}: {meaning}")
+        print(f"  expression: {_summary(est.expression, verbose)}")
+        shown = list(est.definitions.items())
+        for name, meaning in shown if verbose else shown[:6]:
+            print(f"    {name}: {_summary(meaning, verbose, 160)}")
+        if not verbose and len(shown) > 6:
+            print(f"    … and {len(shown) - 6} more (--verbose or --json)")
     if est.dropped:
-        print(f"  dropped (best deletion): {', '.join(est.dropped)}")
-    if spatial:
+        print(f"  dropped (best deletion): {_summary(', '.join(est.dropped), verbose)}")
+    if isinstance(at, AT3):
         _print_at3(at, src)
-        return 0
+        return
     x, y, t = at.mean
     sx, sy, st = at.sigmas
     print(f"  mean   x = {x:.6g} m   y = {y:.6g} m   θ = {t:.6g} rad ({np.degrees(t):.4g}°)")
@@ -203,7 +250,6 @@ def _query(args: argparse.Namespace) -> int:
     print("  covariance on (x, y, θ) in frame " + str(src) + ":")
     for row in at.cov:
         print("   " + " ".join(f"{v: .6e}" for v in row))
-    return 0
 
 
 def _print_at3(at: AT3, src: object) -> None:
@@ -216,9 +262,17 @@ def _print_at3(at: AT3, src: object) -> None:
     x, y, z = at.translation
     print(f"  translation  x = {x:.6g} m   y = {y:.6g} m   z = {z:.6g} m")
     print("  rotation     q = [" + ", ".join(f"{v:.6g}" for v in at.quaternion) + "] (qx qy qz qw)")
+    import warnings
+
+    from relmap.at3 import PoleWarning
+
     try:
-        r, p, yaw = np.degrees(at.to_euler()[0][3:])
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", PoleWarning)
+            r, p, yaw = np.degrees(at.to_euler()[0][3:])
         print(f"               roll {r:.4g}°, pitch {p:.4g}°, yaw {yaw:.4g}° (R = Rz Ry Rx)")
+        if caught:
+            print("               (near the pole: roll and yaw poorly determined; use q)")
     except ParameterError:
         print("               at the Euler pole (pitch ±90°): no roll/yaw")
     s = at.sigmas
@@ -273,6 +327,7 @@ def _solve(args: argparse.Namespace) -> int:
         "poses": len(graph.vertex_ids),
         "edges": len(graph.edge_from),
         "iterations": sol.iterations,
+        "converged": sol.converged,
         "initial_error": sol.initial_error,
         "final_error": sol.final_error,
         "seconds": seconds,
@@ -283,7 +338,9 @@ def _solve(args: argparse.Namespace) -> int:
         print(
             f"{args.graph}: {summary['poses']} poses, {summary['edges']} edges; "
             f"error {sol.initial_error:.6g} → {sol.final_error:.6g} "
-            f"in {sol.iterations} iterations, {seconds:.2f} s"
+            f"in {sol.iterations} iterations"
+            + ("" if sol.converged else " (NOT converged: stopped at --max-iterations)")
+            + f", {seconds:.2f} s"
             + (f"; written to {args.out}" if args.out else "")
         )
     return 0
@@ -506,6 +563,12 @@ def build_parser() -> argparse.ArgumentParser:
         "src", metavar="FROM", help="source frame (its name; vertex id for pose graphs)"
     )
     query.add_argument("dst", metavar="TO", help="destination frame")
+    query.add_argument(
+        "more",
+        metavar="FROM TO",
+        nargs="*",
+        help="further pairs of frames: the map is loaded (and solved) once for all",
+    )
     query.add_argument("--method", choices=("auto", "reduce", "optimal"), default="auto")
     query.add_argument(
         "--on-irreducible",
@@ -513,7 +576,12 @@ def build_parser() -> argparse.ArgumentParser:
         default="raise",
         help="reduce: when Delta-Y cannot reduce a loop, fail (raise) or delete the best AT (drop)",
     )
-    query.add_argument("--json", action="store_true", help="print one JSON object")
+    query.add_argument(
+        "--verbose", action="store_true", help="print long expressions and definitions in full"
+    )
+    query.add_argument(
+        "--json", action="store_true", help="print one JSON object (a list for several pairs)"
+    )
     query.set_defaults(run=_query)
 
     solve = sub.add_parser(
@@ -593,7 +661,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             import traceback
 
             traceback.print_exc()
-        print(f"{prog}: error: {_describe(exc)}", file=sys.stderr)
+        print(f"{prog}: error: {_describe(exc, getattr(args, 'verbose', False))}", file=sys.stderr)
         return _status(exc)
 
 
@@ -605,11 +673,12 @@ def _status(exc: BaseException) -> int:
     return 1
 
 
-def _describe(exc: BaseException) -> str:
-    """One line for an error: relmap's own message; for anything else its type too."""
+def _describe(exc: BaseException, verbose: bool = False) -> str:
+    """One line for an error: relmap's own message (summarized past 400 characters unless
+    ``verbose``); for anything else its type too."""
     text = " ".join(str(exc).split()) or type(exc).__name__
     if isinstance(exc, RelmapError):
-        return text
+        return _summary(text, verbose, 400) or text
     if isinstance(exc, MemoryError):
         return "out of memory (try a smaller problem)"
     if isinstance(exc, OSError) and exc.strerror:

@@ -30,6 +30,7 @@ import numpy as np
 from relmap import gaussian, montecarlo
 from relmap.at import AT, compound_chain, merge
 from relmap.decisions import DoorDecision, ViewDecision
+from relmap.errors import IrreducibleNetworkError
 from relmap.io.mapfile import ATRecord, read_records
 from relmap.lie import se2
 from relmap.network.graph import RelationalMap
@@ -44,12 +45,14 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = [
     "Bridge",
     "ChainCheck",
+    "DeltaYRow",
     "Demo",
     "Fig1",
     "Fig5",
     "Lecture",
     "bridge",
     "decisions",
+    "delta_y_study",
     "fig1",
     "fig5",
     "lecture",
@@ -210,6 +213,120 @@ def bridge(
             estimates[src, dst, method] = v.estimate
             checks[src, dst, method] = v
     return Bridge(records, estimates, checks)
+
+
+DELTA_Y_SIGMAS_DEG = (0.5, 1.0, 3.0, 5.0, 10.0)
+DELTA_Y_SAMPLES = 20_000
+
+
+@dataclass(frozen=True)
+class DeltaYRow:
+    """w→u on the bridge at one heading σ (all five ATs): the consistent and the paper's
+    Delta-Y against the optimal estimate and Monte Carlo (relative Frobenius errors)."""
+
+    sigma_deg: float
+    sigma_y: float  #: the ATs' σy (m): fig3.json's 0.05 (isotropic) or an anisotropic 0.01
+    consistent_vs_optimal: float
+    paper_vs_optimal: float
+    consistent_vs_reversed: float  #: w→u against the reversed u→w (NaN: u→w refused)
+    paper_vs_reversed: float
+    consistent_vs_mc: float  #: the reduction re-run on sampled ATs (batched), its spread
+    mc_standard_error: float
+    paper_vs_mc: float
+
+
+def delta_y_study(seed: int = 0, n: int = DELTA_Y_SAMPLES) -> list[DeltaYRow]:
+    """The bridge of ``fig3.json`` with every AT's heading σ set to each of
+    :data:`DELTA_Y_SIGMAS_DEG` (and once more with σy = 1 cm): w→u by the consistent Delta-Y
+    (default), by the paper's formulas, and optimally; each reduction also re-run on ``n``
+    sampled maps (:func:`relmap.network.reduce.reduce_network`, batched) against the truth
+    taken as the file's means of the loop-free part (the optimal estimate's mean)."""
+    from relmap.network.reduce import reduce_network
+
+    rng = np.random.default_rng(seed)
+    records = _shipped("fig3.json")
+    rows = []
+    for sigma_y in (0.05, 0.01):
+        for sigma in DELTA_Y_SIGMAS_DEG:
+            g = RelationalMap()
+            for r in records:
+                sig = np.array([0.05, sigma_y, np.radians(sigma)])
+                g.add(r.src, r.dst, AT.from_sigmas(r.at.mean, sig), name=r.name)
+            opt = g.query("w", "u", method="optimal").at
+            # loop-consistent means (the optimal poses), so that sampling has a truth
+            sol = g.solve("w")
+            h = RelationalMap()
+            for e in g.edges():
+                h.add(e.src, e.dst, AT(se2.between(sol.pose(e.src), sol.pose(e.dst)), e.at.cov))
+            truth = se2.between(sol.pose("w"), sol.pose("u"))
+            out = {}
+            for how in ("consistent", "paper"):
+                est = h.query("w", "u", method="reduce", delta_y=how).at
+                try:
+                    back = h.query("u", "w", method="reduce", delta_y=how).at.reverse()
+                except IrreducibleNetworkError:  # an indefinite result, refused
+                    back = None
+                edges = [
+                    (e.name, e.src, e.dst, AT._trusted(e.at.sample(n, rng), e.at.cov))
+                    for e in h.edges()
+                ]
+                try:
+                    spread = montecarlo.SampleSet.of(
+                        reduce_network(edges, "w", "u", delta_y=how).at.mean
+                    ).compare(AT(truth, est.cov))
+                except IrreducibleNetworkError:  # indefinite on some sampled map: refused
+                    spread = None
+                out[how] = (est, back, spread)
+            opt_h = h.query("w", "u", method="optimal").at
+
+            def rel(a: np.ndarray | None, b: np.ndarray) -> float:
+                return np.nan if a is None else float(np.linalg.norm(a - b) / np.linalg.norm(b))
+
+            c, p = out["consistent"], out["paper"]
+            del opt
+            rows.append(
+                DeltaYRow(
+                    sigma,
+                    sigma_y,
+                    rel(c[0].cov, opt_h.cov),
+                    rel(p[0].cov, opt_h.cov),
+                    rel(None if c[1] is None else c[1].cov, c[0].cov),
+                    rel(None if p[1] is None else p[1].cov, p[0].cov),
+                    np.nan if c[2] is None else float(c[2].cov_rel_error),
+                    np.nan if c[2] is None else float(c[2].cov_rel_standard_error),
+                    np.nan if p[2] is None else float(p[2].cov_rel_error),
+                )
+            )
+    return rows
+
+
+DELTA_Y_HEADER = [
+    "σθ",
+    "σy [m]",
+    "consistent vs optimal",
+    "paper vs optimal",
+    "consistent w→u vs (u→w)ᴿ",
+    "paper w→u vs (u→w)ᴿ",
+    "consistent vs Monte Carlo",
+    "paper vs Monte Carlo",
+]
+
+
+def delta_y_rows(rows: list[DeltaYRow]) -> list[list[str]]:
+    """The Delta-Y table's rows (strings)."""
+    return [
+        [
+            f"{r.sigma_deg:g}°",
+            f"{r.sigma_y:g}",
+            _pct(r.consistent_vs_optimal),
+            _pct(r.paper_vs_optimal),
+            _pct(r.consistent_vs_reversed),
+            _pct(r.paper_vs_reversed),
+            f"{_pct(r.consistent_vs_mc)} ± {_pct(r.mc_standard_error)}",
+            _pct(r.paper_vs_mc),
+        ]
+        for r in rows
+    ]
 
 
 @dataclass(frozen=True)
@@ -413,6 +530,7 @@ class Demo:
     samples: int
     seed: int
     seconds: float
+    delta_y: tuple[DeltaYRow, ...] = ()
 
 
 def run(
@@ -437,12 +555,14 @@ def run(
     dec = decisions(f1)
     progress("the lecture: arm, dead reckoning, EKF" + (", MRCLAM" if data else ""))
     lec = lecture(seed, samples, data)
-    return Demo(f1, br, f5, dec, lec, samples, seed, time.perf_counter() - t0)
+    progress("Delta-Y with heading error: consistent and the paper's")
+    dy = tuple(delta_y_study(seed, max(samples // 5, 2)))
+    return Demo(f1, br, f5, dec, lec, samples, seed, time.perf_counter() - t0, dy)
 
 
 # ------------------------------------------------------------------------------ printing
 def _pct(x: float) -> str:
-    return f"{x:.2%}"
+    return "refused (indefinite)" if np.isnan(x) else f"{x:.2%}"
 
 
 def fig5_rows(f5: Fig5) -> list[list[str]]:
@@ -491,6 +611,12 @@ def print_demo(demo: Demo, out: TextIO = sys.stdout) -> None:
             f"{_pct(float(a.cov_rel_error)):>12}{_pct(float(a.cov_rel_standard_error)):>12}"
             f"{float(a.nees):7.2f}{a.n:>8,}  {v.estimate.expression or '(joint least squares)'}\n"
         )
+    if demo.delta_y:
+        w("\nDelta-Y, w→u on the bridge (every AT's σθ as given): relative Frobenius errors\n")
+        widths = [7, 8, 23, 18, 26, 22, 28, 22]
+        w("".join(f"{h:>{wd}}" for h, wd in zip(DELTA_Y_HEADER, widths, strict=True)) + "\n")
+        for row in delta_y_rows(list(demo.delta_y)):
+            w("".join(f"{c:>{wd}}" for c, wd in zip(row, widths, strict=True)) + "\n")
     f5 = demo.fig5
     w(
         f"\n§6.3: first order vs Monte Carlo ({f5.n:,} samples each), links {LINK[0]:g} m, "

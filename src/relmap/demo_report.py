@@ -386,6 +386,25 @@ def write_report(demo: Demo, folder: str | os.PathLike[str], progress: Progress 
         "w→u by Delta-Y and by the optimal method against the Monte Carlo re-estimates.",
     )
 
+    if demo.delta_y:
+        from relmap.demo import DELTA_Y_HEADER, delta_y_rows
+
+        rep.paragraph(
+            "Delta-Y with heading error. The paper's star formulas ignore how compounding "
+            "carries heading error into position; relmap's default Delta-Y chooses the star so "
+            "that it reproduces, to first order, the joint covariance of the triangle's corners "
+            "(network/reduce.py derives it). Below, w→u on this bridge with every AT's heading "
+            "σ set as shown (means made loop-consistent), σx = 5 cm and σy = 5 cm (as in "
+            "fig3.json) or 1 cm (anisotropic): both Delta-Y rules against the optimal estimate, "
+            "w→u against the reversed u→w, and each reduction re-run on sampled ATs against its "
+            "own prediction (Monte Carlo)."
+        )
+        rep.table(
+            DELTA_Y_HEADER,
+            delta_y_rows(list(demo.delta_y)),
+            caption="Relative Frobenius error of the w→u covariance",
+        )
+
     progress("report: Fig. 5")
     rep.heading("3. Fig. 5 and §6.3: when is first order good enough?", anchor="fig5")
     rep.paragraph(

@@ -15,6 +15,7 @@ __all__ = [
     "DisconnectedError",
     "DuplicateNameError",
     "FileFormatError",
+    "FrameError",
     "InconsistentMapError",
     "InconsistentMergeError",
     "IrreducibleNetworkError",
@@ -88,6 +89,11 @@ class UnknownFrameError(RelmapError, KeyError):
 
     def __str__(self) -> str:  # KeyError would quote the message
         return str(self.args[0]) if self.args else ""
+
+
+#: The name the relational-map layer uses for a frame that is not in the map (an id unknown to
+#: a map, a solution or a file).
+FrameError = UnknownFrameError
 
 
 class UnknownATError(RelmapError, KeyError):

@@ -6,8 +6,6 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import numpy as np
-
 from relmap.errors import ParameterError
 from relmap.io.mapfile import ATRecord, records_from_text, write_records
 from relmap.io.posegraph import _KIND_OF_TAG, PoseGraph, graph_from_text
@@ -69,29 +67,26 @@ def solve_graph(
     max_iterations: int = 100,
     rtol: float | None = None,
 ) -> Solution:
-    """Optimize a whole pose graph from the file's initial guess (the optimal method).
-
-    The anchor is the first ``FIX`` vertex if the file has one, else the first vertex; it
-    stays at its file pose. Returns the :class:`relmap.network.optimal.Solution` (poses in
-    :attr:`PoseGraph.vertex_ids` order). ``rtol``: the convergence tolerance of
-    :func:`relmap.network.optimal.optimize` (default there).
+    """Optimize a whole pose graph from the file's initial guess (the network layer's
+    :func:`relmap.network.optimal.solve_frames` on the graph's arrays; the same as
+    ``RelationalMap.from_posegraph(graph).solve()``). The anchor is the first ``FIX`` vertex
+    if the file has one, else the first vertex; it stays at its file pose. Poses come in
+    :attr:`PoseGraph.vertex_ids` order; :meth:`Solution.relative` and friends take vertex
+    ids. A vertex without edges, or a part of the graph not linked to the anchor, is refused
+    with a :class:`relmap.errors.SolverError` naming them.
     """
-    from relmap.network.optimal import optimize
-    from relmap.network.problem import Problem
+    from relmap.network.optimal import solve_frames
 
     i, j = graph.edge_indices()
     anchor = int(graph.index_of(graph.fixed[:1])[0]) if len(graph.fixed) else 0
-    problem = Problem(
-        len(graph.vertex_ids),
+    return solve_frames(
+        graph.vertex_ids.tolist(),
         i,
         j,
-        graph.measurements.mean,
-        graph.measurements.cov,
-        [],
-        np.array(graph.poses),
+        graph.measurements,
+        graph.poses,
         anchor,
-        [f"e{k}" for k in range(len(i))],
-        graph.measurements.group,
+        progress=progress,
+        max_iterations=max_iterations,
+        rtol=rtol,
     )
-    options = {} if rtol is None else {"rtol": rtol}
-    return optimize(problem, progress=progress, max_iterations=max_iterations, **options)

@@ -14,8 +14,9 @@ same code on that group.
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Hashable, Iterable, Iterator, Sequence
-from typing import TYPE_CHECKING, NamedTuple
+from collections.abc import Callable, Hashable, Iterable, Iterator, Mapping, Sequence
+from types import MappingProxyType
+from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
 
 import numpy as np
 
@@ -27,8 +28,7 @@ from relmap.lie import Group
 from relmap.typing import ArrayLike, FloatArray
 
 if TYPE_CHECKING:
-    from relmap.io.mapfile import ATRecord
-    from relmap.io.posegraph import PoseGraph
+    from relmap.network.optimal import Progress, Solution
     from relmap.network.query import Estimate
     from relmap.network.sensing import SensingDecision, SensingForecast
 
@@ -71,6 +71,29 @@ class Edge:
         return f"Edge({self.name!r}: {self.src!r} → {self.dst!r}, {self.at!r})"
 
 
+class Record(Protocol):
+    """What :meth:`RelationalMap.from_records` reads of each record (e.g. a map file's
+    :class:`relmap.io.ATRecord`): the AT's name, its two frames, the AT."""
+
+    name: str
+    src: Frame
+    dst: Frame
+    at: AT | AT3
+
+
+class Graph(Protocol):
+    """What :meth:`RelationalMap.from_posegraph` reads of a pose graph (e.g.
+    :class:`relmap.io.PoseGraph`): vertex ids and their initial poses, edge ends by id, the
+    batch of measured ATs, and the ids of ``FIX`` vertices."""
+
+    vertex_ids: Any
+    poses: Any
+    edge_from: Any
+    edge_to: Any
+    measurements: AT | AT3
+    fixed: Any
+
+
 class JointGroup(NamedTuple):
     """Dependent ATs with their joint covariance ``(dof·k, dof·k)`` (blocks in ``names`` order)."""
 
@@ -99,6 +122,25 @@ class RelationalMap:
         self._guesses: dict[Frame, FloatArray] = {}
         self._auto = 0
         self._kind: type[AT] | type[AT3] | None = None  # fixed by the first AT
+        self._anchor: Frame | None = None  # the frame a whole-map solve keeps fixed
+        self._memo: dict[object, object] = {}  # results kept until the map changes
+
+    def _changed(self) -> None:
+        """Forget everything computed from the map (solved factors, block structure)."""
+        self._memo.clear()
+
+    def memo(self, key: object, build: Callable[[], Any]) -> Any:
+        """The value ``build()`` computed for ``key`` on this map, kept until the map changes
+        (an AT or a guess added or removed). Solves use it to keep their factorization."""
+        try:
+            return self._memo[key]
+        except KeyError:
+            value = self._memo[key] = build()
+            return value
+
+    def memos(self) -> Iterator[tuple[object, Any]]:
+        """The kept ``(key, value)`` pairs (see :meth:`memo`)."""
+        return iter(list(self._memo.items()))
 
     @property
     def group(self) -> Group | None:
@@ -181,6 +223,7 @@ class RelationalMap:
         Returns the removed edge. Frames left without ATs disappear.
         """
         edge = self.edge(name)
+        self._changed()
         names = self._groups.pop(edge.group).names if edge.group else (name,)
         for nm in names:
             e = self._edges.pop(nm)
@@ -192,8 +235,9 @@ class RelationalMap:
         return edge
 
     @classmethod
-    def from_records(cls, records: Iterable[ATRecord]) -> RelationalMap:
-        """A map from map-file records (:func:`relmap.io.read_records`)."""
+    def from_records(cls, records: Iterable[Record]) -> RelationalMap:
+        """A map from records with ``name, src, dst, at`` (:class:`Record`; e.g. a map file's,
+        :func:`relmap.io.read_records`)."""
         g = cls()
         for r in records:
             g.add(r.src, r.dst, r.at, name=r.name)
@@ -235,16 +279,19 @@ class RelationalMap:
         return g
 
     @classmethod
-    def from_posegraph(cls, graph: PoseGraph) -> RelationalMap:
-        """A map from a pose graph (:func:`relmap.io.read_graph`): vertex ids become frames, edges
-        ATs named ``e0, e1, …`` in file order, and the file's poses the initial guess of the
-        optimal method."""
+    def from_posegraph(cls, graph: Graph) -> RelationalMap:
+        """A map from a pose graph (:class:`Graph`, e.g. :func:`relmap.io.read_graph`'s):
+        vertex ids become frames, edges ATs named ``e0, e1, …`` in file order, the file's poses
+        the initial guess of the optimal method, and its first ``FIX`` vertex (else its first
+        vertex) the anchor of :meth:`solve`. Vertices without edges are kept as frames with no
+        AT (:meth:`solve` names them)."""
         g = cls.from_edges(graph.edge_from.tolist(), graph.edge_to.tolist(), graph.measurements)
-        g._guesses = {
-            f: pose
-            for f, pose in zip(graph.vertex_ids.tolist(), graph.poses, strict=True)
-            if f in g._incident
-        }
+        ids = graph.vertex_ids.tolist()
+        g._guesses = dict(zip(ids, graph.poses, strict=True))
+        for f in ids:
+            g._incident.setdefault(f, {})
+        fixed = list(graph.fixed)
+        g._anchor = int(fixed[0]) if fixed else (ids[0] if ids else None)
         return g
 
     def _new_name(self, name: str | None, reserved: Sequence[str] = ()) -> str:
@@ -269,6 +316,7 @@ class RelationalMap:
         return group
 
     def _insert(self, edge: Edge) -> None:
+        self._changed()
         self._edges[edge.name] = edge
         for frame in (edge.src, edge.dst):
             self._incident.setdefault(frame, {})[edge.name] = None
@@ -356,6 +404,48 @@ class RelationalMap:
         return self.submap(self.frames) if self._incident else RelationalMap()
 
     # ------------------------------------------------------- arrays for the solvers
+    # The interface the solvers (query, optimal) use: incidence, ends, order, arrays, guesses.
+    def incidence(self) -> Mapping[Frame, Mapping[str, None]]:
+        """Frame → the names of its ATs (an ordered set), read-only."""
+        return MappingProxyType(self._incident)
+
+    def ends(self) -> dict[str, tuple[Frame, Frame]]:
+        """AT name → ``(src, dst)``, in insertion order (kept until the map changes)."""
+        return self.memo("ends", lambda: {e.name: (e.src, e.dst) for e in self._edges.values()})
+
+    def order(self) -> dict[str, int]:
+        """AT name → its position in insertion order (kept until the map changes)."""
+        return self.memo("order", lambda: {name: i for i, name in enumerate(self._edges)})
+
+    def arrays(self, names: Sequence[str]) -> tuple[FloatArray, FloatArray]:
+        """Means ``(k, *point)`` and covariances ``(k, dof, dof)`` of the named ATs."""
+        return self._gather(names)
+
+    def guesses(self, frames: Sequence[Frame]) -> FloatArray | None:
+        """Initial poses of the frames in one common frame, if the map has one for each."""
+        return self._guess(frames)
+
+    @property
+    def anchor(self) -> Frame | None:
+        """The frame :meth:`solve` keeps fixed by default (a pose graph's first ``FIX``
+        vertex, else its first vertex; else the map's first frame)."""
+        if self._anchor is not None and self._anchor in self._incident:
+            return self._anchor
+        return next(iter(self._incident), None)
+
+    def solve(
+        self,
+        anchor: Frame | None = None,
+        *,
+        progress: Progress | None = None,
+        max_iterations: int = 100,
+        rtol: float | None = None,
+    ) -> Solution:
+        """The joint estimate of every frame (:func:`relmap.network.optimal.solve_map`)."""
+        from relmap.network.optimal import solve_map
+
+        return solve_map(self, anchor, progress=progress, max_iterations=max_iterations, rtol=rtol)
+
     def _gather(self, names: Sequence[str]) -> tuple[FloatArray, FloatArray]:
         """Means (k, *point) and covariances (k, dof, dof) of the named ATs, gathered per
         source batch."""
@@ -405,6 +495,7 @@ class RelationalMap:
                 )
         elif arr.shape != (3,):
             raise ShapeError(f"a guess is one pose (x, y, θ); got shape {arr.shape}")
+        self._changed()
         self._guesses[frame] = arr
 
     # --------------------------------------------------------------- sensing (§6.2)
@@ -459,6 +550,13 @@ class RelationalMap:
             diagnose=diagnose,
             **options,  # type: ignore[arg-type]
         )
+
+    def query_many(
+        self, pairs: Iterable[tuple[Frame, Frame]], method: str = "auto", **options: object
+    ) -> list[Estimate]:
+        """:meth:`query` for each ``(src, dst)`` pair. Joint solves are kept on the map (until
+        it changes), so pairs within one solved part of the network cost one solve in all."""
+        return [self.query(src, dst, method, **options) for src, dst in pairs]  # type: ignore[arg-type]
 
 
 def _make_at(kind: type[AT] | type[AT3], mean: ArrayLike, cov: FloatArray) -> AT | AT3:

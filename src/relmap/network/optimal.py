@@ -27,7 +27,7 @@ import numpy as np
 from relmap import _numba
 from relmap.at import AT
 from relmap.at3 import AT3
-from relmap.errors import SolverError
+from relmap.errors import NumericalError, SolverError, UnknownFrameError
 from relmap.gaussian import inverse_pd
 from relmap.lie import SE2, SE3, Group, se2, so3
 from relmap.network.problem import Parameterization, Problem, parameterize
@@ -37,7 +37,15 @@ from relmap.typing import FloatArray, IntArray
 if TYPE_CHECKING:
     from relmap.network.graph import RelationalMap
 
-__all__ = ["Solution", "Solved", "optimize", "problem_from_map", "solve_relative"]
+__all__ = [
+    "Solution",
+    "Solved",
+    "optimize",
+    "problem_from_map",
+    "solve_frames",
+    "solve_map",
+    "solve_relative",
+]
 
 Frame = Hashable
 Progress = Callable[[int, float], None]
@@ -60,7 +68,13 @@ class _Weights(NamedTuple):
 
 
 class Solution:
-    """A solved pose graph: poses, the factorized normal matrix, covariance queries."""
+    """A solved pose graph: poses, the factorized normal matrix, covariance queries.
+
+    Poses are named by **frame id** (:attr:`frames`, the map's or file's names; a pose-graph
+    vertex id, not its row): :meth:`relative`, :meth:`joint_cov` and :meth:`pose` take ids, and
+    an unknown id is a :class:`relmap.errors.FrameError` naming it. Rows (the order of
+    :attr:`poses` and :meth:`marginals`) are :meth:`row` of an id.
+    """
 
     def __init__(
         self,
@@ -72,6 +86,7 @@ class Solution:
         initial_error: float,
         final_error: float,
         data: FloatArray | None = None,
+        converged: bool = True,
     ) -> None:
         self.problem = problem
         self.param = param
@@ -82,6 +97,34 @@ class Solution:
         self.initial_error = initial_error  #: Σ rᵀ Σ⁻¹ r at the initial guess
         self.final_error = final_error  #: the same at the optimum
         self._data = data  # the normal matrix at the optimum (pattern's CSC data)
+        #: whether the stopping rule was met (False: stopped at max_iterations)
+        self.converged = converged
+        #: the frame id of each row of :attr:`poses`
+        self.frames: list[object] = (
+            list(problem.frames) if problem.frames is not None else list(range(problem.n))
+        )
+        self._row = {f: k for k, f in enumerate(self.frames)}
+
+    def row(self, frame: object) -> int:
+        """The row of frame ``frame`` (an id) in :attr:`poses` and :meth:`marginals`."""
+        try:
+            return self._row[frame]
+        except (KeyError, TypeError):
+            raise UnknownFrameError(f"no frame {frame!r} in the solution") from None
+
+    def has_frame(self, frame: object) -> bool:
+        """Whether ``frame`` (an id) is one of the solved frames."""
+        try:
+            return frame in self._row
+        except TypeError:
+            return False
+
+    def _rows(self, frames: Sequence[object]) -> list[int]:
+        return [self.row(f) for f in frames]
+
+    def pose(self, frame: object) -> FloatArray:
+        """The optimized pose of frame ``frame`` (an id) in the anchor's frame."""
+        return self.poses[self.row(frame)]
 
     def _frame_blocks(self, frames: Sequence[int]) -> tuple[IntArray, FloatArray]:
         """Parameter columns of the frames and ∂pose/∂parameters, (k, dof) and (k, dof, dof)."""
@@ -91,8 +134,12 @@ class Solution:
         Jf = np.broadcast_to(np.eye(dof), (len(frames), dof, dof)) if J is None else J[frames]
         return self.param.col[frames], Jf
 
-    def joint_cov(self, frames: Sequence[int]) -> FloatArray:
-        """Joint covariance (dof·k, dof·k) of the frames' poses (relmap's chart), from one solve."""
+    def joint_cov(self, frames: Sequence[object]) -> FloatArray:
+        """Joint covariance (dof·k, dof·k) of the poses of ``frames`` (ids; relmap's chart, in
+        the anchor's frame), from the one factorization."""
+        return self._joint_cov_rows(self._rows(frames))
+
+    def _joint_cov_rows(self, frames: Sequence[int]) -> FloatArray:
         cols, Jf = self._frame_blocks(frames)
         k, b = len(cols), self.group.dof
         flat = cols.reshape(-1)
@@ -123,19 +170,28 @@ class Solution:
             out[free] = blocks[self.param.col[free, 0] // b]
             return out
         for f in range(n):
-            out[f] = self.joint_cov([f])
+            out[f] = self._joint_cov_rows([f])
         return out
 
-    def relative(self, a: int, b: int) -> AT | AT3:
-        """The AT (AT3 in 3-D) of frame b seen from frame a, with its first-order covariance."""
+    def relative(self, a: object, b: object) -> AT | AT3:
+        """The AT (AT3 in 3-D) of frame ``b`` seen from frame ``a`` (frame ids), with its
+        first-order covariance."""
+        return self._relative_rows(self.row(a), self.row(b))
+
+    def _relative_rows(self, a: int, b: int) -> AT | AT3:
         d, Ja, Jb = self.group.between(self.poses[a], self.poses[b], jacobians=True)
         if a == self.problem.anchor:  # the anchor is exact: only b's covariance matters
-            cov = self.joint_cov([b])
+            cov = self._joint_cov_rows([b])
             J = Jb
         else:
-            cov = self.joint_cov([a, b])
+            cov = self._joint_cov_rows([a, b])
             J = np.hstack([Ja, Jb])
         out = J @ cov @ J.T
+        if not (np.all(np.isfinite(out)) and np.all(np.isfinite(d))):
+            raise NumericalError(
+                f"the AT of frame {self.frames[b]!r} seen from {self.frames[a]!r} overflowed "
+                "(inf/NaN): the measurements are too large for floating point"
+            )
         kind = AT if self.group is SE2 else AT3
         return kind._trusted(d, 0.5 * (out + out.T))
 
@@ -527,9 +583,24 @@ def optimize(
     max_iterations: int = 100,
     rtol: float = 1e-10,
     atol: float = 1e-9,
+    xtol: float = 1e-13,
     progress: Progress | None = None,
 ) -> Solution:
     """Minimize ``Σ rᵀ Σ⁻¹ r`` over the frame poses, the anchor fixed, from ``p.guess``.
+
+    **Stopping rule** (on the decrease, then on the step): the iterations end when the
+    undamped (Gauss-Newton) step at the current poses predicts a decrease below ``rtol``
+    relatively, or the last accepted step lowered the objective only by rounding. Gauss-Newton
+    converges only linearly when the residuals are not zero, so the poses are then polished
+    with the factorization at hand (chord steps ``δ = -H⁻¹ g`` with the gradient recomputed,
+    no new factorization, at most 20) until the step is negligible,
+    ``max|δ| ≤ xtol·(1 + max|t|)`` (t the poses' translations, m; δ in m and rad) or stops
+    lowering the objective; the normal matrix is factorized once more at the final poses for
+    the covariances. One further Gauss-Newton step then moves the estimate by less than about
+    1e-12 relatively. The covariances come from the factorization at the point before that step (it
+    differs from the one after it by O(|δ|), about 1e-7 relatively at the default ``rtol``).
+    ``Solution.converged`` is False when ``max_iterations`` ended the loop instead. An
+    objective that overflows raises :class:`relmap.errors.NumericalError`.
 
     Levenberg-Marquardt on the Gauss-Newton normal equations: damping ``λ·diag(H)`` with
     Nielsen's update from the gain ratio, starting undamped (λ = 0, Gauss-Newton) and
@@ -561,9 +632,13 @@ def optimize(
         state, pattern = np.array(p.guess, dtype=np.float64), system.pattern
         linearize, step = system.linearize, system.step  # type: ignore[assignment]
     cost, poses, data, grad = linearize(state)
+    _check_cost(cost, "at the initial guess")
     initial = cost
     if param.size == 0:
         return Solution(p, param, poses, None, 0, initial, cost)
+    scale = 1.0 + float(np.abs(_translations(p.group, poses)).max(initial=0.0))
+    stalled = False  # the last accepted step lowered the objective by rounding only
+    converged = True
     factor = SymmetricFactor(pattern)
     lam, nu = 0.0, 2.0  # plain Gauss-Newton first; damping only once a step fails
     iterations = 0
@@ -586,15 +661,33 @@ def optimize(
         predicted = -float(np.einsum("i,i->", grad, delta))
         if lam:
             predicted += lam * float(np.einsum("i,i,i->", delta, diag, delta))
-        if lam == 0.0 and predicted <= rtol * max(cost, 1e-300):
+        if lam == 0.0 and (predicted <= rtol * max(cost, 1e-300) or stalled):
+            # Converged in the objective. Polish the poses to rounding with the factorization
+            # at hand (chord steps: no new factorization), then factorize once at the final
+            # poses for the covariances, if they moved.
+            moved = False
+            for _ in range(_POLISH_STEPS):
+                if float(np.abs(delta).max(initial=0.0)) <= xtol * scale:
+                    break
+                trial = linearize(step(state, delta))
+                if not trial[0] <= cost * (1.0 + 1e-13) + 1e-300:
+                    break
+                state, moved = step(state, delta), True
+                cost, poses, data, grad = trial
+                delta = -factor.solve(grad)
+            if moved:
+                undamped_at_current = False
             break
         if iterations >= max_iterations:
+            converged = False
             break
         iterations += 1
         state_new = step(state, delta)
         trial = linearize(state_new)  # usually accepted: linearize right away
         new_cost = trial[0]
+        _check_cost(new_cost, f"at iteration {iterations}")
         if new_cost <= cost:
+            stalled = cost - new_cost <= 1e-13 * max(cost, 1e-300)
             rho = (cost - new_cost) / max(predicted, 1e-300)  # gain ratio (Nielsen's update)
             state = state_new
             cost, poses, data, grad = trial
@@ -614,27 +707,55 @@ def optimize(
                 break  # no descent possible: the current point is a minimum to rounding
     if not undamped_at_current:
         factor.factorize(data)  # the undamped normal matrix at the optimum, for covariances
-    return Solution(p, param, poses, factor, iterations, initial, cost, data)
+    return Solution(p, param, poses, factor, iterations, initial, cost, data, converged)
+
+
+#: chord steps (with the last factorization) that polish a converged solution to rounding
+_POLISH_STEPS = 20
+
+
+def _translations(group: Group, poses: FloatArray) -> FloatArray:
+    return poses[..., :2] if group is SE2 else poses[..., :3, 3]
+
+
+def _check_cost(cost: float, where: str) -> None:
+    if not np.isfinite(cost):
+        raise NumericalError(
+            f"the least-squares objective overflowed ({cost}) {where}: the measurements or "
+            "their information are too large for floating point"
+        )
 
 
 def problem_from_map(
-    g: RelationalMap, names: Sequence[str], anchor: Frame
+    g: RelationalMap,
+    names: Sequence[str],
+    anchor: Frame,
+    *,
+    keep_guess: bool = False,
+    frames: Sequence[Frame] | None = None,
 ) -> tuple[Problem, dict[Frame, int]]:
-    """The problem formed by the named ATs of a map, anchored at frame ``anchor`` (identity).
+    """The problem formed by the named ATs of a map, anchored at frame ``anchor``.
 
     Initial guess: the map's own guesses where it has them for every frame (pose-graph files),
-    re-expressed relative to the anchor; otherwise poses compounded along a spanning tree.
+    re-expressed relative to the anchor (``keep_guess``: as given, the anchor at its own
+    guess); otherwise poses compounded along a spanning tree, the anchor at the identity.
+    ``frames``: the order of the problem's frames (default: the anchor, then as the ATs name
+    them). Uses the map's solver interface only (:meth:`RelationalMap.ends`, ``arrays``,
+    ``guesses``, ``groups``, ``at_type``).
     """
-    edges = [g._edges[n] for n in names]
-    index: dict[Frame, int] = {anchor: 0}
-    for e in edges:
-        for f in (e.src, e.dst):
-            if f not in index:
-                index[f] = len(index)
+    ends = g.ends()
+    index: dict[Frame, int] = (
+        {anchor: 0} if frames is None else {f: k for k, f in enumerate(frames)}
+    )
+    src = [ends[n][0] for n in names]
+    dst = [ends[n][1] for n in names]
+    for f in (*src, *dst):
+        if f not in index:
+            index[f] = len(index)
     n = len(index)
-    i = np.array([index[e.src] for e in edges], dtype=np.int64)
-    j = np.array([index[e.dst] for e in edges], dtype=np.int64)
-    z, cov = g._gather(names)
+    i = np.fromiter((index[f] for f in src), dtype=np.int64, count=len(src))
+    j = np.fromiter((index[f] for f in dst), dtype=np.int64, count=len(dst))
+    z, cov = g.arrays(names)
     group = g.at_type.group
     b = group.dof
     position = {nm: k for k, nm in enumerate(names)}
@@ -646,12 +767,128 @@ def problem_from_map(
         sel = np.array([grp.names.index(nm) for nm in members])
         rows = (b * sel[:, None] + np.arange(b)).reshape(-1)
         groups.append((np.array([position[nm] for nm in members]), grp.cov[np.ix_(rows, rows)]))
-    guess = g._guess([f for f in index])
+    order = list(index)
+    a = index[anchor]
+    guess = g.guesses(order)
     if guess is None:
         guess = _tree_guess(n, i, j, z, group)
-    else:
-        guess = group.between(guess[0], guess)
-    return Problem(n, i, j, z, cov, groups, guess, 0, list(names), group), index
+        if a:
+            guess = group.between(guess[a], guess)
+    elif not keep_guess:
+        guess = group.between(guess[a], guess)
+    return Problem(n, i, j, z, cov, groups, guess, a, list(names), group, order), index
+
+
+def solve_map(
+    g: RelationalMap,
+    anchor: Frame | None = None,
+    *,
+    progress: Progress | None = None,
+    max_iterations: int = 100,
+    rtol: float | None = None,
+) -> Solution:
+    """Optimize every frame of a map jointly (the optimal method over the whole network).
+
+    ``anchor`` (default :attr:`RelationalMap.anchor`: a pose graph's first ``FIX`` vertex,
+    else its first vertex) stays at its guess (the map's guesses, e.g. a pose graph's; else
+    the identity, the others compounded along a spanning tree). Poses come in
+    :attr:`Solution.frames` order (:attr:`RelationalMap.frames`). See :func:`solve_frames`.
+    """
+    if anchor is None:
+        anchor = g.anchor
+    if anchor is None or not g.has_frame(anchor):
+        raise UnknownFrameError(f"no frame {anchor!r} in the map to anchor the solve")
+    frames = g.frames
+    names = list(g.ends())
+    index = {f: k for k, f in enumerate(frames)}
+    _check_connected(frames, *_rows(g, names, index), index[anchor])
+    problem, _ = problem_from_map(g, names, anchor, keep_guess=True, frames=frames)
+    options = {} if rtol is None else {"rtol": rtol}
+    return optimize(problem, progress=progress, max_iterations=max_iterations, **options)
+
+
+def solve_frames(
+    frames: Sequence[Frame],
+    i: IntArray,
+    j: IntArray,
+    ats: AT | AT3,
+    guess: FloatArray,
+    anchor: int,
+    *,
+    progress: Progress | None = None,
+    max_iterations: int = 100,
+    rtol: float | None = None,
+) -> Solution:
+    """Optimize frames ``frames`` linked by the batch ``ats`` (AT k: frame ``j[k]`` seen from
+    ``i[k]``, rows into ``frames``) from the poses ``guess``, the frame at row ``anchor``
+    fixed. Frames not linked to the anchor (a second component, frames without an AT) are
+    refused with a :class:`SolverError` naming them: nothing would fix their poses. This is
+    the array form a pose-graph file gives (:func:`relmap.io.solve_graph`)."""
+    _check_connected(frames, i, j, anchor)
+    m = len(i)
+    problem = Problem(
+        len(frames),
+        np.asarray(i, dtype=np.int64),
+        np.asarray(j, dtype=np.int64),
+        ats.mean,
+        ats.cov,
+        [],
+        np.array(guess),
+        anchor,
+        [f"e{k}" for k in range(m)],
+        ats.group,
+        list(frames),
+    )
+    options = {} if rtol is None else {"rtol": rtol}
+    return optimize(problem, progress=progress, max_iterations=max_iterations, **options)
+
+
+def _rows(
+    g: RelationalMap, names: Sequence[str], index: dict[Frame, int]
+) -> tuple[IntArray, IntArray]:
+    ends = g.ends()
+    i = np.fromiter((index[ends[n][0]] for n in names), dtype=np.int64, count=len(names))
+    j = np.fromiter((index[ends[n][1]] for n in names), dtype=np.int64, count=len(names))
+    return i, j
+
+
+def _check_connected(frames: Sequence[Frame], i: IntArray, j: IntArray, anchor: int) -> None:
+    """Raise :class:`SolverError` naming the frames that no chain of ATs links to the anchor
+    (one vectorized connected-components pass)."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(frames)
+    adj = sp.coo_matrix((np.ones(len(i)), (i, j)), shape=(n, n))
+    count, label = connected_components(adj, directed=False)
+    if count <= 1:
+        return
+    degree = np.bincount(np.concatenate([i, j]), minlength=n)
+    alone = [frames[k] for k in np.flatnonzero(degree == 0)]
+    others = [
+        [frames[k] for k in np.flatnonzero(label == c)]
+        for c in range(count)
+        if c != label[anchor] and degree[label == c].any()
+    ]
+
+    def few(part: Sequence[Frame]) -> str:
+        shown = ", ".join(map(repr, part[:5]))
+        return f"{len(part)} frames ({shown}{', …' if len(part) > 5 else ''})"
+
+    what = []
+    if others:
+        what.append(
+            f"{len(others)} more connected component(s) with no anchor: "
+            + "; ".join(few(c) for c in others[:3])
+        )
+    if alone:
+        what.append(f"{few(alone)} without any AT")
+    reached = int((label == label[anchor]).sum())
+    raise SolverError(
+        f"the map is not connected: the anchor {frames[anchor]!r} reaches {reached} frames, "
+        "but " + " and ".join(what) + "; solve each component separately "
+        "(RelationalMap.submap) or query frames within one"
+    )
 
 
 def _tree_guess(n: int, i: IntArray, j: IntArray, z: FloatArray, group: Group = SE2) -> FloatArray:
@@ -689,6 +926,17 @@ def _tree_guess(n: int, i: IntArray, j: IntArray, z: FloatArray, group: Group = 
 
 def solve_relative(g: RelationalMap, names: Sequence[str], entry: Frame, exit: Frame) -> Solved:
     """The AT of ``exit`` seen from ``entry``, from the joint estimate over the named ATs."""
-    problem, index = problem_from_map(g, names, entry)
-    sol = optimize(problem)
-    return Solved(sol.relative(index[entry], index[exit]), sol.iterations)
+    sol = solve_part(g, names, entry)
+    return Solved(sol.relative(entry, exit), sol.iterations)
+
+
+def solve_part(g: RelationalMap, names: Sequence[str], anchor: Frame) -> Solution:
+    """The joint estimate over the named ATs, anchored at ``anchor``; kept on the map
+    (:meth:`RelationalMap.memo`) until it changes, so that further queries in the same part
+    reuse its factorization."""
+
+    def build() -> Solution:
+        problem, _ = problem_from_map(g, names, anchor)
+        return optimize(problem)
+
+    return g.memo(("solved", frozenset(names)), build)  # type: ignore[no-any-return]

@@ -45,7 +45,8 @@ class Problem(NamedTuple):
     relative poses (m, 4, 4 in 3-D); ``cov`` (m, dof, dof) their covariances (relmap's chart,
     in frame i); ``groups``: dependent ATs as ``(indices into the m ATs, joint covariance
     (dof·k, dof·k))``; ``guess`` (n, 3) or (n, 4, 4) initial poses in a common frame;
-    ``anchor`` the fixed frame; ``names`` (m,) AT names for messages; ``group`` the pose group.
+    ``anchor`` the fixed frame; ``names`` (m,) AT names for messages; ``group`` the pose group;
+    ``frames`` (n,) the frame id of each index (None: the indices themselves).
     """
 
     n: int
@@ -58,6 +59,7 @@ class Problem(NamedTuple):
     anchor: int
     names: list[str]
     group: Group = SE2
+    frames: list[object] | None = None
 
 
 class Parameterization(NamedTuple):

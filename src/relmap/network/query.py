@@ -31,7 +31,7 @@ import numpy as np
 
 from relmap.at import AT, compound, reverse
 from relmap.at3 import AT3
-from relmap.errors import ParameterError
+from relmap.errors import NumericalError, ParameterError, UnknownFrameError
 from relmap.lie import se2
 from relmap.moments import check_method
 from relmap.network.blocks import blocks_between
@@ -91,6 +91,7 @@ class Estimate(NamedTuple):
     iterations: int | None = None  #: Gauss-Newton/LM iterations (optimal)
     moments: str = "first_order"  #: how compoundings were evaluated (reduce)
     linearization: LinearizationCheck | None = None  #: with ``diagnose=True`` (reduce, SE(2))
+    converged: bool | None = None  #: whether the joint solve met its stopping rule (optimal)
 
 
 def _position_trace(at: AT | AT3) -> float:
@@ -109,6 +110,8 @@ def query(
     criterion: Callable[[AT | AT3], float] = _position_trace,
     moments: str = "first_order",
     diagnose: bool = False,
+    delta_y: str = "consistent",
+    progress: Callable[[int, int], None] | None = None,
 ) -> Estimate:
     """The AT of frame ``dst`` seen from frame ``src`` (mean in ``src``'s frame, covariance
     on ``(x, y, θ)`` in ``src``'s frame).
@@ -138,8 +141,11 @@ def query(
     if method not in METHODS:
         raise ParameterError(f"method must be one of {', '.join(METHODS)}; got {method!r}")
     check_method(moments)
-    g._check_frame(src)
-    g._check_frame(dst)
+    src = src.item() if isinstance(src, np.generic) else src  # np.int64(5) is frame 5
+    dst = dst.item() if isinstance(dst, np.generic) else dst
+    for frame in (src, dst):
+        if not g.has_frame(frame):
+            raise UnknownFrameError(f"no frame {frame!r} in the map")
     beyond = moments != "first_order" or diagnose
     what = f"moments={moments!r}" if moments != "first_order" else "diagnose=True"
     if beyond and g.at_type is not AT:
@@ -152,8 +158,12 @@ def query(
             "inverse information matrix at the least-squares optimum, first order by "
             "construction; use method='reduce' (or 'auto' on a map without loops)"
         )
-    ends = {e.name: (e.src, e.dst) for e in g.edges()}
-    blocks = blocks_between(g._incident, ends, src, dst)
+    if method in ("auto", "optimal") and not beyond:
+        kept = _from_kept_solve(g, src, dst)  # a joint solve of a part holding both frames
+        if kept is not None:
+            return kept
+    ends = g.ends()
+    blocks = blocks_between(g.incidence(), ends, src, dst)
     if not blocks:
         at = g.at_type.identity()
         check = LinearizationCheck(0.0, np.zeros(3), 0.0, at) if diagnose else None  # type: ignore[arg-type]
@@ -165,12 +175,12 @@ def query(
                 f"{what} applies to the reduction, and method='auto' chose the optimal method "
                 "(a loop lies between the frames); ask for method='reduce'"
             )
-    order = {name: i for i, name in enumerate(g._edges)}
+    order = g.order()
     names = sorted((n for b in blocks for n in b.names), key=order.__getitem__)
     if method == "reduce":
         in_play = set(names)
         groups = [(grp.names, grp.cov) for grp in g.groups if in_play & set(grp.names)]
-        edges = [(n, g._edges[n].src, g._edges[n].dst, g._edges[n].at) for n in names]
+        edges = [(n, *ends[n], g.edge(n).at) for n in names]
 
         def run(how: str) -> Reduction:
             return reduce_network(
@@ -181,9 +191,12 @@ def query(
                 criterion=criterion,
                 groups=groups,
                 moments=how,
+                delta_y=delta_y,
+                progress=progress,
             )
 
         result = run(moments)
+        _check_finite(result.at, src, dst)
         check = None
         if diagnose:
             first = result if moments == "first_order" else run("first_order")
@@ -201,20 +214,53 @@ def query(
             linearization=check,
         )
 
-    from relmap.network.optimal import solve_relative  # scipy.sparse: imported only when used
+    from relmap.network.optimal import solve_part  # scipy.sparse: imported only when used
 
     total: AT | AT3 | None = None
     iterations = 0
+    converged = True
     for part in _solve_regions(g, blocks):
         if len(part.names) == 1:
-            e = g._edges[part.names[0]]
+            e = g.edge(part.names[0])
             at = e.at if e.src == part.entry else reverse(e.at)
         else:
-            solved = solve_relative(g, part.names, part.entry, part.exit)
-            at, iterations = solved.at, max(iterations, solved.iterations)
+            sol = solve_part(g, part.names, part.entry)
+            at, iterations = sol.relative(part.entry, part.exit), max(iterations, sol.iterations)
+            converged = converged and sol.converged
         total = at if total is None else compound(total, at)
     assert total is not None
-    return Estimate(total, "optimal", None, src, dst, iterations=iterations)
+    _check_finite(total, src, dst)
+    return Estimate(total, "optimal", None, src, dst, iterations=iterations, converged=converged)
+
+
+def _from_kept_solve(g: RelationalMap, src: Frame, dst: Frame) -> Estimate | None:
+    """The estimate from a joint solve kept on the map whose part holds both frames (two
+    frames of one solved region: the blocks between them lie inside it), or None."""
+    if src == dst:
+        return None
+    for key, sol in g.memos():
+        if isinstance(key, tuple) and key[0] == "solved":
+            if sol.has_frame(src) and sol.has_frame(dst):
+                at = sol.relative(src, dst)
+                _check_finite(at, src, dst)
+                return Estimate(
+                    at,
+                    "optimal",
+                    None,
+                    src,
+                    dst,
+                    iterations=sol.iterations,
+                    converged=sol.converged,
+                )
+    return None
+
+
+def _check_finite(at: AT | AT3, src: Frame, dst: Frame) -> None:
+    if not (np.all(np.isfinite(at.mean)) and np.all(np.isfinite(at.cov))):
+        raise NumericalError(
+            f"the AT of frame {dst!r} seen from frame {src!r} overflowed (inf/NaN): the "
+            "measurements are too large for floating point"
+        )
 
 
 def _compare(first: AT, exact: AT) -> LinearizationCheck:

@@ -1,4 +1,4 @@
-"""The paper's reduction (§5): compounding, merging and the Delta-Y transformation.
+"""The paper's reduction (§5): compounding, merging, Delta-Y (first-order consistent) and Y→Δ.
 
 To estimate the AT from frame s to frame t, mark both, then repeat until one AT links them:
 compound the two ATs through any unmarked frame that has exactly two (step 2), and merge
@@ -8,25 +8,77 @@ ATs merged point the query's way: merging does not commute with reversal when th
 error, and this fixes one orientation.
 
 When neither step applies (the Wheatstone bridge of Fig. 3), a triangle of ATs (Delta) is
-replaced by an equivalent star (Y) around a new frame o (Fig. 4): with the triangle's corners
-w, t, v and ATs A (w→t), B (w→v), C (t→v),
+replaced by an equivalent star (Y) around a new frame o (Fig. 4), and when there is no
+triangle to use, a star by a triangle (Y→Δ), or more generally an unmarked frame with d ≤
+:data:`MESH_MAX_DEGREE` ATs by ATs between every two of its neighbours (star-mesh). Delta-Y is
+applied where it lets a series step follow (a corner with three ATs keeps two); Y→Δ and
+star-mesh (the fewest ATs first) each remove a frame; so ATs + frames decrease at every
+round, and the reduction ends.
 
-    A' = A ⊗ (B ⊕ Cᴿ),  B' = B ⊗ (A ⊕ C),  C' = C ⊗ (Aᴿ ⊕ B),
-    X: w→o with identity mean,  Y: o→v with mean B',  Z: o→t with mean A',
-    C_X = ½(C_A' + C_B' - K C_C' Kᵀ),  C_Y = ½(-C_A' + C_B' + K C_C' Kᵀ),
-    C_Z = ½(C_A' - C_B' + K C_C' Kᵀ),
+**The first-order picture** (relmap's derivation; the paper has none). Express every frame f
+by a perturbation ξ_f of a common frame (the triangle's or star's first corner w): the chart
+perturbation of f's pose p_f is ``δp_f = T(p_f) ξ_f`` with ``T(p) = ∂(a ⊕ p)/∂a`` at the
+identity (``[[1, 0, -y], [0, 1, x], [0, 0, 1]]`` in the plane, ``[[I, -[t]×], [0, I]]`` in
+3-D). These T commute and compose additively, and an AT e from frame i to j measures, to
+first order, ``δz_e = M_e (ξ_j - ξ_i)`` with ``M_e = J_j T(p_j)`` (J_j the Jacobian of
+``between(p_i, p_j)`` in p_j). So in ξ coordinates a relational map is a linear network of
+matrix-valued "resistances" ``S_e = M_e⁻¹ C_e M_e⁻ᵀ``: compounding adds them, merging is their
+parallel combination, and both are exact to first order. Delta-Y and star-mesh are the
+resistor-network transforms with matrices:
 
-with K = blkdiag(R(θ_A), 1) rotating C' from t's frame into w's (Eq. 3's K; in 3-D the same
-Jacobian of ``A ⊕ ·``, blkdiag(R_A, R_A)). The paper prints
-``K C_C Kᵀ`` (which gives negative variances even in one dimension) and a second, asymmetric
-form; relmap uses C_C' and symmetrizes. The star's covariances may be indefinite: they are
-intermediate quantities, never validated. **Delta-Y is exact only in the linear, isotropic
-case** (no angular error, position covariances σ²I), where it equals the Delta-Y rule of
-resistor networks; otherwise it is an approximation, and the optimal method is the reference.
+- **Delta-Y (default, ``delta_y="consistent"``).** Triangle A (w→t), B (w→v), C (t→v), star
+  X (w→o), Y (o→v), Z (o→t), o at w. Seen from w, the triangle gives (ξ_t, ξ_v) the joint
+  covariance ``P_tt = S_A - S_A Σ⁻¹ S_A``, ``P_vv = S_B - S_B Σ⁻¹ S_B``,
+  ``P_tv = S_A Σ⁻¹ S_B`` (Σ = S_A + S_B + S_C, a generalized inverse when singular); the
+  star gives ``[[S_X + S_Z, S_X], [S_X, S_X + S_Y]]``. Hence ``S_X = sym(P_tv)``,
+  ``S_Z = P_tt - S_X``, ``S_Y = P_vv - S_X``, then ``C_X = S_X``,
+  ``C_Y = T(p_v) S_Y T(p_v)ᵀ``, ``C_Z = T(p_t) S_Z T(p_t)ᵀ`` with the corners' means
+  ``p_t = A ⊗ (B ⊕ Cᴿ)``, ``p_v = B ⊗ (A ⊕ C)`` (the paper's A', B'). The star reproduces
+  the triangle's corner covariance (21 numbers) in all but the antisymmetric part of
+  ``P_tv`` (3 numbers): a star of three independent ATs has 18. That part vanishes when
+  the S commute — the linear isotropic case (the resistor bridge), and, measured, isotropic
+  positions with heading error — where Delta-Y is exact to first order; otherwise it is
+  the only error. Measured on the bridge (demo report, ``relmap demo``): with the
+  fig3.json errors (σx = σy = 5 cm) at σθ = 0.5°-10° the w→u covariance equals the
+  optimal estimate's to rounding (the paper's formulas: 3%-80% off) and w→u equals the
+  reversed u→w; with σy = 1 cm it is 0.2%-3.9% off the optimal estimate (paper: 5%-15%) and
+  0.2%-7.6% off the reversed u→w. As an estimator re-run on sampled maps it agrees with its
+  prediction within 1.3% at σθ ≤ 5° (isotropic), but at σy = 1 cm, 5° its spread is 19%
+  larger than predicted (the optimal estimator: 4 ± 3%): its merge weights, computed at the
+  sampled means from approximate star covariances, are not the best ones there.
+- **Delta-Y as printed (``delta_y="paper"``)**: ``A' = A ⊗ (B ⊕ Cᴿ)``,
+  ``B' = B ⊗ (A ⊕ C)``, ``C' = C ⊗ (Aᴿ ⊕ B)``, X: w→o identity mean, Y: o→v mean B',
+  Z: o→t mean A', ``C_X = ½(C_A' + C_B' - K C_C' Kᵀ)``, ``C_Y = ½(-C_A' + C_B' + K C_C'
+  Kᵀ)``, ``C_Z = ½(C_A' - C_B' + K C_C' Kᵀ)``, K = blkdiag(R(θ_A), 1) (in 3-D the Jacobian
+  of ``A ⊕ ·``). The paper prints ``K C_C Kᵀ`` (negative variances even in one dimension)
+  and a second, asymmetric form; this uses C_C' and symmetrizes. It ignores how compounding
+  carries heading error into position (the T above), so it is exact only without angular
+  error, with isotropic positions.
+- **Y→Δ and star-mesh**: legs o→a_k (k = 0…d-1), seen from a_0: ``Cov(ξ_k - ξ_0) =
+  S_0 + δ_km S_k``; its inverse H is the grounded information of the mesh, so the mesh ATs
+  have conductances ``G_km = -sym(H_km)`` and ``G_0k = H_kk - Σ_m G_km``, covariances
+  ``M G⁻¹ Mᵀ``. Exact for commuting S (the linear isotropic grid); otherwise only the
+  antisymmetric parts of the cross terms are lost. Directions every leg knows exactly stay
+  exact; a mesh AT that would not be positive definite, or legs that know different
+  directions exactly, make the step unavailable.
 
-If even Delta-Y cannot reduce the network, :class:`IrreducibleNetworkError` names the loop;
-with ``on_irreducible="drop"`` the loop-forming AT whose deletion gives the smallest result
-(by ``criterion``) is deleted instead (the paper's "best deletion"), and reported.
+The star's (and mesh's) covariances may be indefinite: they are intermediate quantities,
+never validated. **The result is**: its covariance is symmetric PSD (eigenvalues below zero
+only by rounding clipped), or :class:`IrreducibleNetworkError` names the approximate steps
+that made it indefinite — never an exit status 0 with an impossible answer.
+
+If even these steps cannot reduce the network, :class:`IrreducibleNetworkError` says how big
+the rest is; with ``on_irreducible="drop"`` the loop-forming ATs are deleted one at a time,
+greedily (each time the one whose deletion lets the rest reduce with the smallest result by
+``criterion``; if none does, the one that leaves least), and reported. Best deletion is
+refused at once, pointing to ``method='optimal'``, on networks with more than
+:data:`DROP_MAX_INPUT_LOOPS` independent loops, or when more than :data:`DROP_MAX_LOOPS`
+remain: it would discard most of the information (every real pose graph of the shared data
+but ring.g2o is refused within about a second; ring.g2o is answered).
+
+Dependent ATs (:meth:`RelationalMap.add_joint`): a dependent pair of given ATs compounds with
+its cross-covariance (§3.2), parallel dependent given ATs merge with their joint covariance
+(§4.2, :func:`relmap.merge` with ``joint_cov``); anything else involving them raises.
 
 The reduction runs on batched ATs as well (all ATs with one batch shape), which Monte Carlo
 validation uses; best deletion needs single ATs. It runs unchanged on 3-D ATs (:class:`AT3`).
@@ -67,6 +119,7 @@ and reversal the reduction performs can use exact or unscented moments instead o
 
 from __future__ import annotations
 
+import heapq
 from collections import deque
 from collections.abc import Callable, Hashable, Sequence
 from itertools import count
@@ -77,7 +130,9 @@ import numpy as np
 from relmap import moments as _moments
 from relmap.at import AT, compound, merge, reverse
 from relmap.at3 import AT3
-from relmap.errors import IrreducibleNetworkError, ParameterError
+from relmap.errors import IrreducibleNetworkError, NumericalError, ParameterError
+from relmap.lie import Group
+from relmap.typing import FloatArray
 
 __all__ = ["Reduction", "reduce_network"]
 
@@ -164,12 +219,14 @@ class _State:
         self.edges = edges
         self.rank = rank
         self.incident: dict[Frame, set[int]] = {}
+        self.touched: list[Frame] = []  # frames whose ATs changed, for the series worklist
         for k, e in edges.items():
             self._link(k, e)
 
     def _link(self, k: int, e: _Edge) -> None:
         self.incident.setdefault(e.u, set()).add(k)
         self.incident.setdefault(e.v, set()).add(k)
+        self.touched += (e.u, e.v)
 
     def add(self, k: int, e: _Edge) -> None:
         self.edges[k] = e
@@ -181,7 +238,13 @@ class _State:
             self.incident[f].discard(k)
             if not self.incident[f]:
                 del self.incident[f]
+        self.touched += (e.u, e.v)
         return e
+
+    def between(self, a: Frame, b: Frame) -> list[int]:
+        """The ATs linking frames a and b (either way), in insertion order."""
+        ks = self.incident.get(a, set()) & self.incident.get(b, set())
+        return sorted(k for k in ks if {self.edges[k].u, self.edges[k].v} == {a, b})
 
     def copy(self) -> _State:
         return _State(dict(self.edges), dict(self.rank))
@@ -199,13 +262,17 @@ class _Reducer:
         cross: dict[frozenset[str], tuple[str, str, np.ndarray]],
         definitions: dict[str, str],
         moments: str = "first_order",
+        delta_y: str = "consistent",
     ):
         self.s, self.t = s, t
         self.moments = moments
+        self.delta_y_rule = delta_y
         self.cross = cross
         self.definitions = definitions
         self.ids = count(1_000_000)
         self.stars = count(1)
+        self.meshes = count(1)
+        self.progress: Callable[[int, int], None] | None = None
 
     # -------------------------------------------------------------- orientation
     def oriented(self, st: _State, k: int, a: Frame) -> tuple[AT | AT3, object]:
@@ -252,84 +319,105 @@ class _Reducer:
         return (a, b) if st.rank[a] <= st.rank[b] else (b, a)
 
     # ---------------------------------------------------------------- the steps
-    def prune(self, st: _State) -> bool:
-        changed = False
-        for k in [k for k, e in st.edges.items() if e.u == e.v]:
-            st.drop(k)
-            changed = True
-        queue = deque(st.incident)
-        while queue:
-            f = queue.popleft()
-            if f in (self.s, self.t) or f not in st.incident or len(st.incident[f]) != 1:
-                continue
-            (k,) = st.incident[f]
-            other = st.other(k, f)
-            st.drop(k)
-            changed = True
-            queue.append(other)
-        return changed
-
     def merge_parallel(self, st: _State) -> bool:
         pairs: dict[frozenset[Frame], list[int]] = {}
         for k, e in st.edges.items():
             pairs.setdefault(frozenset((e.u, e.v)), []).append(k)
         changed = False
         for ks in pairs.values():
-            if len(ks) < 2:
-                continue
-            e0 = st.edges[ks[0]]
-            a, b = self.first(st, e0.u, e0.v)
-            ks.sort(key=lambda k: st.edges[k].order)
-            parts = [self.oriented(st, k, a) for k in ks]
-            groups = self._independent([st.edges[k] for k in ks], "merged")
-            order = min(st.edges[k].order for k in ks)
-            for k in ks:
-                st.drop(k)
-            at = merge(*(p[0] for p in parts))
-            st.add(
-                next(self.ids), _Edge(a, b, at, _Merge(tuple(p[1] for p in parts)), order, groups)
-            )
-            changed = True
+            if len(ks) >= 2:
+                self.merge_group(st, ks)
+                changed = True
         return changed
 
-    def compound_series(self, st: _State) -> bool:
-        for m in sorted(st.incident, key=lambda f: st.rank[f]):
-            if m in (self.s, self.t) or m not in st.incident or len(st.incident[m]) != 2:
-                continue
-            k1, k2 = sorted(st.incident[m], key=lambda k: st.edges[k].order)
-            a, b = st.other(k1, m), st.other(k2, m)
-            if a == b:
-                continue  # parallel ATs: merged first
-            if st.rank[a] > st.rank[b]:
-                (a, k1), (b, k2) = (b, k2), (a, k1)
-            ea, eb = st.edges[k1], st.edges[k2]
-            e1 = ea.expr if ea.u == m else _rev(ea.expr)  # m → a
-            e2 = eb.expr if eb.u == m else _rev(eb.expr)  # m → b
-            factors = None
-            if self.moments == "first_order":
-                first, second = self.oriented(st, k1, m)[0], self.oriented(st, k2, m)[0]
-                if ea.groups & eb.groups:  # a dependent pair: with its cross-covariance
-                    at = self._compound(ea, eb, reverse(first), second, m)
-                else:
-                    at = compound(reverse(first), second)
-            elif ea.groups & eb.groups:
-                before, second = self.oriented(st, k1, a)[0], self.oriented(st, k2, m)[0]
-                at = self._compound(ea, eb, before, second, m)
-            elif self.moments == "exact":
-                factors = (*self.factors(st, k1, a), *self.factors(st, k2, m))
-                at = self.chain(factors)
+    def merge_group(self, st: _State, ks: list[int]) -> int:
+        """Merge the parallel ATs ``ks`` into one (oriented first → second by rank); its id."""
+        e0 = st.edges[ks[0]]
+        a, b = self.first(st, e0.u, e0.v)
+        ks = sorted(ks, key=lambda k: st.edges[k].order)
+        parts = [self.oriented(st, k, a) for k in ks]
+        edges = [st.edges[k] for k in ks]
+        order = min(e.order for e in edges)
+        if any(e.groups for e in edges) and self._dependent_leaves(edges):
+            groups = frozenset().union(*(e.groups for e in edges))
+            at = merge(*(p[0] for p in parts), joint_cov=self._joint(edges, a))
+        else:
+            groups = self._independent(edges, "merged")
+            at = merge(*(p[0] for p in parts))
+        for k in ks:
+            st.drop(k)
+        new = next(self.ids)
+        st.add(new, _Edge(a, b, at, _Merge(tuple(p[1] for p in parts)), order, groups))
+        return new
+
+    def _dependent_leaves(self, edges: Sequence[_Edge]) -> bool:
+        """Whether every AT with a dependent group is a given AT (§4.2: its cross-covariances
+        with the others are known)."""
+        return all(isinstance(e.expr, _Leaf) for e in edges if e.groups)
+
+    def _joint(self, edges: Sequence[_Edge], a: Frame) -> np.ndarray:
+        """Joint covariance of the ATs (each oriented away from frame a): their own covariances
+        on the diagonal, the given cross-covariances (through Eq. 7's Jacobian where an AT is
+        reversed) between ATs of one dependent group, zero elsewhere."""
+        group = edges[0].at.group
+        b, k = group.dof, len(edges)
+        shape = np.broadcast_shapes(*(e.at.batch_shape for e in edges))
+        eye = np.eye(b)
+        J = [eye if e.u == a else group.inverse(e.at.mean, jacobians=True)[1] for e in edges]
+        joint = np.zeros((*shape, b * k, b * k))
+        for i, ei in enumerate(edges):
+            Ci = ei.at.cov if ei.u == a else reverse(ei.at).cov
+            joint[..., b * i : b * i + b, b * i : b * i + b] = Ci
+            for j in range(i + 1, k):
+                ej = edges[j]
+                pair = frozenset((*_leaves(ei.expr), *_leaves(ej.expr)))
+                if not (ei.groups & ej.groups) or pair not in self.cross:
+                    continue
+                name_a, _, X = self.cross[pair]
+                X = X if ei.expr.name == name_a else np.swapaxes(X, -1, -2)  # type: ignore[attr-defined]
+                Xij = J[i] @ X @ np.swapaxes(J[j], -1, -2)
+                joint[..., b * i : b * i + b, b * j : b * j + b] = Xij
+                joint[..., b * j : b * j + b, b * i : b * i + b] = np.swapaxes(Xij, -1, -2)
+        return joint
+
+    def can_compound(self, st: _State, m: Frame) -> bool:
+        """Whether frame m is an unmarked frame with exactly two ATs to two other frames."""
+        if m in (self.s, self.t) or len(st.incident.get(m, ())) != 2:
+            return False
+        k1, k2 = st.incident[m]
+        return st.other(k1, m) != st.other(k2, m)
+
+    def compound_at(self, st: _State, m: Frame) -> int:
+        """Compound the two ATs through frame m (step 2); the new AT's id."""
+        k1, k2 = sorted(st.incident[m], key=lambda k: st.edges[k].order)
+        a, b = st.other(k1, m), st.other(k2, m)
+        if st.rank[a] > st.rank[b]:
+            (a, k1), (b, k2) = (b, k2), (a, k1)
+        ea, eb = st.edges[k1], st.edges[k2]
+        e1 = ea.expr if ea.u == m else _rev(ea.expr)  # m → a
+        e2 = eb.expr if eb.u == m else _rev(eb.expr)  # m → b
+        factors = None
+        if self.moments == "first_order":
+            first, second = self.oriented(st, k1, m)[0], self.oriented(st, k2, m)[0]
+            if ea.groups & eb.groups:  # a dependent pair: with its cross-covariance
+                at = self._compound(ea, eb, reverse(first), second, m)
             else:
-                at = self.series(st, [(k1, a), (k2, m)])
-            order = min(ea.order, eb.order)
-            st.drop(k1)
-            st.drop(k2)
-            groups = ea.groups | eb.groups
-            st.add(
-                next(self.ids),
-                _Edge(a, b, at, _comp(_rev(e1), e2), order, groups, factors),
-            )
-            return True
-        return False
+                at = compound(reverse(first), second)
+        elif ea.groups & eb.groups:
+            before, second = self.oriented(st, k1, a)[0], self.oriented(st, k2, m)[0]
+            at = self._compound(ea, eb, before, second, m)
+        elif self.moments == "exact":
+            factors = (*self.factors(st, k1, a), *self.factors(st, k2, m))
+            at = self.chain(factors)
+        else:
+            at = self.series(st, [(k1, a), (k2, m)])
+        order = min(ea.order, eb.order)
+        st.drop(k1)
+        st.drop(k2)
+        groups = ea.groups | eb.groups
+        new = next(self.ids)
+        st.add(new, _Edge(a, b, at, _comp(_rev(e1), e2), order, groups, factors))
+        return new
 
     def _compound(
         self, ea: _Edge, eb: _Edge, first: AT | AT3, second: AT | AT3, m: Frame
@@ -375,6 +463,11 @@ class _Reducer:
         marked = {self.s, self.t}
         return sorted(found, key=lambda tri: (-len(marked & set(tri)), [st.rank[f] for f in tri]))
 
+    def helps(self, st: _State, tri: tuple[Frame, Frame, Frame]) -> bool:
+        """Whether Delta-Y on ``tri`` lets series-parallel steps go on: a corner that is not
+        marked and has three ATs keeps two (its triangle ATs become one star AT)."""
+        return any(f not in (self.s, self.t) and len(st.incident[f]) == 3 for f in tri)
+
     def delta_y(self, st: _State, tri: tuple[Frame, Frame, Frame]) -> None:
         w, t, v = tri  # ordered by rank: w nearest the source
         edge_between = {frozenset((st.edges[k].u, st.edges[k].v)): k for k in st.edges}
@@ -386,30 +479,36 @@ class _Reducer:
         if self.moments == "first_order":
             A1 = merge(A, compound(B, reverse(C)))
             B1 = merge(B, compound(A, C))
-            C1 = merge(C, compound(reverse(A), B))
         else:  # the same compoundings with exact or unscented moments
             A1 = merge(A, self.series(st, [(kB, w), (kC, v)]))
             B1 = merge(B, self.series(st, [(kA, w), (kC, t)]))
-            C1 = merge(C, self.series(st, [(kA, t), (kB, w)]))
         group, kind = A.group, type(A)
-        K = group.compose(A.mean, A.mean, jacobians=True)[2]  # ∂(A ⊕ b)/∂b: independent of b
-        KCK = K @ C1.cov @ np.swapaxes(K, -1, -2)
-        covs = (
-            0.5 * (A1.cov + B1.cov - KCK),
-            0.5 * (-A1.cov + B1.cov + KCK),
-            0.5 * (A1.cov - B1.cov + KCK),
-        )
-        covs = tuple(0.5 * (C + np.swapaxes(C, -1, -2)) for C in covs)
+        if self.delta_y_rule == "paper":
+            if self.moments == "first_order":
+                C1 = merge(C, compound(reverse(A), B))
+            else:
+                C1 = merge(C, self.series(st, [(kA, t), (kB, w)]))
+            K = group.compose(A.mean, A.mean, jacobians=True)[2]  # ∂(A ⊕ b)/∂b
+            KCK = K @ C1.cov @ np.swapaxes(K, -1, -2)
+            covs = (
+                0.5 * (A1.cov + B1.cov - KCK),
+                0.5 * (-A1.cov + B1.cov + KCK),
+                0.5 * (A1.cov - B1.cov + KCK),
+            )
+        else:
+            covs = _consistent_star(group, A.cov, B.cov, C.cov, A1.mean, B1.mean)
+        covs = tuple(0.5 * (X + np.swapaxes(X, -1, -2)) for X in covs)
         n = next(self.stars)
         o = ("Δ-Y", n)
         st.rank[o] = (*st.rank[w], 0.5)
         names = [f"X{_sub(n)}", f"Y{_sub(n)}", f"Z{_sub(n)}"]
         triangle = (
-            f"the Δ of {_render(eA)} ({w!r}→{t!r}), {_render(eB)} ({w!r}→{v!r}), "
-            f"{_render(eC)} ({t!r}→{v!r})"
+            f"the Δ of {_short(_render(eA))} ({w!r}→{t!r}), {_short(_render(eB))} ({w!r}→{v!r}), "
+            f"{_short(_render(eC))} ({t!r}→{v!r})"
         )
         o_name = f"o{_sub(n)}"
-        self.definitions[names[0]] = f"Y of {triangle}: {w!r}→{o_name}, identity mean"
+        rule = "" if self.delta_y_rule == "consistent" else " (the paper's formulas)"
+        self.definitions[names[0]] = f"Y{rule} of {triangle}: {w!r}→{o_name}, identity mean"
         self.definitions[names[1]] = f"Y of {triangle}: {o_name}→{v!r}, mean of B' = B ⊗ (A ⊕ C)"
         self.definitions[names[2]] = f"Y of {triangle}: {o_name}→{t!r}, mean of A' = A ⊗ (B ⊕ Cᴿ)"
         order = min(st.edges[k].order for k in (kA, kB, kC))
@@ -423,11 +522,95 @@ class _Reducer:
                 _Edge(u, x, kind._trusted(mean, cov), _Leaf(names[i]), order + i * 1e-3, groups),
             )
 
+    def stars_to_mesh(self, st: _State) -> bool:
+        """Y→Δ, and its generalization star-mesh: replace an unmarked frame o with d ATs to d
+        other frames (3 ≤ d ≤ :data:`MESH_MAX_DEGREE`; the fewest first) by ATs between every
+        two of them (:func:`_consistent_mesh`); False if there is no such frame (or none whose
+        star can be inverted)."""
+        candidates = []
+        for o, ks in st.incident.items():
+            if o in (self.s, self.t) or not 3 <= len(ks) <= MESH_MAX_DEGREE:
+                continue
+            others = {st.other(k, o) for k in ks}
+            if len(others) == len(ks) and not any(st.edges[k].groups for k in ks):
+                candidates.append((len(ks), st.rank[o], o))
+        for _, _, o in sorted(candidates, key=lambda c: (c[0], c[1])):
+            legs = sorted(st.incident[o], key=lambda k: st.rank[st.other(k, o)])
+            oriented = [self.oriented(st, k, o) for k in legs]
+            ends = [st.other(k, o) for k in legs]
+            mesh = _consistent_mesh(oriented[0][0].group, [at for at, _ in oriented])
+            if mesh is None:
+                continue
+            n = next(self.meshes)
+            order = min(st.edges[k].order for k in legs)
+            star = ", ".join(
+                f"{_short(_render(e), 40)} ({o!r}→{f!r})"
+                for (_, e), f in zip(oriented, ends, strict=True)
+            )
+            what = "Y→Δ" if len(legs) == 3 else "star-mesh"
+            for k in legs:
+                st.drop(k)
+            kind = type(oriented[0][0])
+            for i, ((p, q), mean, cov) in enumerate(mesh):
+                name = f"M{_sub(n)}{_letters(i)}"
+                self.definitions[name] = (
+                    f"{what} of the star {_short(star, 200)}: {ends[p]!r}→{ends[q]!r}"
+                )
+                st.add(
+                    next(self.ids),
+                    _Edge(
+                        ends[p],
+                        ends[q],
+                        kind._trusted(mean, cov),
+                        _Leaf(name),
+                        order + i * 1e-3,
+                        frozenset(),
+                    ),
+                )
+            return True
+        return False
+
     # --------------------------------------------------------------------- driver
     def series_parallel(self, st: _State) -> None:
-        self.prune(st)
-        while self.merge_parallel(st) or self.compound_series(st):
-            self.prune(st)
+        """Prune, merge parallel ATs and compound serial ones until none is left (steps 2-3).
+
+        A worklist: the frame with the lowest rank that can be compounded next, as a heap of
+        the frames whose ATs changed; O((frames + ATs) log frames)."""
+        for k in [k for k, e in st.edges.items() if e.u == e.v]:
+            st.drop(k)
+        self.merge_parallel(st)
+        heap: list[tuple[tuple[float, ...], int, Frame]] = []
+        tick = count()
+        st.touched = list(st.incident)
+        while True:
+            touched, st.touched = st.touched, []
+            self.prune_from(st, touched)
+            for f in (*touched, *st.touched):
+                if f in st.incident:
+                    heapq.heappush(heap, (st.rank[f], next(tick), f))
+            st.touched = []
+            while heap and not self.can_compound(st, heap[0][2]):
+                heapq.heappop(heap)
+            if not heap:
+                return
+            m = heapq.heappop(heap)[2]
+            new = self.compound_at(st, m)
+            e = st.edges[new]
+            parallel = st.between(e.u, e.v)
+            if len(parallel) > 1:
+                self.merge_group(st, parallel)
+
+    def prune_from(self, st: _State, frames: Sequence[Frame]) -> None:
+        """Drop dangling ATs (frames with one AT, not marked) reachable from ``frames``."""
+        queue = deque(frames)
+        while queue:
+            f = queue.popleft()
+            if f in (self.s, self.t) or f not in st.incident or len(st.incident[f]) != 1:
+                continue
+            (k,) = st.incident[f]
+            other = st.other(k, f)
+            st.drop(k)
+            queue.append(other)
 
     def done(self, st: _State) -> bool:
         return len(st.edges) == 1 and {st.edges[k].u for k in st.edges} | {
@@ -435,25 +618,129 @@ class _Reducer:
         } == {self.s, self.t}
 
     def reduce(self, st: _State) -> bool:
-        """Series-parallel reductions, with Delta-Y when stuck; True if one AT remains."""
+        """Series-parallel reductions, with Delta-Y (or else Y→Δ) when stuck; True if one AT
+        remains. Every Delta-Y applied lets a series step follow, and every Y→Δ removes a
+        frame, so ATs + frames decrease at every round: the loop ends."""
         self.series_parallel(st)
+        total = len(st.edges)
         while not self.done(st):
-            size = len(st.edges)
-            for tri in self.triangles(st):
-                trial = st.copy()
-                saved = dict(self.definitions)
-                stars = self.stars
-                self.delta_y(trial, tri)
-                self.series_parallel(trial)
-                if len(trial.edges) < size:
-                    st.__dict__.update(trial.__dict__)
-                    break
-                self.definitions.clear()
-                self.definitions.update(saved)
-                self.stars = stars
-            else:
+            if self.progress:
+                self.progress(total - len(st.edges), total)
+            tri = next((tri for tri in self.triangles(st) if self.helps(st, tri)), None)
+            if tri is not None:
+                self.delta_y(st, tri)
+            elif not self.stars_to_mesh(st):
                 return False
+            self.series_parallel(st)
         return True
+
+
+def _chart_of_origin(group: Group, pose: FloatArray) -> FloatArray:
+    """T(p) = ∂(a ⊕ p)/∂a at a = identity: the chart perturbation of pose p (in the common
+    frame) caused by a perturbation ξ of the common frame itself, δp = T(p) ξ.
+
+    In the plane T = [[1, 0, -y], [0, 1, x], [0, 0, 1]]; in 3-D [[I, -[t]×], [0, I]]. These
+    matrices commute (T(p) T(q) depends only on t_p + t_q), which makes every AT of a map
+    a difference ``ξ_j - ξ_i`` of such coordinates to first order (:func:`_consistent_star`).
+    """
+    eye = group.identity(group.batch_shape(pose))
+    return group.compose(eye, pose, jacobians=True)[1]
+
+
+def _congruence(M: FloatArray, C: FloatArray) -> FloatArray:
+    out = M @ C @ np.swapaxes(M, -1, -2)
+    return 0.5 * (out + np.swapaxes(out, -1, -2))
+
+
+def _consistent_star(
+    group: Group,
+    CA: FloatArray,
+    CB: FloatArray,
+    CC: FloatArray,
+    pt: FloatArray,
+    pv: FloatArray,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Covariances of the star X (w→o), Y (o→v), Z (o→t) that reproduces, to first order, the
+    triangle A (w→t), B (w→v), C (t→v) seen from its corners (module docstring).
+
+    ``pt``, ``pv``: the corners t and v in w's frame (the star's o sits at w)."""
+    Tt, Tv = _chart_of_origin(group, pt), _chart_of_origin(group, pv)
+    Jv = group.between(pt, pv, jacobians=True)[2]  # ∂ between(t, v) / ∂v
+    SA = _congruence(np.linalg.inv(Tt), CA)
+    SB = _congruence(np.linalg.inv(Tv), CB)
+    SC = _congruence(np.linalg.inv(Jv @ Tv), CC)
+    from relmap.gaussian import generalized_inverse
+
+    G, _ = generalized_inverse(SA + SB + SC)
+    SX = SA @ G @ SB
+    SX = 0.5 * (SX + np.swapaxes(SX, -1, -2))
+    Ptt = SA - SA @ G @ SA
+    Pvv = SB - SB @ G @ SB
+    return SX, _congruence(Tv, Pvv - SX), _congruence(Tt, Ptt - SX)
+
+
+def _consistent_mesh(
+    group: Group, legs: Sequence[AT | AT3]
+) -> list[tuple[tuple[int, int], FloatArray, FloatArray]] | None:
+    """Star-mesh (Y→Δ for three legs): ATs between every two ends of the star ``legs``
+    (o→a₀, …, o→a_{d-1}) that reproduce, to first order, the star seen from its ends (module
+    docstring); ``((p, q), mean, cov)`` for the AT a_p → a_q. None when the star or a mesh AT
+    is singular (an exactly known direction: no finite mesh)."""
+    d, b = len(legs), group.dof
+    T = [_chart_of_origin(group, leg.mean) for leg in legs]
+    S = [_congruence(np.linalg.inv(Ti), leg.cov) for Ti, leg in zip(T, legs, strict=True)]
+    # Directions every leg knows exactly (e.g. headings without error) stay exact: the mesh is
+    # built on the other directions, U spanning them.
+    lam, U = np.linalg.eigh(sum(S))
+    keep = lam > 1e-12 * np.abs(lam).max(axis=-1, keepdims=True)
+    r = keep.sum(axis=-1)
+    if not np.all(r == r.flat[0]) or r.flat[0] == 0:
+        return None
+    U = U[..., :, b - int(r.flat[0]) :]
+    Ut = np.swapaxes(U, -1, -2)
+    S = [Ut @ Sk @ U for Sk in S]
+    c = U.shape[-1]
+    # ξ_k - ξ_0 (k ≥ 1) seen through the star: Cov = S_0 + δ_km S_k
+    P = np.concatenate(
+        [
+            np.concatenate([S[0] + (S[k] if k == m else 0.0) for m in range(1, d)], axis=-1)
+            for k in range(1, d)
+        ],
+        axis=-2,
+    )
+    if not np.all(np.linalg.cond(P) < 1e12):
+        return None
+    H = np.linalg.inv(P)
+    H = 0.5 * (H + np.swapaxes(H, -1, -2))
+
+    def block(k: int, m: int) -> FloatArray:
+        return H[..., c * (k - 1) : c * k, c * (m - 1) : c * m]
+
+    G: dict[tuple[int, int], FloatArray] = {}
+    for k in range(1, d):
+        for m in range(k + 1, d):
+            Gkm = -block(k, m)
+            G[k, m] = 0.5 * (Gkm + np.swapaxes(Gkm, -1, -2))
+    for k in range(1, d):
+        G[0, k] = block(k, k) - sum((G[min(k, m), max(k, m)] for m in range(1, d) if m != k), 0.0)
+    out = []
+    for (p, q), Gpq in sorted(G.items()):
+        if not np.all(np.linalg.eigvalsh(Gpq) > 1e-12 * np.abs(Gpq).max()):
+            return None  # no finite, positive definite AT carries this conductance
+        mean, _, Jq = group.between(legs[p].mean, legs[q].mean, jacobians=True)
+        Spq = U @ np.linalg.inv(Gpq) @ Ut
+        out.append(((p, q), mean, _congruence(Jq @ T[q], Spq)))
+    return out
+
+
+def _letters(i: int) -> str:
+    """a, b, …, z, aa, ab, …: the i-th name of a star-mesh's ATs."""
+    return _LETTERS[i] if i < len(_LETTERS) else _letters(i // 26 - 1) + _LETTERS[i % 26]
+
+
+def _short(text: str, limit: int = 80) -> str:
+    """``text`` cut to ``limit`` characters (with … and the full length)."""
+    return text if len(text) <= limit else f"{text[: limit - 20]}… ({len(text)} chars)"
 
 
 def _sub(n: int) -> str:
@@ -466,6 +753,16 @@ def _position_trace(at: AT | AT3) -> float:
     return float(np.trace(at.cov[..., :k, :k]))
 
 
+DELTA_Y = ("consistent", "paper")
+#: the most ATs a frame may have for star-mesh elimination when nothing else applies
+MESH_MAX_DEGREE = 8
+_LETTERS = "abcdefghijklmnopqrstuvwxyz"
+#: best deletion tries every AT of what is left; beyond this many independent loops it refuses
+DROP_MAX_LOOPS = 8
+#: best deletion is refused at once on networks with more independent loops than this
+DROP_MAX_INPUT_LOOPS = 100
+
+
 def reduce_network(
     edges: Sequence[tuple[str, Frame, Frame, AT | AT3]],
     s: Frame,
@@ -475,18 +772,35 @@ def reduce_network(
     criterion: Callable[[AT | AT3], float] = _position_trace,
     groups: Sequence[tuple[Sequence[str], np.ndarray]] = (),
     moments: str = "first_order",
+    delta_y: str = "consistent",
+    progress: Callable[[int, int], None] | None = None,
 ) -> Reduction:
     """Reduce ``edges`` (``(name, src, dst, AT)``) to the AT of frame t seen from frame s.
 
     ``on_irreducible`` is ``"raise"`` or ``"drop"`` (best deletion, judged by ``criterion``,
-    by default the trace of the result's position covariance, m²). ``groups`` lists dependent
+    by default the trace of the result's position covariance, m²; greedy, one AT at a time,
+    and refused at once, pointing to ``method='optimal'``, when more than
+    :data:`DROP_MAX_LOOPS` independent loops are left). ``groups`` lists dependent
     ATs as ``(names, joint covariance)``; a dependent pair can be compounded (with its
-    cross-covariance, §3.2), anything else involving it raises. ``moments`` is
+    cross-covariance, §3.2), parallel dependent ATs merged (with their joint covariance,
+    §4.2), anything else involving them raises. ``moments`` is
     ``"first_order"`` (Eqs. 1-7), ``"exact"`` or ``"unscented"`` (SE(2) only; module
-    docstring: what they mean where merging follows compounding).
+    docstring: what they mean where merging follows compounding). ``delta_y`` is
+    ``"consistent"`` (default: the first-order-consistent star) or ``"paper"`` (the paper's
+    formulas, to reproduce it). ``progress(done, total)`` is called as Delta-Y / Y→Δ rounds
+    go on (ATs reduced of those left after series-parallel steps) and during best deletion
+    (deletions tried).
+
+    The result's covariance is symmetric PSD (rounding below 1e-9 of its scale clipped);
+    when the approximations of Delta-Y / Y→Δ give an indefinite one,
+    :class:`IrreducibleNetworkError` names the steps instead.
     """
     if on_irreducible not in ("raise", "drop"):
         raise ParameterError(f"on_irreducible must be 'raise' or 'drop'; got {on_irreducible!r}")
+    s, t = _plain(s), _plain(t)
+    edges = [(name, _plain(u), _plain(v), at) for name, u, v, at in edges]
+    if delta_y not in DELTA_Y:
+        raise ParameterError(f"delta_y must be one of {', '.join(DELTA_Y)}; got {delta_y!r}")
     _moments.check_method(moments)
     if moments != "first_order" and any(not isinstance(e[3], AT) for e in edges):
         raise ParameterError(
@@ -514,49 +828,133 @@ def reduce_network(
         },
         rank,
     )
+    loops = len(edges) - len({f for e in edges for f in e[1:3]}) + 1
+    if on_irreducible == "drop" and loops > DROP_MAX_INPUT_LOOPS:
+        raise IrreducibleNetworkError(
+            f"best deletion refused: the network between {s!r} and {t!r} has {len(edges)} ATs "
+            f"and {loops} independent loops (more than {DROP_MAX_INPUT_LOOPS}); deleting ATs "
+            "until the paper's reduction applies would discard most of its information; use "
+            "method='optimal', which uses all of it"
+        )
     definitions: dict[str, str] = {}
-    reducer = _Reducer(s, t, cross, definitions, moments)
-    result = _reduce_or_drop(reducer, st, on_irreducible, criterion)
-    at, expr, dropped = result
-    return Reduction(at, _render(expr), dropped, definitions)
+    reducer = _Reducer(s, t, cross, definitions, moments, delta_y)
+    reducer.progress = progress
+    with np.errstate(over="ignore", invalid="ignore"):
+        try:
+            at, expr, dropped = _reduce_or_drop(reducer, st, on_irreducible, criterion, progress)
+            finite = bool(np.all(np.isfinite(at.cov)) and np.all(np.isfinite(at.mean)))
+        except np.linalg.LinAlgError:
+            finite = False
+    if not finite:
+        raise NumericalError(
+            f"the reduction from {s!r} to {t!r} overflowed (inf/NaN): the ATs' means or "
+            "covariances are too large for floating point"
+        )
+    text = _render(expr)
+    at = _checked_psd(at, text, definitions)
+    return Reduction(at, text, dropped, definitions)
+
+
+def _plain(frame: Frame) -> Frame:
+    """A numpy scalar frame (``np.int64(5)``) as the Python value it equals (``5``): the
+    working network compares frames with ``==``, which numpy would broadcast."""
+    return frame.item() if isinstance(frame, np.generic) else frame
+
+
+def _checked_psd(at: AT | AT3, expression: str, definitions: dict[str, str]) -> AT | AT3:
+    """``at`` with a symmetric PSD covariance (eigenvalues below zero by rounding, within 1e-9
+    of the largest, clipped), or :class:`IrreducibleNetworkError` naming the approximate
+    steps that made it indefinite."""
+    C = 0.5 * (at.cov + np.swapaxes(at.cov, -1, -2))
+    lam, U = np.linalg.eigh(C)
+    scale = np.abs(lam).max(axis=-1, keepdims=True)
+    worst = (lam / np.where(scale > 0, scale, 1.0)).min()
+    if worst < -1e-9:
+        steps = [n for n in definitions if n in expression] or ["(none)"]
+        shown = ", ".join(steps[:6]) + (f" and {len(steps) - 6} more" if len(steps) > 6 else "")
+        raise IrreducibleNetworkError(
+            f"the reduction's result is not a covariance (smallest eigenvalue {worst:.3g} of "
+            f"its scale) after the approximate Delta-Y / Y→Δ steps {shown}: their first-order "
+            "approximation fails here; use method='optimal'",
+            (expression,),
+        )
+    if (lam < 0).any():
+        C = (U * np.maximum(lam, 0.0)[..., None, :]) @ np.swapaxes(U, -1, -2)
+        C = 0.5 * (C + np.swapaxes(C, -1, -2))
+    return type(at)._trusted(at.mean, C)
+
+
+def _listing(remaining: Sequence[str], limit: int = 6) -> str:
+    """A few of the expressions, each cut short, and how many more."""
+    shown = ", ".join(_short(r, 60) for r in remaining[:limit])
+    return shown + (f" and {len(remaining) - limit} more" if len(remaining) > limit else "")
 
 
 def _reduce_or_drop(
-    reducer: _Reducer, st: _State, on_irreducible: str, criterion: Callable[[AT | AT3], float]
+    reducer: _Reducer,
+    st: _State,
+    on_irreducible: str,
+    criterion: Callable[[AT | AT3], float],
+    progress: Callable[[int, int], None] | None = None,
 ) -> tuple[AT | AT3, object, tuple[str, ...]]:
-    if reducer.reduce(st):
-        (k,) = st.edges
-        at, expr = reducer.oriented(st, k, reducer.s)
-        return at, expr, ()
-    remaining = tuple(_render(e.expr) for e in st.edges.values())
-    if on_irreducible == "raise":
-        raise IrreducibleNetworkError(
-            "the paper's reduction (with Delta-Y) cannot reduce the loop formed by "
-            + ", ".join(remaining)
-            + "; use method='optimal', or on_irreducible='drop' to delete the best AT",
-            remaining,
-        )
-    if any(e.at.ndim for e in st.edges.values()):
-        raise ParameterError("best deletion needs single ATs, not batches")
-    best: tuple[float, AT | AT3, object, tuple[str, ...]] | None = None
-    for k in list(st.edges):
-        trial = st.copy()
-        dropped = _render(trial.drop(k).expr)
-        if not _connected(trial, reducer.s, reducer.t):
-            continue
+    dropped_so_far: list[str] = []
+    while True:
+        if reducer.reduce(st):
+            (k,) = st.edges
+            at, expr = reducer.oriented(st, k, reducer.s)
+            return at, expr, tuple(dropped_so_far)
+        remaining = tuple(_render(e.expr) for e in st.edges.values())
+        frames = len(st.incident)
+        loops = len(st.edges) - frames + 1
+        core = f"{len(remaining)} ATs among {frames} frames, {loops} independent loops"
+        if on_irreducible == "raise":
+            raise IrreducibleNetworkError(
+                f"the paper's reduction (with Delta-Y) cannot reduce the network left ({core}: "
+                f"{_listing(remaining)}); use method='optimal', or on_irreducible='drop' to "
+                "delete ATs (best deletion)",
+                remaining,
+            )
+        if loops > DROP_MAX_LOOPS:
+            raise IrreducibleNetworkError(
+                f"best deletion refused: the reduction is stuck on {core}, and deleting ATs "
+                f"one by one (more than {DROP_MAX_LOOPS} loops) would throw away most of the "
+                "information of the network; use method='optimal', which uses all of it",
+                remaining,
+            )
+        if any(e.at.ndim for e in st.edges.values()):
+            raise ParameterError("best deletion needs single ATs, not batches")
+        best: tuple[float, int, _State, dict[str, str], str] | None = None
+        fallback: tuple[int, int, _State, dict[str, str], str] | None = None
+        keys = list(st.edges)
         saved = dict(reducer.definitions)
-        at, expr, more = _reduce_or_drop(reducer, trial, on_irreducible, criterion)
-        score = criterion(at)
-        if best is None or score < best[0]:
-            best = (score, at, expr, (dropped, *more))
-        else:
+        for done, k in enumerate(keys):
+            if progress:
+                progress(done, len(keys))
+            trial = st.copy()
+            name = _render(trial.drop(k).expr)
+            if not _connected(trial, reducer.s, reducer.t):
+                continue
             reducer.definitions.clear()
             reducer.definitions.update(saved)
-    if best is None:
-        raise IrreducibleNetworkError(
-            "no AT can be deleted without disconnecting the frames", remaining
-        )
-    return best[1], best[2], best[3]
+            ok = reducer.reduce(trial)
+            if ok:
+                (only,) = trial.edges
+                score = criterion(reducer.oriented(trial, only, reducer.s)[0])
+                if best is None or score < best[0]:
+                    best = (score, k, trial, dict(reducer.definitions), name)
+            elif best is None and (fallback is None or len(trial.edges) < fallback[0]):
+                fallback = (len(trial.edges), k, trial, dict(reducer.definitions), name)
+        if progress:
+            progress(len(keys), len(keys))
+        choice = best or fallback
+        if choice is None:
+            raise IrreducibleNetworkError(
+                "no AT can be deleted without disconnecting the frames", remaining
+            )
+        _, _, st, defs, name = choice
+        reducer.definitions.clear()
+        reducer.definitions.update(defs)
+        dropped_so_far.append(name)
 
 
 def _connected(st: _State, s: Frame, t: Frame) -> bool:

@@ -167,6 +167,15 @@ def sense(
     :func:`glitch_test` at ``probability``. The map changes only if the reading is added.
     """
     gaussian.check_probability(min_visible, "min_visible")
+    if not isinstance(reading, (AT, AT3)):
+        raise ParameterError(
+            f"the reading must be an AT (or an AT3 in a 3-D map); got {type(reading).__name__}"
+        )
+    for label, value in (("fov", fov), ("max_range", max_range)):
+        if value is not None and not (
+            isinstance(value, (int, float, np.floating, np.integer)) and np.isfinite(value)
+        ):
+            raise ParameterError(f"{label} must be a finite number; got {value!r}")
     try:
         predicted: AT | AT3 | None = g.query(src, dst, method=method).at
     except (DisconnectedError, UnknownFrameError):
@@ -186,8 +195,15 @@ def sense(
             raise ParameterError("field-of-view and range checks are planar; this map is 3-D")
         from relmap.decisions import in_view
 
+        # Without a range limit the view is the sector alone: a range far beyond every
+        # plausible position (50 σ past the mean's distance) changes nothing.
+        reach = float(np.hypot(*predicted.mean[:2])) + 50.0 * float(
+            np.sqrt(np.trace(predicted.cov[:2, :2]))
+        )
         view = in_view(
-            predicted, 2 * np.pi if fov is None else fov, np.inf if max_range is None else max_range
+            predicted,
+            2 * np.pi if fov is None else fov,
+            max(reach, 1.0) if max_range is None else max_range,
         )
         visible = float(view.probability)
         if visible < min_visible:
