@@ -211,8 +211,9 @@ def _solve(args: argparse.Namespace) -> int:
     from relmap.io.posegraph import file_information
     from relmap.lie import SE3
 
-    if args.out and not Path(args.out).resolve().parent.is_dir():
-        raise ParameterError(f"cannot write {args.out}: its folder does not exist")
+    for out in (args.out, args.out_trajectory):
+        if out and not Path(out).resolve().parent.is_dir():
+            raise ParameterError(f"cannot write {out}: its folder does not exist")
     t0 = time.perf_counter()
     graph = read_graph(args.graph)
     out_graph = graph
@@ -237,6 +238,10 @@ def _solve(args: argparse.Namespace) -> int:
         bar.close()
     if args.out:
         write_graph(args.out, out_graph, poses=sol.poses)  # atomically; 3-D: (n, 4, 4) poses
+    if args.out_trajectory:
+        from relmap.cli_trajectory import write_solution
+
+        write_solution(args.out_trajectory, graph, sol.poses, sol.marginals())
     seconds = time.perf_counter() - t0
     summary = {
         "poses": len(graph.vertex_ids),
@@ -266,8 +271,9 @@ def _localize(args: argparse.Namespace) -> int:
     from relmap.errors import ParameterError
     from relmap.localize import localize
 
-    if args.plot and not Path(args.plot).resolve().parent.is_dir():
-        raise ParameterError(f"cannot write the plot {args.plot}: its folder does not exist")
+    for out in (args.plot, args.out):
+        if out and not Path(out).resolve().parent.is_dir():
+            raise ParameterError(f"cannot write {out}: its folder does not exist")
     bar = TerminalProgress(f"localizing {args.dataset}")
     bar.update("reading the logs, estimating the noise", force=True)
     try:
@@ -279,6 +285,10 @@ def _localize(args: argparse.Namespace) -> int:
         )
     finally:
         bar.close()
+    if args.out:
+        from relmap.cli_trajectory import write_localization
+
+        write_localization(args.out, run)
     if args.plot:
         from matplotlib.figure import Figure
 
@@ -418,6 +428,11 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FILE",
         help="write the graph back, vertices at the optimum (legacy EDGE3 graphs as 3-D g2o)",
     )
+    solve.add_argument(
+        "--out-trajectory",
+        metavar="FILE",
+        help="write the solved poses with their marginal covariances (relmap trajectory format)",
+    )
     solve.add_argument("--json", action="store_true", help="print a JSON summary")
     solve.add_argument("--max-iterations", type=int, default=100)
     solve.set_defaults(run=_solve)
@@ -443,7 +458,14 @@ def build_parser() -> argparse.ArgumentParser:
     loc.add_argument(
         "--plot", metavar="FILE", help="write a PNG of truth, estimate and dead reckoning"
     )
+    loc.add_argument(
+        "--out", metavar="FILE", help="write the estimate with covariance (for relmap eval)"
+    )
     loc.set_defaults(run=_localize)
+
+    from relmap.cli_trajectory import add_parsers
+
+    add_parsers(sub)  # eval, traj, convert
     return parser
 
 
