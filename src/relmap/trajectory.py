@@ -79,8 +79,10 @@ class Trajectory:
         M[:, 3] = (0.0, 0.0, 0.0, 1.0)
         C = np.zeros((len(M), 6, 6))
         if cov is not None:
-            C = np.array(gaussian.validate_covariance(cov, dim=6, name="pose covariance"))
-            C = np.broadcast_to(C, (len(M), 6, 6)).copy()
+            # checked (symmetric and PSD within tolerance) but kept as given, to the last bit:
+            # a reader must hand on what the file or message says
+            gaussian.validate_covariance(cov, dim=6, name="pose covariance")
+            C = np.broadcast_to(np.asarray(cov, dtype=np.float64), (len(M), 6, 6)).copy()
         poses = AT3._trusted(components_outermost(M, 2), components_outermost(C, 2))
         return cls._checked(poses, stamps, cov is not None, names)
 

@@ -110,9 +110,9 @@ def _table(path: Path, rows: list[str], numbers: IntArray, sep: str | None) -> F
 
 def _at_line(path: Path, numbers: IntArray, exc: RelmapError) -> FileFormatError:
     """A validation error of pose/stamp k as an error at k's line."""
-    m = re.match(r"(?:pose|stamp|quaternion)\s*\[?(\d+)\]?", str(exc))
-    k = int(m.group(1)) if m else None
-    text = re.sub(r"^(pose|stamp|quaternion)\s*\[?\d+\]?:?\s*", "", str(exc))
+    m = re.match(r"((?:pose|stamp|quaternion)\s+(\d+):?\s*|[\w ]*?\[(\d+)(?:, \d+)*\]\s*)", str(exc))
+    k = None if m is None else int(m.group(2) or m.group(3))
+    text = str(exc)[m.end() :] if m and m.group(2) else str(exc)
     line = int(numbers[k]) if k is not None and k < len(numbers) else None
     return FileFormatError(path, text, line=line)
 
