@@ -13,7 +13,7 @@ from typing import NamedTuple
 from relmap.errors import ParameterError
 from relmap.evaluate.alignment import ALIGNMENTS, Alignment, align, umeyama
 from relmap.evaluate.association import Association, associate, interpolate
-from relmap.evaluate.consistency import Consistency, consistency
+from relmap.evaluate.consistency import Consistency, consistency, relative_consistency
 from relmap.evaluate.metrics import RELATIONS, STATISTICS, UNITS, Errors, ape, pairs, rpe, statistics
 from relmap.trajectory import Trajectory
 
@@ -34,6 +34,7 @@ __all__ = [
     "evaluate",
     "interpolate",
     "pairs",
+    "relative_consistency",
     "rpe",
     "statistics",
     "umeyama",

@@ -23,7 +23,7 @@ underconfident.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -31,9 +31,17 @@ from relmap import gaussian
 from relmap.errors import ParameterError
 from relmap.lie import se2, se3
 from relmap.trajectory import Trajectory
-from relmap.typing import FloatArray
+from relmap.typing import FloatArray, IntArray
 
-__all__ = ["Consistency", "Nees", "chart_errors", "consistency", "nees", "verdict"]
+__all__ = [
+    "Consistency",
+    "Nees",
+    "chart_errors",
+    "consistency",
+    "nees",
+    "relative_consistency",
+    "verdict",
+]
 
 DEFAULT_COVERAGE = (0.5, 0.9, 0.99)
 
@@ -163,3 +171,41 @@ def consistency(
         normalized = np.where(sig > 0, delta / np.where(sig > 0, sig, 1.0), np.nan)
     axes = ("x", "y", "θ") if planar else ("x", "y", "z", "φx", "φy", "φz")
     return Consistency(delta, sig, normalized, blocks, axes, confidence)
+
+
+def relative_consistency(
+    solution: Any,
+    truth: FloatArray,
+    first: IntArray,
+    second: IntArray,
+    *,
+    confidence: float = 0.95,
+) -> Nees:
+    """NEES of relative poses where the joint covariance of the two poses is known: a solved
+    pose graph (:class:`relmap.network.optimal.Solution`, e.g. from
+    :func:`relmap.io.solve_graph`). For each pair ``(a, b)`` the AT of b seen from a with its
+    first-order covariance from the joint covariance of a and b
+    (:meth:`~relmap.network.optimal.Solution.relative`) is compared with the true relative pose
+    from ``truth`` (``(n, 3)`` planar or ``(n, 4, 4)``, the graph's vertex order), the error in
+    the chart of frame a."""
+    truth = np.asarray(truth, dtype=np.float64)
+    a_idx, b_idx = np.asarray(first, dtype=np.intp), np.asarray(second, dtype=np.intp)
+    if a_idx.shape != b_idx.shape or not a_idx.size:
+        raise ParameterError("need as many first and second frames, at least one pair")
+    ats = [solution.relative(int(a), int(b)) for a, b in zip(a_idx, b_idx)]
+    planar = truth.ndim == 2
+    if planar:
+        rel_true = se2.between(truth[a_idx], truth[b_idx])
+        delta = se2.minus(rel_true, np.array([at.mean for at in ats]))
+    else:
+        rel_true = se3.between(truth[a_idx], truth[b_idx])
+        delta = se3.minus(rel_true, np.array([at.matrix for at in ats]))
+    C = np.array([at.cov for at in ats])
+    v, dof = nees(delta, C)
+    total = float(dof.sum())
+    alpha = 1.0 - confidence
+    lo = float(gaussian.confidence_k2(alpha / 2, int(total)) / total)
+    hi = float(gaussian.confidence_k2(1 - alpha / 2, int(total)) / total)
+    d = int(round(total / len(v)))
+    cover = {p: float(np.mean(v <= gaussian.confidence_k2(p, d))) for p in DEFAULT_COVERAGE}
+    return Nees("relative pose", v, dof, float(v.sum() / total), (lo, hi), cover)
