@@ -47,9 +47,22 @@ def test_eval_json_and_text(capsys, pair, tmp_path):  # type: ignore[no-untyped-
     s = json.loads(out)
     assert s["pairs"] == 200 and set(s["ape"]) == {"trans", "angle_deg"} and "rpe" in s
     assert s["consistency"]["verdict"].startswith("consistent")
-    code, out, _ = run(capsys, "eval", ref, est, "--align", "se3", "--plot", tmp_path / "e.png", "--report", tmp_path / "rep")
+    code, out, _ = run(
+        capsys,
+        "eval",
+        ref,
+        est,
+        "--align",
+        "se3",
+        "--plot",
+        tmp_path / "e.png",
+        "--report",
+        tmp_path / "rep",
+    )
     assert code == 0 and "consistency: consistent" in out
-    assert (tmp_path / "e.png").stat().st_size > 10_000 and (tmp_path / "rep" / "index.html").is_file()
+    assert (tmp_path / "e.png").stat().st_size > 10_000 and (
+        tmp_path / "rep" / "index.html"
+    ).is_file()
 
 
 def test_traj_and_convert(capsys, pair, tmp_path):  # type: ignore[no-untyped-def]
@@ -68,7 +81,7 @@ def test_errors_are_one_line(capsys, pair, tmp_path):  # type: ignore[no-untyped
     ref, _ = pair
     far = tmp_path / "far.txt"
     far.write_text("1e6 0 0 0 0 0 0 1\n")
-    code, out, err = run(capsys, "eval", ref, far)
+    code, _, err = run(capsys, "eval", ref, far)
     assert code == 2 and err.count("\n") == 1 and "no time stamps" in err
     code, _, err = run(capsys, "eval", ref, tmp_path / "missing.txt")
     assert code == 2 and "no such file" in err
@@ -78,8 +91,21 @@ def test_errors_are_one_line(capsys, pair, tmp_path):  # type: ignore[no-untyped
 def test_nav2_amcl_against_odometry(capsys, data_dir, tmp_path):  # type: ignore[no-untyped-def]
     bag = data_dir / "trajectories" / "nav2_turtlebot.mcap"
     code, out, _ = run(
-        capsys, "eval", bag, bag, "--topic", "/odom", "--topic", "/amcl_pose", "--align", "se3",
-        "--t-max-diff", "0.05", "--json", "--plot", tmp_path / "nav2.png",
+        capsys,
+        "eval",
+        bag,
+        bag,
+        "--topic",
+        "/odom",
+        "--topic",
+        "/amcl_pose",
+        "--align",
+        "se3",
+        "--t-max-diff",
+        "0.05",
+        "--json",
+        "--plot",
+        tmp_path / "nav2.png",
     )
     assert code == 0
     s = json.loads(out)
@@ -98,8 +124,16 @@ def test_localize_out_scored_by_eval(capsys, data_dir, tmp_path):  # type: ignor
     assert code == 0
     loc = json.loads(out)
     code, out, _ = run(
-        capsys, "eval", folder / "Robot1_Groundtruth.dat", out_file, "--interpolate",
-        "--relation", "trans", "--relation", "angle_rad", "--json",
+        capsys,
+        "eval",
+        folder / "Robot1_Groundtruth.dat",
+        out_file,
+        "--interpolate",
+        "--relation",
+        "trans",
+        "--relation",
+        "angle_rad",
+        "--json",
     )
     assert code == 0
     ev = json.loads(out)

@@ -19,9 +19,11 @@ def _covs(rng, n, d, scale):  # type: ignore[no-untyped-def]
 
 
 def planar_case(seed, n=3000, claimed=1.0):  # type: ignore[no-untyped-def]
-    """Truth, and an estimate = truth ⊟ error with error ~ N(0, C); the estimate claims claimed·C."""
+    """Truth, and an estimate = truth ⊟ error, error ~ N(0, C); the estimate claims claimed·C."""
     rng = np.random.default_rng(seed)
-    truth = np.column_stack([np.cumsum(rng.normal(size=n)), np.cumsum(rng.normal(size=n)), rng.uniform(-3, 3, n)])
+    truth = np.column_stack(
+        [np.cumsum(rng.normal(size=n)), np.cumsum(rng.normal(size=n)), rng.uniform(-3, 3, n)]
+    )
     C = _covs(rng, n, 3, 0.1)
     err = np.einsum("nij,nj->ni", np.linalg.cholesky(C), rng.normal(size=(n, 3)))
     est = truth - err
@@ -59,7 +61,14 @@ def test_nees_is_its_definition(case):  # type: ignore[no-untyped-def]
 
 
 @pytest.mark.parametrize("case", [planar_case, spatial_case])
-@pytest.mark.parametrize(("claimed", "verdict"), [(1.0, "consistent"), (0.25, "overconfident by a factor 4"), (4.0, "underconfident by a factor 4")])
+@pytest.mark.parametrize(
+    ("claimed", "verdict"),
+    [
+        (1.0, "consistent"),
+        (0.25, "overconfident by a factor 4"),
+        (4.0, "underconfident by a factor 4"),
+    ],
+)
 def test_verdicts_monte_carlo(case, claimed, verdict):  # type: ignore[no-untyped-def]
     ref, est, _, _ = case(1, claimed=claimed)
     c = consistency(ref, est)
@@ -91,7 +100,11 @@ def test_singular_covariance_uses_its_rank():  # type: ignore[no-untyped-def]
     flat_ref = Trajectory.from_matrices(est.matrices, est.stamps)
     c = consistency(flat_ref, Trajectory.from_matrices(est.matrices, est.stamps, C))
     assert np.all(c.blocks["pose"].dof == 3) and np.all(c.blocks["pose"].values == 0)
-    assert np.isinf(consistency(ref, Trajectory.from_matrices(est.matrices, est.stamps, C)).blocks["pose"].values).all()
+    assert np.isinf(
+        consistency(ref, Trajectory.from_matrices(est.matrices, est.stamps, C))
+        .blocks["pose"]
+        .values
+    ).all()
 
 
 def test_alignment_moves_covariance_exactly():  # type: ignore[no-untyped-def]
@@ -104,7 +117,9 @@ def test_alignment_moves_covariance_exactly():  # type: ignore[no-untyped-def]
     moved = est.matrices.copy()
     moved[:, :3, 3] = (s * moved[:, :3, 3]) @ R.T + t
     moved[:, :3, :3] = R @ moved[:, :3, :3]
-    ref_moved = Trajectory.from_matrices(np.array(moved), est.stamps)  # a reference in another frame
+    ref_moved = Trajectory.from_matrices(
+        np.array(moved), est.stamps
+    )  # a reference in another frame
     aligned, a = align(est, ref_moved, "sim3")
     assert abs(a.scale - s) < 1e-9
     # the aligned estimate's covariance is the moved one: B C Bᵀ, B = blkdiag(sR, R)
@@ -149,7 +164,9 @@ def test_relative_pose_nees_of_solved_graphs(tmp_path):  # type: ignore[no-untyp
         path = tmp_path / f"g{run}.g2o"
         path.write_text(_graph_text(truth, rng, (0.02, 0.01), [(0, n - 1), (2, 8)]))
         sol = solve_graph(read_graph(path))
-        values.append(relative_consistency(sol, truth, np.array([1, 3, 4]), np.array([6, 9, 11])).values)
+        values.append(
+            relative_consistency(sol, truth, np.array([1, 3, 4]), np.array([6, 9, 11])).values
+        )
     v = np.concatenate(values)
     anees = v.mean() / 3
     lo, hi = (gaussian.confidence_k2(p, 3 * len(v)) / (3 * len(v)) for p in (0.005, 0.995))

@@ -16,17 +16,17 @@ import numpy as np
 import pytest
 
 pytest.importorskip("evo")
-from evo.core import metrics as evo_metrics  # noqa: E402
-from evo.core import sync  # noqa: E402
-from evo.core.filters import FilterException  # noqa: E402
-from evo.core.metrics import PoseRelation, Unit  # noqa: E402
-from evo.core.trajectory import PosePath3D, PoseTrajectory3D  # noqa: E402
-from evo.tools import file_interface as fi  # noqa: E402
+from evo.core import metrics as evo_metrics
+from evo.core import sync
+from evo.core.filters import FilterException
+from evo.core.metrics import PoseRelation, Unit
+from evo.core.trajectory import PosePath3D, PoseTrajectory3D
+from evo.tools import file_interface as fi
 
-from relmap.errors import ParameterError  # noqa: E402
-from relmap.evaluate import align, ape, associate, rpe  # noqa: E402
-from relmap.io.trajectory import read_trajectory  # noqa: E402
-from relmap.trajectory import Trajectory  # noqa: E402
+from relmap.errors import ParameterError
+from relmap.evaluate import align, ape, associate, rpe
+from relmap.io.trajectory import read_trajectory
+from relmap.trajectory import Trajectory
 
 RELATIONS = {
     "trans": PoseRelation.translation_part,
@@ -100,7 +100,9 @@ def compare(er, ee, rr, re_, rpe_cases, modes=MODES, angles=("none",), degrees=T
             close(ape(P, Q, name).stats(), m.get_all_statistics())
             for unit, delta, all_pairs in rpe_cases:
                 m = evo_metrics.RPE(
-                    RELATIONS[name], delta, Unit.frames if unit == "frames" else Unit.meters,
+                    RELATIONS[name],
+                    delta,
+                    Unit.frames if unit == "frames" else Unit.meters,
                     all_pairs=all_pairs,
                 )
                 try:
@@ -128,7 +130,15 @@ def test_real_estimates_equal_evo(data_dir, ref, est, metres):  # type: ignore[n
     np.testing.assert_array_equal(pairing.ref.matrices[:, :3, 3], er.positions_xyz)
     np.testing.assert_array_equal(pairing.est.matrices[:, :3, 3], ee.positions_xyz)
     cases = [("frames", 1, False), ("frames", 10, True), ("m", metres, False), ("m", metres, True)]
-    compare(er, ee, pairing.ref, pairing.est, cases, angles=("none", "sim3") if metres == 100 else ("none",), degrees=False)
+    compare(
+        er,
+        ee,
+        pairing.ref,
+        pairing.est,
+        cases,
+        angles=("none", "sim3") if metres == 100 else ("none",),
+        degrees=False,
+    )
 
 
 def _random_trajectory(rng, n, t0=100.0):  # type: ignore[no-untyped-def]
@@ -158,7 +168,11 @@ def test_random_trajectories_equal_evo(seed):  # type: ignore[no-untyped-def]
     np.testing.assert_array_equal(pairing.ref.stamps, er.timestamps)
     np.testing.assert_array_equal(pairing.est.stamps, ee.timestamps)
     compare(
-        er, ee, pairing.ref, pairing.est, [("frames", 3, False), ("frames", 2, True), ("m", 1.5, False), ("m", 1.5, True)],
+        er,
+        ee,
+        pairing.ref,
+        pairing.est,
+        [("frames", 3, False), ("frames", 2, True), ("m", 1.5, False), ("m", 1.5, True)],
         angles=MODES,
     )
 
@@ -172,4 +186,11 @@ def test_kitti_paths_pair_by_index_like_evo():  # type: ignore[no-untyped-def]
     ee = PosePath3D(xe, np.roll(qe, 1, axis=1))
     rr, re_ = Trajectory.from_quaternions(xs, qs), Trajectory.from_quaternions(xe, qe)
     pairing = associate(rr, re_)
-    compare(er, ee, pairing.ref, pairing.est, [("frames", 1, False), ("m", 2.0, True)], modes=("none", "sim3"))
+    compare(
+        er,
+        ee,
+        pairing.ref,
+        pairing.est,
+        [("frames", 1, False), ("m", 2.0, True)],
+        modes=("none", "sim3"),
+    )

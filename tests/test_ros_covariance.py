@@ -62,7 +62,7 @@ def test_ros_covariance_in_gtsam_convention(seed):  # type: ignore[no-untyped-de
 
 
 def test_planar_ros_covariance_keeps_x_y_yaw():  # type: ignore[no-untyped-def]
-    t, q, C = random_case(3)
+    _, _, C = random_case(3)
     planar = rm.AT.from_ros([1.0, 2.0, 0.3], C)
     np.testing.assert_array_equal(planar.cov, C[np.ix_([0, 1, 5], [0, 1, 5])])
     back = planar.to_ros()

@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 
 pytest.importorskip("rosbags")
-from rosbags.rosbag1 import Reader as Reader1  # noqa: E402
-from rosbags.rosbag1 import Writer as Writer1  # noqa: E402
-from rosbags.rosbag2 import Reader as Reader2  # noqa: E402
-from rosbags.typesys import Stores, get_typestore  # noqa: E402
+from rosbags.rosbag1 import Reader as Reader1
+from rosbags.rosbag1 import Writer as Writer1
+from rosbags.rosbag2 import Reader as Reader2
+from rosbags.typesys import Stores, get_typestore
 
-from relmap.errors import FileFormatError, ParameterError  # noqa: E402
-from relmap.io.trajectory import read_trajectory, recognise_trajectory  # noqa: E402
-from relmap.lie import so3  # noqa: E402
+from relmap.errors import FileFormatError, ParameterError
+from relmap.io.trajectory import read_trajectory, recognise_trajectory
+from relmap.lie import so3
 
 
 def reference(reader, typestore, topic, ros1):  # type: ignore[no-untyped-def]
@@ -85,7 +85,9 @@ def tf_messages(path, typestore):  # type: ignore[no-untyped-def]
                 M[:3, :3] = so3.from_quaternion([q.x, q.y, q.z, q.w])
                 M[:3, 3] = a.x, a.y, a.z
                 s = tr.header.stamp
-                out.append((conn.topic, tr.header.frame_id, tr.child_frame_id, s.sec + s.nanosec * 1e-9, M))
+                out.append(
+                    (conn.topic, tr.header.frame_id, tr.child_frame_id, s.sec + s.nanosec * 1e-9, M)
+                )
     return out
 
 
@@ -101,7 +103,11 @@ def test_tf_chain_dynamic_and_static(data_dir):  # type: ignore[no-untyped-def]
     np.testing.assert_array_equal(traj.stamps, [m[3] for m in dyn])
     np.testing.assert_allclose(traj.matrices, np.array([m[4] @ static for m in dyn]), atol=1e-14)
     inverse = read_trajectory(path, topic="/tf:base_link.odom")
-    np.testing.assert_allclose(inverse.matrices @ traj.matrices, np.broadcast_to(np.eye(4), traj.matrices.shape), atol=1e-12)
+    np.testing.assert_allclose(
+        inverse.matrices @ traj.matrices,
+        np.broadcast_to(np.eye(4), traj.matrices.shape),
+        atol=1e-12,
+    )
 
 
 @pytest.mark.real_data
@@ -116,7 +122,9 @@ def test_tf_chain_composes_map_odom_base(data_dir):  # type: ignore[no-untyped-d
     i = np.searchsorted(mo.stamps, chain.stamps[len(chain) // 2])
     if mo.stamps[i] == chain.stamps[len(chain) // 2]:  # at a shared stamp: no interpolation
         np.testing.assert_allclose(
-            chain.matrices[len(chain) // 2], mo.matrices[i] @ odom.matrices[k[len(chain) // 2]], atol=1e-12
+            chain.matrices[len(chain) // 2],
+            mo.matrices[i] @ odom.matrices[k[len(chain) // 2]],
+            atol=1e-12,
         )
     assert (chain.frame, chain.child) == ("map", "base_link")
 
@@ -138,14 +146,20 @@ TS = get_typestore(Stores.ROS1_NOETIC)
 
 def _msg(kind, k, t, xyz, q, cov=None):  # type: ignore[no-untyped-def]
     T = TS.types
-    header = T["std_msgs/msg/Header"](seq=k, stamp=T["builtin_interfaces/msg/Time"](sec=int(t), nanosec=int(round((t % 1) * 1e9))), frame_id="map")
+    header = T["std_msgs/msg/Header"](
+        seq=k,
+        stamp=T["builtin_interfaces/msg/Time"](sec=int(t), nanosec=round((t % 1) * 1e9)),
+        frame_id="map",
+    )
     pose = T["geometry_msgs/msg/Pose"](
         position=T["geometry_msgs/msg/Point"](x=xyz[0], y=xyz[1], z=xyz[2]),
         orientation=T["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]),
     )
     if kind == "geometry_msgs/msg/PoseStamped":
         return T[kind](header=header, pose=pose)
-    pwc = T["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.asarray(cov, dtype=np.float64).reshape(36))
+    pwc = T["geometry_msgs/msg/PoseWithCovariance"](
+        pose=pose, covariance=np.asarray(cov, dtype=np.float64).reshape(36)
+    )
     return T[kind](header=header, pose=pwc)
 
 
@@ -161,7 +175,15 @@ def write_bag(path: Path, kind: str, rows):  # type: ignore[no-untyped-def]
 def good_rows(n=5, cov=True):  # type: ignore[no-untyped-def]
     C = np.diag([0.1, 0.2, 0.0, 0.0, 0.0, 0.05])
     C[0, 1] = C[1, 0] = 0.01
-    return [(10.0 + 0.5 * k, (k, 2.0 * k, 0.0), (0.0, 0.0, np.sin(0.1 * k), np.cos(0.1 * k)), C if cov else None) for k in range(n)]
+    return [
+        (
+            10.0 + 0.5 * k,
+            (k, 2.0 * k, 0.0),
+            (0.0, 0.0, np.sin(0.1 * k), np.cos(0.1 * k)),
+            C if cov else None,
+        )
+        for k in range(n)
+    ]
 
 
 def test_written_bag_with_covariance_round_trip(tmp_path):  # type: ignore[no-untyped-def]
@@ -176,14 +198,39 @@ def test_written_bag_with_covariance_round_trip(tmp_path):  # type: ignore[no-un
 @pytest.mark.parametrize(
     ("change", "match"),
     [
-        (lambda r: r.__setitem__(2, (r[2][0], (np.nan, 0.0, 0.0), r[2][2], r[2][3])), r"message 2: pose is not finite"),
-        (lambda r: r.__setitem__(3, (r[3][0], r[3][1], (0.0, 0.0, 0.0, 0.0), r[3][3])), r"message 3: zero quaternion"),
-        (lambda r: r.__setitem__(1, (r[1][0], r[1][1], (0.0, 0.0, 0.5, 0.5), r[1][3])), r"message 1: quaternion of norm 0.707"),
-        (lambda r: r.__setitem__(3, (9.0, r[3][1], r[3][2], r[3][3])), r"message 3: stamp 9.0 s comes before"),
-        (lambda r: r.__setitem__(4, (r[4][0], r[4][1], r[4][2], np.full((6, 6), -1.0))), r"message 4: covariance unknown"),
-        (lambda r: r.__setitem__(2, (r[2][0], r[2][1], r[2][2], -np.eye(6))), r"message 2: covariance unknown"),
+        (
+            lambda r: r.__setitem__(2, (r[2][0], (np.nan, 0.0, 0.0), r[2][2], r[2][3])),
+            r"message 2: pose is not finite",
+        ),
+        (
+            lambda r: r.__setitem__(3, (r[3][0], r[3][1], (0.0, 0.0, 0.0, 0.0), r[3][3])),
+            r"message 3: zero quaternion",
+        ),
+        (
+            lambda r: r.__setitem__(1, (r[1][0], r[1][1], (0.0, 0.0, 0.5, 0.5), r[1][3])),
+            r"message 1: quaternion of norm 0.707",
+        ),
+        (
+            lambda r: r.__setitem__(3, (9.0, r[3][1], r[3][2], r[3][3])),
+            r"message 3: stamp 9.0 s comes before",
+        ),
+        (
+            lambda r: r.__setitem__(4, (r[4][0], r[4][1], r[4][2], np.full((6, 6), -1.0))),
+            r"message 4: covariance unknown",
+        ),
+        (
+            lambda r: r.__setitem__(2, (r[2][0], r[2][1], r[2][2], -np.eye(6))),
+            r"message 2: covariance unknown",
+        ),
     ],
-    ids=["nan", "zero-quaternion", "non-unit", "stamps-back", "unknown-cov", "unknown-cov-first-entry"],
+    ids=[
+        "nan",
+        "zero-quaternion",
+        "non-unit",
+        "stamps-back",
+        "unknown-cov",
+        "unknown-cov-first-entry",
+    ],
 )
 def test_bad_bags(tmp_path, change, match):  # type: ignore[no-untyped-def]
     rows = good_rows()

@@ -46,7 +46,14 @@ def test_kitti_times_and_recognition_by_content(data_dir, tmp_path):  # type: ig
     folder = data_dir / "trajectories"
     gt = read_trajectory(folder / "KITTI_00_gt.txt", times=folder / "KITTI_00_gt_times.txt")
     assert len(gt.stamps) == len(gt) == 4541 and gt.duration > 400
-    for name, fmt in [("KITTI_00_ORB.txt", "kitti"), ("V102_groundtruth.csv", "euroc"), ("V102.txt", "tum"), ("ROS_example.bag", "bag"), ("nav2_turtlebot.mcap", "bag"), ("tf_example", "bag")]:
+    for name, fmt in [
+        ("KITTI_00_ORB.txt", "kitti"),
+        ("V102_groundtruth.csv", "euroc"),
+        ("V102.txt", "tum"),
+        ("ROS_example.bag", "bag"),
+        ("nav2_turtlebot.mcap", "bag"),
+        ("tf_example", "bag"),
+    ]:
         src = folder / name
         if src.is_file():
             copy = tmp_path / f"renamed_{fmt}.dat"
@@ -58,9 +65,17 @@ def test_kitti_times_and_recognition_by_content(data_dir, tmp_path):  # type: ig
 
 def planar(n=20, cov=True):  # type: ignore[no-untyped-def]
     rng = np.random.default_rng(1)
-    x = np.column_stack([np.cumsum(rng.normal(size=n)), np.cumsum(rng.normal(size=n)), rng.uniform(-3, 3, n)])
+    x = np.column_stack(
+        [np.cumsum(rng.normal(size=n)), np.cumsum(rng.normal(size=n)), rng.uniform(-3, 3, n)]
+    )
     A = rng.normal(size=(n, 3, 3)) * 0.1
-    return Trajectory.planar(x, 5.0 + np.arange(n) * 0.1, A @ A.transpose(0, 2, 1) if cov else None, frame="world", child="robot")
+    return Trajectory.planar(
+        x,
+        5.0 + np.arange(n) * 0.1,
+        A @ A.transpose(0, 2, 1) if cov else None,
+        frame="world",
+        child="robot",
+    )
 
 
 def spatial(n=20, cov=True):  # type: ignore[no-untyped-def]
@@ -68,7 +83,14 @@ def spatial(n=20, cov=True):  # type: ignore[no-untyped-def]
     q = rng.normal(size=(n, 4))
     q /= np.linalg.norm(q, axis=1, keepdims=True)
     A = rng.normal(size=(n, 6, 6)) * 0.1
-    return Trajectory.from_quaternions(rng.normal(size=(n, 3)) * 10, q, 1e9 + np.arange(n) * 0.05, A @ A.transpose(0, 2, 1) if cov else None, frame="map", child="base")
+    return Trajectory.from_quaternions(
+        rng.normal(size=(n, 3)) * 10,
+        q,
+        1e9 + np.arange(n) * 0.05,
+        A @ A.transpose(0, 2, 1) if cov else None,
+        frame="map",
+        child="base",
+    )
 
 
 @pytest.mark.parametrize("make", [planar, spatial])
@@ -80,7 +102,9 @@ def test_relmap_format_round_trip_exact(tmp_path, make):  # type: ignore[no-unty
     assert back.is_planar == traj.is_planar and back.has_cov
     assert (back.frame, back.child) == (traj.frame, traj.child)
     np.testing.assert_array_equal(back.stamps, traj.stamps)
-    np.testing.assert_array_equal(back.cov, np.triu(traj.cov) + np.swapaxes(np.triu(traj.cov, 1), 1, 2))
+    np.testing.assert_array_equal(
+        back.cov, np.triu(traj.cov) + np.swapaxes(np.triu(traj.cov, 1), 1, 2)
+    )
     if traj.is_planar:
         np.testing.assert_array_equal(back.poses.mean, traj.poses.mean)
     else:
@@ -127,7 +151,17 @@ GOOD = "1.0 0 0 0 0 0 0 1\n2.0 1 0 0 0 0 0 1\n3.0 2 0 0 0 0 0 1\n"
         ("1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 0 0 2 0 0 0 0 1 0\n", 2, "not a rotation"),
         ("1 0 0 0 1 0 0 1 0 -1\n", 1, "positive semi-definite|negative"),
     ],
-    ids=["stamps-back", "zero-quaternion", "non-unit", "nan", "mixed-2d-3d", "word", "short-row", "kitti-rotation", "bad-cov"],
+    ids=[
+        "stamps-back",
+        "zero-quaternion",
+        "non-unit",
+        "nan",
+        "mixed-2d-3d",
+        "word",
+        "short-row",
+        "kitti-rotation",
+        "bad-cov",
+    ],
 )
 def test_bad_files_name_file_and_line(tmp_path, text, line, match):  # type: ignore[no-untyped-def]
     path = tmp_path / "bad.txt"
@@ -141,12 +175,14 @@ def test_bad_files_name_file_and_line(tmp_path, text, line, match):  # type: ign
 def test_eval_errors(tmp_path):  # type: ignore[no-untyped-def]
     a, b = tmp_path / "a.txt", tmp_path / "b.txt"
     a.write_text(GOOD)
-    b.write_text(GOOD.replace("1.0 0", "101.0 0").replace("2.0 1", "102.0 1").replace("3.0 2", "103.0 2"))
-    with pytest.raises(ParameterError, match="no time stamps .* match"):
+    b.write_text(
+        GOOD.replace("1.0 0", "101.0 0").replace("2.0 1", "102.0 1").replace("3.0 2", "103.0 2")
+    )
+    with pytest.raises(ParameterError, match=r"no time stamps .* match"):
         evaluate(read_trajectory(a), read_trajectory(b))
     c = tmp_path / "c.txt"
     c.write_text("1 0 0 0\n2 1 0 0\n3 2 0 0\n")
-    with pytest.raises(ParameterError, match="planar.*3-D|3-D.*planar"):
+    with pytest.raises(ParameterError, match=r"planar.*3-D|3-D.*planar"):
         evaluate(read_trajectory(a), read_trajectory(c))
 
 
@@ -167,4 +203,6 @@ def test_nothing_half_written(tmp_path):  # type: ignore[no-untyped-def]
 
 def test_quaternion_rotation_matches_so3():  # type: ignore[no-untyped-def]
     t = spatial(cov=False)
-    np.testing.assert_allclose(t.matrices[:, :3, :3], so3.from_quaternion(t.poses.quaternion), atol=1e-14)
+    np.testing.assert_allclose(
+        t.matrices[:, :3, :3], so3.from_quaternion(t.poses.quaternion), atol=1e-14
+    )

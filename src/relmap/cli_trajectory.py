@@ -75,17 +75,29 @@ def _eval(args: argparse.Namespace) -> int:
     a = ev.alignment
     print(f"{ev.est.source} against {ev.ref.source}: {len(ev.est)} pairs")
     if a.mode != "none":
-        print(f"  aligned ({a.mode}): scale {a.scale:.6g}, translation " + " ".join(f"{v:.4g}" for v in a.translation))
+        print(
+            f"  aligned ({a.mode}): scale {a.scale:.6g}, translation "
+            + " ".join(f"{v:.4g}" for v in a.translation)
+        )
     units = {"trans": "m", "angle_deg": "°", "angle_rad": "rad", "rot": "", "full": ""}
-    print(f"  {'':16s}" + "".join(f"{k:>11s}" for k in ("rmse", "mean", "median", "std", "min", "max")))
+    print(
+        f"  {'':16s}"
+        + "".join(f"{k:>11s}" for k in ("rmse", "mean", "median", "std", "min", "max"))
+    )
     for kind, table in (("APE", ev.ape), ("RPE", ev.rpe)):
         for rel, e in table.items():
             s = e.stats()
             name = f"{kind} {rel} {units[rel]}".rstrip()
-            print(f"  {name:16s}" + "".join(f"{s[k]:11.4g}" for k in ("rmse", "mean", "median", "std", "min", "max")))
+            print(
+                f"  {name:16s}"
+                + "".join(f"{s[k]:11.4g}" for k in ("rmse", "mean", "median", "std", "min", "max"))
+            )
     if ev.rpe:
         o = ev.rpe_options
-        print(f"  RPE pairs: delta {o['delta']:g} {o['unit']}, {'all pairs' if o['all_pairs'] else 'consecutive'}")
+        print(
+            f"  RPE pairs: delta {o['delta']:g} {o['unit']}, "
+            + ("all pairs" if o["all_pairs"] else "consecutive")
+        )
     c = ev.consistency
     if c is None:
         print("  consistency: the estimate carries no covariance")
@@ -93,7 +105,10 @@ def _eval(args: argparse.Namespace) -> int:
         print(f"  consistency: {c.verdict}")
         for name, b in c.blocks.items():
             cov = ", ".join(f"{p:.0%}: {v:.0%}" for p, v in b.coverage.items())
-            print(f"    {name:12s} ANEES {b.anees:8.3g}  interval [{b.interval[0]:.3g}, {b.interval[1]:.3g}]  coverage {cov}")
+            print(
+                f"    {name:12s} ANEES {b.anees:8.3g}  "
+                f"interval [{b.interval[0]:.3g}, {b.interval[1]:.3g}]  coverage {cov}"
+            )
     for what, path in (("plot", args.plot), ("report", args.report)):
         if path:
             print(f"  {what} written to {path}")
@@ -165,9 +180,13 @@ def write_solution(path: str, graph: Any, poses: Any, covariances: Any = None) -
     ids = np.asarray(graph.vertex_ids, dtype=np.float64)
     order = np.argsort(ids, kind="stable")
     if poses.ndim == 2:
-        traj = Trajectory.planar(poses[order], ids[order], None if covariances is None else covariances[order])
+        traj = Trajectory.planar(
+            poses[order], ids[order], None if covariances is None else covariances[order]
+        )
     else:
-        traj = Trajectory.from_matrices(poses[order], ids[order], None if covariances is None else covariances[order])
+        traj = Trajectory.from_matrices(
+            poses[order], ids[order], None if covariances is None else covariances[order]
+        )
     write_trajectory(path, traj)
 
 
@@ -189,15 +208,32 @@ def add_parsers(sub: Any) -> None:
     ev.add_argument("--rpe", action="store_true", help="also the relative pose error")
     ev.add_argument("--delta", type=float, default=1.0, help="RPE pair distance (default 1)")
     ev.add_argument("--unit", choices=("frames", "m", "s"), default="frames")
-    ev.add_argument("--all-pairs", action="store_true", help="RPE on all pairs, not consecutive ones")
-    ev.add_argument("--relation", action="append", choices=("trans", "angle_deg", "angle_rad", "rot", "full"),
-                    help="pose relation(s) to report (default: trans and angle_deg)")
-    ev.add_argument("--t-max-diff", type=float, default=0.01, metavar="S", help="association tolerance (s)")
-    ev.add_argument("--t-offset", type=float, default=0.0, metavar="S", help="added to EST's stamps (s)")
-    ev.add_argument("--interpolate", action="store_true",
-                    help="interpolate REF at EST's stamps instead of taking the nearest stamp")
-    ev.add_argument("--topic", action="append", metavar="T",
-                    help="bag topic or TF chain /tf:PARENT.CHILD (once for each bag, or REF's then EST's)")
+    ev.add_argument(
+        "--all-pairs", action="store_true", help="RPE on all pairs, not consecutive ones"
+    )
+    ev.add_argument(
+        "--relation",
+        action="append",
+        choices=("trans", "angle_deg", "angle_rad", "rot", "full"),
+        help="pose relation(s) to report (default: trans and angle_deg)",
+    )
+    ev.add_argument(
+        "--t-max-diff", type=float, default=0.01, metavar="S", help="association tolerance (s)"
+    )
+    ev.add_argument(
+        "--t-offset", type=float, default=0.0, metavar="S", help="added to EST's stamps (s)"
+    )
+    ev.add_argument(
+        "--interpolate",
+        action="store_true",
+        help="interpolate REF at EST's stamps instead of taking the nearest stamp",
+    )
+    ev.add_argument(
+        "--topic",
+        action="append",
+        metavar="T",
+        help="bag topic or TF chain /tf:PARENT.CHILD (once for each bag, or REF's then EST's)",
+    )
     ev.add_argument("--ref-times", metavar="FILE", help="times file of a KITTI reference")
     ev.add_argument("--est-times", metavar="FILE", help="times file of a KITTI estimate")
     ev.add_argument("--plot", metavar="FILE", help="write a PNG of paths, errors and NEES")
@@ -205,22 +241,35 @@ def add_parsers(sub: Any) -> None:
     ev.add_argument("--json", action="store_true", help="print one JSON object")
     ev.set_defaults(run=_eval)
 
-    tr = sub.add_parser("traj", help="summarize (and plot) trajectory files",
-                        description="Poses, duration, path length, covariance present or not.")
+    tr = sub.add_parser(
+        "traj",
+        help="summarize (and plot) trajectory files",
+        description="Poses, duration, path length, covariance present or not.",
+    )
     tr.add_argument("files", nargs="+", metavar="FILE")
-    tr.add_argument("--topic", action="append", metavar="T", help="bag topic(s) or /tf:PARENT.CHILD")
+    tr.add_argument(
+        "--topic", action="append", metavar="T", help="bag topic(s) or /tf:PARENT.CHILD"
+    )
     tr.add_argument("--plot", metavar="FILE", help="write a PNG of the paths with their ellipses")
-    tr.add_argument("--probability", type=float, default=0.9, help="ellipse probability (default 0.9)")
+    tr.add_argument(
+        "--probability", type=float, default=0.9, help="ellipse probability (default 0.9)"
+    )
     tr.add_argument("--json", action="store_true", help="print a JSON list")
     tr.set_defaults(run=_traj)
 
-    cv = sub.add_parser("convert", help="convert a trajectory between formats",
-                        description="Read any trajectory format relmap knows; write TUM, KITTI, "
-                        "EuRoC or relmap's format (with covariance).")
+    cv = sub.add_parser(
+        "convert",
+        help="convert a trajectory between formats",
+        description="Read any trajectory format relmap knows; write TUM, KITTI, "
+        "EuRoC or relmap's format (with covariance).",
+    )
     cv.add_argument("input", metavar="IN")
     cv.add_argument("output", metavar="OUT")
-    cv.add_argument("--format", choices=("tum", "kitti", "euroc", "relmap"),
-                    help="default: euroc for .csv, else relmap (TUM when 3-D without covariance)")
+    cv.add_argument(
+        "--format",
+        choices=("tum", "kitti", "euroc", "relmap"),
+        help="default: euroc for .csv, else relmap (TUM when 3-D without covariance)",
+    )
     cv.add_argument("--topic", metavar="T", help="bag topic or /tf:PARENT.CHILD")
     cv.add_argument("--times", metavar="FILE", help="times file of KITTI poses")
     cv.set_defaults(run=_convert)

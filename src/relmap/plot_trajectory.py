@@ -182,8 +182,13 @@ def write_evaluation_report(ev: Evaluation, folder: str | os.PathLike[str]) -> A
     if c is not None:
         rep.paragraph(f"Consistency of the estimate's covariance: {c.verdict}.")
         rows = [
-            [name, f"{b.anees:.4g}", f"[{b.interval[0]:.4g}, {b.interval[1]:.4g}]", b.verdict,
-             ", ".join(f"{p:.0%}: {v:.1%}" for p, v in b.coverage.items())]
+            [
+                name,
+                f"{b.anees:.4g}",
+                f"[{b.interval[0]:.4g}, {b.interval[1]:.4g}]",
+                b.verdict,
+                ", ".join(f"{p:.0%}: {v:.1%}" for p, v in b.coverage.items()),
+            ]
             for name, b in c.blocks.items()
         ]
         rep.table(["block", "ANEES", "interval", "verdict", "coverage"], rows, caption="NEES")

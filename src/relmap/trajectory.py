@@ -100,7 +100,9 @@ class Trajectory:
         p = np.asarray(xyz, dtype=np.float64)
         q = np.asarray(quaternions, dtype=np.float64)
         if p.ndim != 2 or p.shape[1] != 3 or q.shape != (len(p), 4):
-            raise ShapeError(f"need positions (n, 3) and quaternions (n, 4); got {p.shape}, {q.shape}")
+            raise ShapeError(
+                f"need positions (n, 3) and quaternions (n, 4); got {p.shape}, {q.shape}"
+            )
         gaussian.check_finite(p, "positions")
         gaussian.check_finite(q, "quaternions")
         M = np.zeros((len(p), 4, 4))

@@ -14,7 +14,16 @@ from relmap.errors import ParameterError
 from relmap.evaluate.alignment import ALIGNMENTS, Alignment, align, umeyama
 from relmap.evaluate.association import Association, associate, interpolate
 from relmap.evaluate.consistency import Consistency, consistency, relative_consistency
-from relmap.evaluate.metrics import RELATIONS, STATISTICS, UNITS, Errors, ape, pairs, rpe, statistics
+from relmap.evaluate.metrics import (
+    RELATIONS,
+    STATISTICS,
+    UNITS,
+    Errors,
+    ape,
+    pairs,
+    rpe,
+    statistics,
+)
 from relmap.trajectory import Trajectory
 
 __all__ = [
@@ -112,8 +121,14 @@ def evaluate(
         options = {"delta": rpe_delta, "unit": rpe_unit, "all_pairs": all_pairs}
         rpes = {
             rel: rpe(
-                P, Q, rel, delta=rpe_delta, unit=rpe_unit, all_pairs=all_pairs,
-                rel_tol=rel_tol, stamps=e.stamps,
+                P,
+                Q,
+                rel,
+                delta=rpe_delta,
+                unit=rpe_unit,
+                all_pairs=all_pairs,
+                rel_tol=rel_tol,
+                stamps=e.stamps,
             )
             for rel in relations
         }

@@ -51,7 +51,9 @@ class Alignment(NamedTuple):
         return M
 
 
-def umeyama(x: FloatArray, y: FloatArray, *, with_scale: bool) -> tuple[FloatArray, FloatArray, float]:
+def umeyama(
+    x: FloatArray, y: FloatArray, *, with_scale: bool
+) -> tuple[FloatArray, FloatArray, float]:
     """``(R, t, c)`` minimizing ``Σ |y_i - (c R x_i + t)|²`` for points ``x, y`` (n, m)."""
     n, m = x.shape
     mx, my = x.mean(axis=0), y.mean(axis=0)
@@ -74,12 +76,16 @@ def umeyama(x: FloatArray, y: FloatArray, *, with_scale: bool) -> tuple[FloatArr
     return R, t, c
 
 
-def align(est: Trajectory, ref: Trajectory, mode: str = "se3", *, n: int | None = None) -> tuple[Trajectory, Alignment]:
+def align(
+    est: Trajectory, ref: Trajectory, mode: str = "se3", *, n: int | None = None
+) -> tuple[Trajectory, Alignment]:
     """``est`` aligned to ``ref`` (associated pose by pose), and the transform used."""
     if mode not in ALIGNMENTS:
         raise ParameterError(f"alignment must be one of {', '.join(ALIGNMENTS)}; got {mode!r}")
     if len(est) != len(ref):
-        raise ParameterError(f"align needs associated trajectories; got {len(est)} and {len(ref)} poses")
+        raise ParameterError(
+            f"align needs associated trajectories; got {len(est)} and {len(ref)} poses"
+        )
     if n is not None and not 1 <= n:
         raise ParameterError(f"the number of poses to align must be >= 1; got {n}")
     Me, Mr = est.matrices, ref.matrices
@@ -118,4 +124,3 @@ def _transformed(est: Trajectory, R: FloatArray, t: FloatArray, s: float) -> AT 
     cov = B @ est.poses.cov @ B.T
     cov = 0.5 * (cov + np.swapaxes(cov, -1, -2))
     return Trajectory.from_matrices(M, None, cov if est.has_cov else None).poses
-

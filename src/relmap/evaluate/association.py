@@ -2,10 +2,10 @@
 
 :func:`associate` follows evo's ``sync.associate_trajectories`` exactly, so that relmap's APE and
 RPE agree with evo's: the trajectory with fewer poses (the reference when both have as many) is
-walked in order, and each of its stamps takes the nearest stamp of the other (the earlier on a
-tie; of equal stamps, the last) if it lies within ``max_diff`` seconds; the other trajectory's stamps are shifted
-by ``offset`` first (the estimate's stamps by ``+offset``). A pose of the longer trajectory may
-be taken twice. Without stamps on either side the poses pair by index and the counts must be
+walked in order, and each of its stamps takes the nearest stamp of the other (the earlier on a tie;
+of equal stamps, the last) if it lies within ``max_diff`` seconds; the other trajectory's stamps are
+shifted by ``offset`` first (the estimate's stamps by ``+offset``). A pose of the longer trajectory
+may be taken twice. Without stamps on either side the poses pair by index and the counts must be
 equal. :func:`interpolate` is relmap's alternative: the reference interpolated at the estimate's
 stamps (positions linearly, rotations along the geodesic), for references sampled finely.
 """

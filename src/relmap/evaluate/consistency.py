@@ -76,7 +76,10 @@ class Consistency(NamedTuple):
         """One line: the full pose's verdict, with its ANEES and interval."""
         b = self.blocks["pose"]
         lo, hi = b.interval
-        return f"{b.verdict} (pose ANEES {b.anees:.3g}, {self.confidence:.0%} interval [{lo:.3g}, {hi:.3g}])"
+        return (
+            f"{b.verdict} (pose ANEES {b.anees:.3g}, "
+            f"{self.confidence:.0%} interval [{lo:.3g}, {hi:.3g}])"
+        )
 
     def summary(self) -> dict[str, object]:
         out: dict[str, object] = {"verdict": self.verdict}
@@ -89,7 +92,10 @@ class Consistency(NamedTuple):
             }
         finite = np.where(np.isfinite(self.normalized), self.normalized, np.nan)
         out["normalized"] = {
-            a: {"mean": _nanstat(np.nanmean, finite[:, k]), "std": _nanstat(np.nanstd, finite[:, k])}
+            a: {
+                "mean": _nanstat(np.nanmean, finite[:, k]),
+                "std": _nanstat(np.nanstd, finite[:, k]),
+            }
             for k, a in enumerate(self.axes)
         }
         return out
@@ -106,7 +112,9 @@ def chart_errors(ref: Trajectory, est: Trajectory) -> FloatArray:
     return se3.minus(ref.matrices, est.matrices)
 
 
-def nees(delta: FloatArray, cov: FloatArray, *, atol: float = 1e-9) -> tuple[FloatArray, FloatArray]:
+def nees(
+    delta: FloatArray, cov: FloatArray, *, atol: float = 1e-9
+) -> tuple[FloatArray, FloatArray]:
     """``δᵀ C⁺ δ`` (n,) and the rank of C (n,); ``inf`` for an error off C's support."""
     G, null = gaussian.generalized_inverse(cov)
     d2 = np.einsum("...i,...ij,...j->...", delta, G, delta)
@@ -123,7 +131,8 @@ def verdict(anees: float, interval: tuple[float, float]) -> str:
     if anees > hi:
         return f"overconfident by a factor {anees:.3g} (covariance too small)"
     if anees < lo:
-        return f"underconfident by a factor {1 / anees if anees > 0 else np.inf:.3g} (covariance too large)"
+        factor = 1 / anees if anees > 0 else np.inf
+        return f"underconfident by a factor {factor:.3g} (covariance too large)"
     return "consistent"
 
 
@@ -143,7 +152,9 @@ def consistency(
     planar = ref.is_planar and est.is_planar
     C = np.array(est.poses.cov)
     if not planar and est.is_planar:
-        raise ParameterError("a planar estimate's covariance cannot be judged against a 3-D reference")
+        raise ParameterError(
+            "a planar estimate's covariance cannot be judged against a 3-D reference"
+        )
     if ref.has_cov and ref.is_planar == est.is_planar:
         C = C + ref.poses.cov
     delta = chart_errors(ref, est)
@@ -162,7 +173,9 @@ def consistency(
         hi = float(gaussian.confidence_k2(1 - alpha / 2, int(total)) / total)
         cover = {}
         for p in coverage:
-            k2 = np.array([gaussian.confidence_k2(p, int(r)) if r > 0 else np.inf for r in np.unique(dof)])
+            k2 = np.array(
+                [gaussian.confidence_k2(p, int(r)) if r > 0 else np.inf for r in np.unique(dof)]
+            )
             limit = k2[np.searchsorted(np.unique(dof), dof)]
             cover[float(p)] = float(np.mean(v <= limit))
         blocks[name] = Nees(name, v, dof, anees, (lo, hi), cover)
@@ -192,7 +205,7 @@ def relative_consistency(
     a_idx, b_idx = np.asarray(first, dtype=np.intp), np.asarray(second, dtype=np.intp)
     if a_idx.shape != b_idx.shape or not a_idx.size:
         raise ParameterError("need as many first and second frames, at least one pair")
-    ats = [solution.relative(int(a), int(b)) for a, b in zip(a_idx, b_idx)]
+    ats = [solution.relative(int(a), int(b)) for a, b in zip(a_idx, b_idx, strict=True)]
     planar = truth.ndim == 2
     if planar:
         rel_true = se2.between(truth[a_idx], truth[b_idx])
@@ -206,6 +219,6 @@ def relative_consistency(
     alpha = 1.0 - confidence
     lo = float(gaussian.confidence_k2(alpha / 2, int(total)) / total)
     hi = float(gaussian.confidence_k2(1 - alpha / 2, int(total)) / total)
-    d = int(round(total / len(v)))
+    d = round(total / len(v))
     cover = {p: float(np.mean(v <= gaussian.confidence_k2(p, d))) for p in DEFAULT_COVERAGE}
     return Nees("relative pose", v, dof, float(v.sum() / total), (lo, hi), cover)

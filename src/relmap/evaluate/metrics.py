@@ -8,12 +8,12 @@ inverses taken as ``[Rᵀ, -Rᵀt]`` (as evo does, also for a KITTI file's round
 - rotation angle ``|Log R(E)|`` (rad or deg, via scipy's ``Rotation.from_matrix``, which
   is what evo uses too), rotation part ``‖R(E) - I‖_F``, full pose ``‖E - I‖_F``.
 
-RPE pairs (evo's ``filters``): ``frames`` — consecutive ``(0, d), (d, 2d), …`` or all
-``(i, i + d)``; ``m`` — consecutive: the first pose is taken, then every pose where the path walked since
-the last one taken (summed step by step) reaches ``d``, and consecutive taken poses pair;
-all pairs: for each ``i`` the ``j > i`` whose path from ``i`` is nearest ``d``, kept if within
-``rel_tol·d``; ``s`` (relmap's addition) — the same as ``m`` with time in place of path. Pairs are
-chosen on the estimate's poses unless ``pairs_from_reference``.
+RPE pairs (evo's ``filters``): ``frames`` — consecutive ``(0, d), (d, 2d), …`` or all ``(i, i +
+d)``; ``m`` — consecutive: the first pose is taken, then every pose where the path walked since the
+last one taken (summed step by step) reaches ``d``, and consecutive taken poses pair; all pairs: for
+each ``i`` the ``j > i`` whose path from ``i`` is nearest ``d``, kept if within ``rel_tol·d``; ``s``
+(relmap's addition) — the same as ``m`` with time in place of path. Pairs are chosen on the
+estimate's poses unless ``pairs_from_reference``.
 """
 
 from __future__ import annotations

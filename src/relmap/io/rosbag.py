@@ -48,7 +48,9 @@ def _open(path: Path):  # type: ignore[no-untyped-def]
     try:
         from rosbags.highlevel import AnyReader
     except ImportError:  # pragma: no cover - rosbags is a dependency
-        raise ParameterError("reading ROS bags needs the rosbags package (pip install rosbags)") from None
+        raise ParameterError(
+            "reading ROS bags needs the rosbags package (pip install rosbags)"
+        ) from None
     try:
         reader = AnyReader([path])
         reader.open()
@@ -89,7 +91,9 @@ def read_bag(path: str | os.PathLike[str], topic: str | None) -> Trajectory:
     try:
         topics = _topics(reader)
         if topic is None:
-            raise ParameterError(f"{p} is a ROS bag: name a topic (--topic); it has {_listing(topics)}")
+            raise ParameterError(
+                f"{p} is a ROS bag: name a topic (--topic); it has {_listing(topics)}"
+            )
         if topic.startswith(("/tf:", "tf:")):
             return _read_tf(p, reader, topic, topics)
         if topic not in topics:
@@ -163,7 +167,10 @@ def _check_messages(p: Path, where: str, t: FloatArray, v: FloatArray) -> None:
         raise FileFormatError(p, f"{where} has no messages")
     bad = ~np.isfinite(v).all(axis=1)
     if bad.any():
-        raise FileFormatError(p, f"{where} message {int(np.flatnonzero(bad)[0])}: pose is not finite (NaN or infinity)")
+        raise FileFormatError(
+            p,
+            f"{where} message {int(np.flatnonzero(bad)[0])}: pose is not finite (NaN or infinity)",
+        )
     norm = np.linalg.norm(v[:, 3:], axis=1)
     bad = ~(np.abs(norm - 1) <= so3.ROTATION_ATOL)
     if bad.any():
@@ -174,8 +181,9 @@ def _check_messages(p: Path, where: str, t: FloatArray, v: FloatArray) -> None:
     if back.size:
         k = int(back[0]) + 1
         raise FileFormatError(
-            p, f"{where} message {k}: stamp {float(t[k])!r} s comes before {float(t[k - 1])!r} s "
-            "(stamps must not decrease)"
+            p,
+            f"{where} message {k}: stamp {float(t[k])!r} s comes before {float(t[k - 1])!r} s "
+            "(stamps must not decrease)",
         )
 
 
@@ -219,7 +227,9 @@ def _read_tf(p: Path, reader: Any, spec: str, topics: dict[str, tuple[str, int]]
     known = set(up) | set(up.values())
     for f in (parent, child):
         if f not in known:
-            raise FileFormatError(p, f"frame {f!r} is not in the TF tree; its frames are {', '.join(sorted(known))}")
+            raise FileFormatError(
+                p, f"frame {f!r} is not in the TF tree; its frames are {', '.join(sorted(known))}"
+            )
 
     def ancestors(f: str) -> list[str]:
         out = [f]
@@ -244,7 +254,9 @@ def _read_tf(p: Path, reader: Any, spec: str, topics: dict[str, tuple[str, int]]
     t = tables[id(base)][0]
     t = t[(t >= lo) & (t <= hi)]
     if not len(t):
-        raise FileFormatError(p, f"the dynamic transforms of {parent} → {child} never overlap in time")
+        raise FileFormatError(
+            p, f"the dynamic transforms of {parent} → {child} never overlap in time"
+        )
 
     def at(e: _Edge) -> FloatArray:
         te, M = tables[id(e)]

@@ -99,7 +99,9 @@ def _table(path: Path, rows: list[str], numbers: IntArray, sep: str | None) -> F
                 try:
                     float(s)
                 except ValueError:
-                    raise FileFormatError(path, f"{s.strip()!r} is not a number", line=int(numbers[k])) from None
+                    raise FileFormatError(
+                        path, f"{s.strip()!r} is not a number", line=int(numbers[k])
+                    ) from None
         raise
     bad = ~np.isfinite(values).all(axis=1)
     if bad.any():
@@ -110,7 +112,9 @@ def _table(path: Path, rows: list[str], numbers: IntArray, sep: str | None) -> F
 
 def _at_line(path: Path, numbers: IntArray, exc: RelmapError) -> FileFormatError:
     """A validation error of pose/stamp k as an error at k's line."""
-    m = re.match(r"((?:pose|stamp|quaternion)\s+(\d+):?\s*|[\w ]*?\[(\d+)(?:, \d+)*\]\s*)", str(exc))
+    m = re.match(
+        r"((?:pose|stamp|quaternion)\s+(\d+):?\s*|[\w ]*?\[(\d+)(?:, \d+)*\]\s*)", str(exc)
+    )
     k = None if m is None else int(m.group(2) or m.group(3))
     text = str(exc)[m.end() :] if m and m.group(2) else str(exc)
     line = int(numbers[k]) if k is not None and k < len(numbers) else None
@@ -174,7 +178,10 @@ def _read_columns(path: Path, text: str, values: FloatArray, numbers: IntArray) 
         q = _quaternions(path, values[:, 4:8], numbers)
         cov = _unpack(values[:, 8:], _TRI6, 6) if k == 29 else None
         return _build(
-            path, numbers, lambda **kw: Trajectory.from_quaternions(values[:, 1:4], q, t, cov, **kw), **names
+            path,
+            numbers,
+            lambda **kw: Trajectory.from_quaternions(values[:, 1:4], q, t, cov, **kw),
+            **names,
         )
     if k == 12:
         M = np.zeros((len(values), 4, 4))
@@ -184,11 +191,15 @@ def _read_columns(path: Path, text: str, values: FloatArray, numbers: IntArray) 
             check_rotations(M[:, :3, :3])
         except RelmapError as exc:
             raise _at_line(path, numbers, exc) from None
-        return _build(path, numbers, lambda **kw: Trajectory.from_matrices(M, None, None, **kw), **names)
+        return _build(
+            path, numbers, lambda **kw: Trajectory.from_matrices(M, None, None, **kw), **names
+        )
     if k in (4, 10):
         t = _stamps(path, values[:, 0], numbers)
         cov = _unpack(values[:, 4:], _TRI3, 3) if k == 10 else None
-        return _build(path, numbers, lambda **kw: Trajectory.planar(values[:, 1:4], t, cov, **kw), **names)
+        return _build(
+            path, numbers, lambda **kw: Trajectory.planar(values[:, 1:4], t, cov, **kw), **names
+        )
     raise FileFormatError(
         path,
         f"{k} columns: not a trajectory format relmap knows (TUM: 8, KITTI: 12, relmap: 29, "
@@ -200,10 +211,14 @@ def _read_columns(path: Path, text: str, values: FloatArray, numbers: IntArray) 
 def _read_euroc(path: Path, rows: list[str], numbers: IntArray) -> Trajectory:
     values = _table(path, rows, numbers, ",")
     if values.shape[1] < 8:
-        raise FileFormatError(path, f"EuRoC CSV needs at least 8 columns; got {values.shape[1]}", line=int(numbers[0]))
+        raise FileFormatError(
+            path, f"EuRoC CSV needs at least 8 columns; got {values.shape[1]}", line=int(numbers[0])
+        )
     t = _stamps(path, values[:, 0] / 1e9, numbers)  # nanoseconds, as evo converts them
     q = _quaternions(path, values[:, [5, 6, 7, 4]], numbers)  # (w, x, y, z) → (x, y, z, w)
-    return _build(path, numbers, lambda **kw: Trajectory.from_quaternions(values[:, 1:4], q, t, **kw))
+    return _build(
+        path, numbers, lambda **kw: Trajectory.from_quaternions(values[:, 1:4], q, t, **kw)
+    )
 
 
 def _read_graph_vertices(path: Path) -> Trajectory:
@@ -219,7 +234,11 @@ def _read_times(path: Path) -> FloatArray:
     rows, numbers = _rows(_text(path))
     values = _table(path, rows, numbers, None)
     if values.shape[1] != 1:
-        raise FileFormatError(path, f"a times file has one time a line; got {values.shape[1]} columns", line=int(numbers[0]))
+        raise FileFormatError(
+            path,
+            f"a times file has one time a line; got {values.shape[1]} columns",
+            line=int(numbers[0]),
+        )
     return _stamps(path, values[:, 0], numbers)
 
 
@@ -241,7 +260,9 @@ def recognise_trajectory(path: str | os.PathLike[str]) -> str:
     if head.startswith((b"#ROSBAG V2.0", b"\x89MCAP", b"SQLite format 3\x00")):
         return "bag"
     text = head.decode("utf-8", errors="replace")
-    first = next((s.strip() for s in text.splitlines() if s.strip() and not s.lstrip().startswith("#")), "")
+    first = next(
+        (s.strip() for s in text.splitlines() if s.strip() and not s.lstrip().startswith("#")), ""
+    )
     if re.match(r"(VERTEX|EDGE|FIX)\S*\s", first + " "):
         return "g2o"
     if "," in first:
@@ -285,7 +306,12 @@ def read_trajectory(
         t = _read_times(Path(times))
         if len(t) != len(traj):
             raise FileFormatError(times, f"{len(t)} times for the {len(traj)} poses of {p}")
-        traj = Trajectory._checked(traj.poses, t, traj.has_cov, {"frame": traj.frame, "child": traj.child, "source": traj.source})
+        traj = Trajectory._checked(
+            traj.poses,
+            t,
+            traj.has_cov,
+            {"frame": traj.frame, "child": traj.child, "source": traj.source},
+        )
     return traj
 
 
@@ -296,7 +322,9 @@ def _numbers(a: FloatArray) -> str:
     return buf.getvalue()
 
 
-def write_trajectory(path: str | os.PathLike[str], traj: Trajectory, format: str | None = None) -> str:
+def write_trajectory(
+    path: str | os.PathLike[str], traj: Trajectory, format: str | None = None
+) -> str:
     """Write ``traj`` to ``path`` atomically; returns the format written.
 
     ``format``: ``tum``, ``kitti``, ``euroc`` or ``relmap``; by default ``euroc`` for a ``.csv``
@@ -310,9 +338,13 @@ def write_trajectory(path: str | os.PathLike[str], traj: Trajectory, format: str
         raise ParameterError(f"cannot write {target}: its folder does not exist")
     fmt = format or ("euroc" if target.suffix.lower() == ".csv" else "relmap")
     if fmt not in ("tum", "kitti", "euroc", "relmap"):
-        raise ParameterError(f"trajectories are written as tum, kitti, euroc or relmap; got {fmt!r}")
+        raise ParameterError(
+            f"trajectories are written as tum, kitti, euroc or relmap; got {fmt!r}"
+        )
     if fmt != "kitti" and traj.stamps is None:
-        raise ParameterError(f"{fmt} needs time stamps and {traj.source or 'the trajectory'} has none")
+        raise ParameterError(
+            f"{fmt} needs time stamps and {traj.source or 'the trajectory'} has none"
+        )
     M = traj.matrices
     t = traj.stamps
     names = f" frame={traj.frame}" * bool(traj.frame) + f" child={traj.child}" * bool(traj.child)
@@ -323,7 +355,7 @@ def write_trajectory(path: str | os.PathLike[str], traj: Trajectory, format: str
         stamps_ns = np.round(t * 1e9).astype(np.int64)
         body = _numbers(np.column_stack([M[:, :3, 3], q[:, [3, 0, 1, 2]]])).splitlines()
         text = "#timestamp [ns],p_x [m],p_y [m],p_z [m],q_w [],q_x [],q_y [],q_z []\n" + "".join(
-            f"{s},{b.replace(' ', ',')}\n" for s, b in zip(stamps_ns.tolist(), body)
+            f"{s},{b.replace(' ', ',')}\n" for s, b in zip(stamps_ns.tolist(), body, strict=True)
         )
     elif traj.is_planar and fmt == "relmap":
         cols = [t[:, None], traj.poses.mean]
