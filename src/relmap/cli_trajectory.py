@@ -117,17 +117,24 @@ def _eval(args: argparse.Namespace) -> int:
 
 def _traj(args: argparse.Namespace) -> int:
     _check_out(args.plot, "plot")
+    from relmap.io.rosbag import read_bag_topics
+    from relmap.io.trajectory import recognise_trajectory
+
     topics = list(args.topic or [])
     trajs = []
     for k, path in enumerate(args.files):
-        from relmap.io.trajectory import recognise_trajectory
-
-        topic = None
-        if recognise_trajectory(path) == "bag":
-            if not topics:
-                raise ParameterError(f"{path} is a ROS bag: name its topic with --topic")
-            topic = topics[min(k, len(topics) - 1)] if len(topics) != len(args.files) else topics[k]
-        trajs.append(_read(path, topic))
+        if recognise_trajectory(path) != "bag":
+            trajs.append(_read(path, None))
+            continue
+        if not topics:
+            raise ParameterError(f"{path} is a ROS bag: name its topic(s) with --topic")
+        if len(args.files) == 1:
+            mine = topics  # one bag: every topic, its messages read once
+        elif len(topics) == len(args.files):
+            mine = [topics[k]]
+        else:
+            mine = topics[:1]
+        trajs.extend(read_bag_topics(path, mine))
     if args.plot:
         from relmap.plot import save_png
         from relmap.plot_trajectory import trajectories_figure
