@@ -150,6 +150,7 @@ GOOD = "1.0 0 0 0 0 0 0 1\n2.0 1 0 0 0 0 0 1\n3.0 2 0 0 0 0 0 1\n"
         ("# header\n1 0 0 0\n2 1 0 0\n3 1 1\n", 4, "mixes formats"),
         ("1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 0 0 2 0 0 0 0 1 0\n", 2, "not a rotation"),
         ("1 0 0 0 1 0 0 1 0 -1\n", 1, "positive semi-definite|negative"),
+        ("1 0 0 0 1 0 0 1 0 1\n2 0 0 0 -1 0 0 1 0 1\n", 2, "covariance marked unknown"),
     ],
     ids=[
         "stamps-back",
@@ -161,6 +162,7 @@ GOOD = "1.0 0 0 0 0 0 0 1\n2.0 1 0 0 0 0 0 1\n3.0 2 0 0 0 0 0 1\n"
         "short-row",
         "kitti-rotation",
         "bad-cov",
+        "unknown-cov",
     ],
 )
 def test_bad_files_name_file_and_line(tmp_path, text, line, match):  # type: ignore[no-untyped-def]

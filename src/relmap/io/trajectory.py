@@ -173,6 +173,14 @@ def _read_columns(path: Path, text: str, values: FloatArray, numbers: IntArray) 
     """TUM (8), KITTI (12), relmap 3-D (29), planar (4 or 10): by the number of columns."""
     k = values.shape[1]
     names = _names(text)
+    if k in (10, 29):
+        unknown = np.flatnonzero(values[:, 8 if k == 29 else 4] == -1.0)
+        if unknown.size:
+            raise FileFormatError(
+                path,
+                "covariance marked unknown (first entry −1): write the pose without one",
+                line=int(numbers[unknown[0]]),
+            )
     if k in (8, 29):
         t = _stamps(path, values[:, 0], numbers)
         q = _quaternions(path, values[:, 4:8], numbers)
