@@ -41,6 +41,7 @@ CASES = [
     ("freiburg1_xyz-groundtruth.txt", "freiburg1_xyz-rgbdslam.txt", 0.5),
     ("ROS_example.bag:groundtruth", "ROS_example.bag:ORB-SLAM", 5.0),
     ("ROS_example.bag:groundtruth", "ROS_example.bag:S-PTAM", 5.0),
+    ("nav2_turtlebot.mcap:/odom", "nav2_turtlebot.mcap:/amcl_pose", 1.0),
 ]
 MODES = ("none", "se3", "sim3", "scale", "origin")
 
@@ -52,10 +53,11 @@ def close(mine: dict[str, float], theirs: dict[str, float]) -> None:
 
 def evo_read(folder, name):  # type: ignore[no-untyped-def]
     if ":" in name:
-        from rosbags.rosbag1 import Reader
+        from rosbags.rosbag1 import Reader as Reader1
+        from rosbags.rosbag2 import Reader as Reader2
 
         bag, topic = name.split(":")
-        with Reader(folder / bag) as r:
+        with (Reader1 if bag.endswith(".bag") else Reader2)(folder / bag) as r:
             return fi.read_bag_trajectory(r, topic)
     if name.endswith(".csv"):
         return fi.read_euroc_csv_trajectory(folder / name)
@@ -175,6 +177,35 @@ def test_random_trajectories_equal_evo(seed):  # type: ignore[no-untyped-def]
         [("frames", 3, False), ("frames", 2, True), ("m", 1.5, False), ("m", 1.5, True)],
         angles=MODES,
     )
+
+
+def test_pairs_from_reference_like_evo():  # type: ignore[no-untyped-def]
+    rng = np.random.default_rng(11)
+    ts, xs, qs = _random_trajectory(rng, 200)
+    _, xe, qe = _random_trajectory(rng, 200)
+    er = PoseTrajectory3D(xs, np.roll(qs, 1, axis=1), ts)
+    ee = PoseTrajectory3D(xe * 0.5, np.roll(qe, 1, axis=1), ts)
+    rr = Trajectory.from_quaternions(xs, qs, ts)
+    re_ = Trajectory.from_quaternions(xe * 0.5, qe, ts)
+    for unit, delta, all_pairs in [("frames", 4, False), ("m", 2.0, False), ("m", 2.0, True)]:
+        m = evo_metrics.RPE(
+            PoseRelation.translation_part,
+            delta,
+            Unit.frames if unit == "frames" else Unit.meters,
+            all_pairs=all_pairs,
+            pairs_from_reference=True,
+        )
+        m.process_data((er, ee))
+        mine = rpe(
+            re_.matrices,
+            rr.matrices,
+            "trans",
+            delta=delta,
+            unit=unit,
+            all_pairs=all_pairs,
+            pairs_from_reference=True,
+        )
+        close(mine.stats(), m.get_all_statistics())
 
 
 def test_kitti_paths_pair_by_index_like_evo():  # type: ignore[no-untyped-def]

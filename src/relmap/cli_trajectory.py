@@ -59,6 +59,7 @@ def _eval(args: argparse.Namespace) -> int:
         rpe_delta=args.delta if args.rpe else None,
         rpe_unit=args.unit,
         all_pairs=args.all_pairs,
+        pairs_from_reference=args.pairs_from_reference,
     )
     if args.plot or args.report:
         from relmap.plot_trajectory import evaluation_figure, write_evaluation_report
@@ -215,6 +216,11 @@ def add_parsers(sub: Any) -> None:
     ev.add_argument("--rpe", action="store_true", help="also the relative pose error")
     ev.add_argument("--delta", type=float, default=1.0, help="RPE pair distance (default 1)")
     ev.add_argument("--unit", choices=("frames", "m", "s"), default="frames")
+    ev.add_argument(
+        "--pairs-from-reference",
+        action="store_true",
+        help="choose RPE pairs on the reference's poses (default: the estimate's, as evo)",
+    )
     ev.add_argument(
         "--all-pairs", action="store_true", help="RPE on all pairs, not consecutive ones"
     )

@@ -98,6 +98,7 @@ def evaluate(
     rpe_unit: str = "frames",
     all_pairs: bool = False,
     rel_tol: float = 0.1,
+    pairs_from_reference: bool = False,
 ) -> Evaluation:
     """Associate, align, measure, judge (module docstring); ``rpe_delta=None``: no RPE."""
     if ref.is_planar != est.is_planar:
@@ -118,7 +119,12 @@ def evaluate(
     rpes: dict[str, Errors] = {}
     options: dict[str, object] = {}
     if rpe_delta is not None:
-        options = {"delta": rpe_delta, "unit": rpe_unit, "all_pairs": all_pairs}
+        options = {
+            "delta": rpe_delta,
+            "unit": rpe_unit,
+            "all_pairs": all_pairs,
+            "pairs_from_reference": pairs_from_reference,
+        }
         rpes = {
             rel: rpe(
                 P,
@@ -128,6 +134,7 @@ def evaluate(
                 unit=rpe_unit,
                 all_pairs=all_pairs,
                 rel_tol=rel_tol,
+                pairs_from_reference=pairs_from_reference,
                 stamps=e.stamps,
             )
             for rel in relations
