@@ -296,8 +296,9 @@ def _solve(args: argparse.Namespace) -> int:
     from relmap.io.posegraph import file_information
     from relmap.lie import SE3
 
-    if args.out and not Path(args.out).resolve().parent.is_dir():
-        raise ParameterError(f"cannot write {args.out}: its folder does not exist")
+    for out in (args.out, args.out_trajectory):
+        if out and not Path(out).resolve().parent.is_dir():
+            raise ParameterError(f"cannot write {out}: its folder does not exist")
     t0 = time.perf_counter()
     graph = read_graph(args.graph)
     out_graph = graph
@@ -322,6 +323,10 @@ def _solve(args: argparse.Namespace) -> int:
         bar.close()
     if args.out:
         write_graph(args.out, out_graph, poses=sol.poses)  # atomically; 3-D: (n, 4, 4) poses
+    if args.out_trajectory:
+        from relmap.cli_trajectory import write_solution
+
+        write_solution(args.out_trajectory, graph, sol.poses, sol.marginals())
     seconds = time.perf_counter() - t0
     summary = {
         "poses": len(graph.vertex_ids),
@@ -354,8 +359,9 @@ def _localize(args: argparse.Namespace) -> int:
     from relmap.errors import ParameterError
     from relmap.localize import localize
 
-    if args.plot and not Path(args.plot).resolve().parent.is_dir():
-        raise ParameterError(f"cannot write the plot {args.plot}: its folder does not exist")
+    for out in (args.plot, args.out):
+        if out and not Path(out).resolve().parent.is_dir():
+            raise ParameterError(f"cannot write {out}: its folder does not exist")
     bar = TerminalProgress(f"localizing {args.dataset}")
     bar.update("reading the logs, estimating the noise", force=True)
     try:
@@ -367,6 +373,10 @@ def _localize(args: argparse.Namespace) -> int:
         )
     finally:
         bar.close()
+    if args.out:
+        from relmap.cli_trajectory import write_localization
+
+        write_localization(args.out, run)
     if args.plot:
         from matplotlib.figure import Figure
 
@@ -597,6 +607,12 @@ def build_parser() -> argparse.ArgumentParser:
         type=_output_file,
         help="write the graph back, vertices at the optimum (legacy EDGE3 graphs as 3-D g2o)",
     )
+    solve.add_argument(
+        "--out-trajectory",
+        metavar="FILE",
+        type=_output_file,
+        help="write the solved poses with their marginal covariances (relmap trajectory format)",
+    )
     solve.add_argument("--json", action="store_true", help="print a JSON summary")
     solve.add_argument("--max-iterations", type=_int_in(1, 1_000_000), default=100)
     solve.set_defaults(run=_solve)
@@ -627,7 +643,18 @@ def build_parser() -> argparse.ArgumentParser:
         type=_output_file,
         help="write a PNG of truth, estimate and dead reckoning",
     )
+    loc.add_argument(
+        "--out",
+        metavar="FILE",
+        type=_output_file,
+        help="write the estimate with covariance (for relmap eval)",
+    )
     loc.set_defaults(run=_localize)
+
+    from relmap.cli_trajectory import add_parsers
+
+    add_parsers(sub)  # eval, traj, convert
+
     for command in sub.choices.values():  # --debug after the command too
         command.add_argument(
             "--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS
