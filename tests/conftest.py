@@ -39,19 +39,3 @@ def data_dir() -> Path:
             pytest.fail(message)
         pytest.skip(message)
     return root
-
-
-@pytest.fixture(params=["general", "kernels"])
-def both_readers(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
-    """Run a test twice: pose-graph files read by the general path (numba off), and by the
-    numba kernels of ``relmap.io._text_kernels`` for files of every size (with the general path
-    behind them for whatever they do not take)."""
-    from relmap import _numba
-
-    if request.param == "kernels":
-        if not _numba.enabled():
-            pytest.skip("numba kernels off (RELMAP_NUMBA=0) or numba missing")
-        monkeypatch.setattr(_numba, "LARGE", 0)
-    else:
-        monkeypatch.setenv("RELMAP_NUMBA", "0")
-    return str(request.param)
