@@ -17,9 +17,11 @@ use (PEP 562), so ``import relmap`` and the ``relmap`` command's start-up stay l
 from __future__ import annotations
 
 import importlib
-from typing import TYPE_CHECKING, Any
 
+TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (mypy knows the name)
 if TYPE_CHECKING:
+    from typing import Any
+
     from relmap import decisions, errors, gaussian, lie, moments, montecarlo, propagate
     from relmap.at import AT, compound, compound_chain, merge, reverse
     from relmap.at3 import AT3
