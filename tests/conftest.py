@@ -39,3 +39,11 @@ def data_dir() -> Path:
             pytest.fail(message)
         pytest.skip(message)
     return root
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Every test that reads the shared datasets (through ``data_dir``) is marked ``real_data``,
+    so that ``pytest -m "not slow and not real_data"`` is the quick subset."""
+    for item in items:
+        if "data_dir" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.real_data)
