@@ -161,6 +161,7 @@ def test_compound_chain_dispatches_3d_chains():
         rm.compound_chain(steps, moments="exact")
 
 
+@pytest.mark.slow
 @given(st.integers(0, 10_000))
 def test_merge_is_order_independent_and_psd(seed):
     a, b, c = random_at3s(seed, 3, scale=0.1)
@@ -226,6 +227,7 @@ def _agrees(mc: montecarlo.SampleSet, estimate: rm.AT3, linearization: float) ->
     assert (np.abs(ag.nees - 6) < 6 * (4 * np.sqrt(2 / (6 * ag.n)) + linearization)).all()
 
 
+@pytest.mark.slow
 def test_compound_reverse_merge_agree_with_monte_carlo_at_small_angular_sigma():
     a, b = small_angle_at3s(11, 4), small_angle_at3s(12, 4)
     n = 20_000

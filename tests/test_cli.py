@@ -19,6 +19,7 @@ def _run(*args: str) -> subprocess.CompletedProcess[str]:
     )
 
 
+@pytest.mark.slow
 def test_demo_prints_the_library_results(tmp_path):
     out = _run("demo", "--out", str(tmp_path / "report"), "--samples", "2000")
     assert out.returncode == 0, out.stderr
