@@ -12,7 +12,9 @@ Each contender is a fresh process, timed from its start to its exit (wall clock)
 3. ``relmap --help`` (target <= 0.2 s), beside ``python -c pass`` (the interpreter's own floor).
 
 Contenders run interleaved, round after round, so that a slow spell of the (shared, noisy)
-machine hits all alike; min and median over the rounds, and the ratio of medians, are printed.
+machine hits all alike; wall and CPU time (user + system of the process), min and median over
+the rounds, and the ratios of medians, are printed (CPU time is the steadier figure when other
+work loads the machine).
 The ``relmap`` console script next to this interpreter is the one timed (``pip install .`` or
 ``-e .`` first). Data: ``--data`` or ``$RELMAP_DATA`` or ``../shared/data``.
 
@@ -23,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -75,28 +78,41 @@ def relmap_command() -> str:
     return str(script)
 
 
-def run(cmd: list[str]) -> float:
-    """Wall time (s) of one process, from start to exit; fails loudly if it fails."""
+def _children_cpu() -> float:
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def run(cmd: list[str]) -> tuple[float, float]:
+    """Wall time and CPU time (user + system, s) of one process, from start to exit; fails
+    loudly if it fails. CPU time is the steadier figure on a machine loaded by other work."""
     env = {**os.environ, "OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS", "1")}
-    t0 = time.perf_counter()
+    c0, t0 = _children_cpu(), time.perf_counter()
     done = subprocess.run(cmd, capture_output=True, text=True, env=env)
-    seconds = time.perf_counter() - t0
+    seconds, cpu = time.perf_counter() - t0, _children_cpu() - c0
     if done.returncode != 0:
         sys.exit(f"{' '.join(cmd)} failed ({done.returncode}):\n{done.stderr}")
-    return seconds
+    return seconds, cpu
 
 
-def interleaved(commands: dict[str, list[str]], rounds: int) -> dict[str, list[float]]:
-    times: dict[str, list[float]] = {name: [] for name in commands}
+Times = dict[str, list[tuple[float, float]]]
+
+
+def interleaved(commands: dict[str, list[str]], rounds: int) -> Times:
+    times: Times = {name: [] for name in commands}
     for _ in range(rounds):
         for name, cmd in commands.items():
             times[name].append(run(cmd))
     return times
 
 
-def report(times: dict[str, list[float]]) -> None:
+def report(times: Times) -> None:
     for name, t in times.items():
-        print(f"  {name:<44}{statistics.median(t):7.3f} s  [min {min(t):6.3f}]  ({len(t)} runs)")
+        wall, cpu = [w for w, _ in t], [c for _, c in t]
+        print(
+            f"  {name:<42}{statistics.median(wall):7.3f} s [min {min(wall):6.3f}]   "
+            f"CPU {statistics.median(cpu):6.3f} s [min {min(cpu):6.3f}]"
+        )
 
 
 def main() -> None:
