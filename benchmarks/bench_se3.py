@@ -17,9 +17,9 @@
 4. One pair per call (no batch): relmap's fixed overhead against GTSAM's, for a compound and
    for a reversal.
 
-relmap runs its numba kernels (``relmap._at3_kernels``) when numba is available; set
-``RELMAP_NUMBA=0`` for its numpy path. Kernels are compiled on first use (tens of seconds once)
-and loaded from numba's disk cache after; they are warmed up before timing.
+relmap compounds and reverses in its compiled core (``relmap._core.compound3``/``reverse3``,
+``src/core/se3.cpp``), one implementation for one pair and for any batch; nothing is compiled at
+run time.
 
 A memory-bandwidth floor is printed with the pairs: one numpy pass that reads exactly the bytes
 a compound reads (two poses, two covariances) and writes the bytes it writes (a pose, a
@@ -259,7 +259,7 @@ def main() -> None:
     a0, b0 = a[0], b[0]
     pa0, pb0, Sa0, Sb0 = pa[0], pb[0], Sa[0], Sb[0]
     H1, H2 = np.zeros((6, 6), order="F"), np.zeros((6, 6), order="F")
-    a0 @ b0, a0.reverse()  # warm-up: the single-pair kernels compile (or load) on first use
+    a0 @ b0, a0.reverse()  # warm-up (first calls: allocator, caches)
 
     def relmap_single() -> None:
         for _ in range(reps):

@@ -41,17 +41,9 @@ def data_dir() -> Path:
     return root
 
 
-@pytest.fixture(params=["general", "kernels"])
-def both_readers(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
-    """Run a test twice: pose-graph files read by the general path (numba off), and by the
-    numba kernels of ``relmap.io._text_kernels`` for files of every size (with the general path
-    behind them for whatever they do not take)."""
-    from relmap import _numba
-
-    if request.param == "kernels":
-        if not _numba.enabled():
-            pytest.skip("numba kernels off (RELMAP_NUMBA=0) or numba missing")
-        monkeypatch.setattr(_numba, "LARGE", 0)
-    else:
-        monkeypatch.setenv("RELMAP_NUMBA", "0")
-    return str(request.param)
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Every test that reads the shared datasets (through ``data_dir``) is marked ``real_data``,
+    so that ``pytest -m "not slow and not real_data"`` is the quick subset."""
+    for item in items:
+        if "data_dir" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.real_data)

@@ -422,6 +422,7 @@ def _small_angle_ats(seed: int, n: int, sigma_theta_deg: float) -> rm.AT:
     return rm.AT.from_sigmas(means, sig)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sigma_theta_deg", [0.5, 2.0])
 def test_compound_monte_carlo_within_two_percent(sigma_theta_deg):
     a, b = _small_angle_ats(30, 8, sigma_theta_deg), _small_angle_ats(31, 8, sigma_theta_deg)
@@ -431,12 +432,14 @@ def test_compound_monte_carlo_within_two_percent(sigma_theta_deg):
     assert np.all(np.abs(mc.coverage - 0.9) < 0.01)
 
 
+@pytest.mark.slow
 def test_reverse_monte_carlo_within_two_percent():
     a = _small_angle_ats(33, 8, 2.0)
     mc = montecarlo.simulate(se2.inverse, a, n=150_000, seed=34).compare(a.reverse())
     assert np.all(mc.cov_rel_error < 0.02)
 
 
+@pytest.mark.slow
 def test_merge_monte_carlo_error_distribution():
     """Merged estimator's error around the truth has the merged covariance and no bias."""
     a = _small_angle_ats(35, 6, 2.0)

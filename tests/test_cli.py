@@ -19,6 +19,7 @@ def _run(*args: str) -> subprocess.CompletedProcess[str]:
     )
 
 
+@pytest.mark.slow
 def test_demo_prints_the_library_results(tmp_path):
     out = _run("demo", "--out", str(tmp_path / "report"), "--samples", "2000")
     assert out.returncode == 0, out.stderr
@@ -56,14 +57,29 @@ def test_version_and_usage():
 
 
 def test_import_stays_light():
-    """`import relmap` must not pull in matplotlib, scipy.sparse/stats/special or yaml."""
+    """`import relmap` and the first use of its main names must not pull in matplotlib,
+    scipy.sparse/stats/special or yaml."""
     code = (
-        "import sys, relmap; "
+        "import sys, relmap; relmap.AT, relmap.AT3, relmap.RelationalMap, relmap.merge; "
         "heavy = [m for m in sys.modules if m.split('.')[0] in ('matplotlib', 'yaml') "
         "or m.startswith(('scipy.sparse', 'scipy.stats', 'scipy.special'))]; print(heavy)"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert out.stdout.strip() == "[]", out.stdout
+
+
+def test_help_imports_neither_numpy_nor_scipy():
+    """`relmap --help` starts light: the package's names are imported on first use only."""
+    code = (
+        "import sys; from relmap.cli import main\n"
+        "try:\n    main(['--help'])\nexcept SystemExit:\n    pass\n"
+        "print([m for m in sys.modules if m.split('.')[0] in ('numpy', 'scipy', 'relmap') "
+        "and m not in ('relmap', 'relmap.cli', 'relmap.errors', 'relmap._numba')], "
+        "file=sys.stderr)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0 and "usage: relmap" in out.stdout
+    assert out.stderr.strip() == "[]", out.stderr
 
 
 def test_one_shot_raises_the_compiled_kernels_size_only_while_it_runs(monkeypatch):

@@ -148,6 +148,7 @@ def test_view_tolerance_is_honoured(tol):
     assert np.abs(d.probability - fine).max() <= tol
 
 
+@pytest.mark.slow
 def test_margin_is_the_mahalanobis_distance_to_the_boundary():
     """margin equals the minimum over a dense sampling of the boundary (which bounds it above)."""
     rng = np.random.default_rng(5)
@@ -171,6 +172,7 @@ def test_margin_is_the_mahalanobis_distance_to_the_boundary():
             assert (d.margin[i] >= 0) == d.mean_inside[i]
 
 
+@pytest.mark.slow
 def test_paper_test_is_the_ellipse_inside_the_sector():
     """ellipse_inside ⇔ margin ≥ k ⇔ every point of the filled P-ellipse is in the sector."""
     rng = np.random.default_rng(6)
@@ -190,6 +192,7 @@ def test_paper_test_is_the_ellipse_inside_the_sector():
         assert d.ellipse_inside.any() and clearly_out.any()
 
 
+@pytest.mark.slow
 def test_ellipse_test_is_conservative():
     """Ellipse inside ⇒ probability ≥ P (a subset holds P); the converse fails often."""
     at = random_view_batch(np.random.default_rng(2), 2000)

@@ -12,6 +12,8 @@ import pytest
 from relmap import demo as d
 from relmap.demo_report import write_report
 
+pytestmark = pytest.mark.slow  # every test shares one built report (a full demo run)
+
 SAMPLES = 2000  # reduced Monte Carlo sizes: the test checks plumbing, not statistics
 
 

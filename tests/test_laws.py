@@ -6,6 +6,7 @@ Headings are drawn from the whole circle with explicit samples at and next to ±
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import assume, given
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
@@ -50,6 +51,7 @@ def _wrapped_range(at: rm.AT) -> None:
     assert np.all(at.mean[..., 2] >= -np.pi) and np.all(at.mean[..., 2] < np.pi)
 
 
+@pytest.mark.slow
 @given(st.data())
 def test_compound_is_associative(data):
     shape = data.draw(SHAPES)
@@ -76,6 +78,7 @@ def test_compound_with_reverse_is_identity_mean(data):
     assert_poses_close((a.reverse() @ a).mean, np.zeros((*a.batch_shape, 3)), atol=1e-11)
 
 
+@pytest.mark.slow
 @given(st.data())
 def test_reverse_distributes_over_compound(data):
     """(A ⊕ B)ᴿ = Bᴿ ⊕ Aᴿ, mean and first-order covariance."""
@@ -100,6 +103,7 @@ def _unwrapped_heading(*ats: rm.AT) -> np.ndarray:
     return x[..., 2] - ref
 
 
+@pytest.mark.slow
 @given(st.data())
 def test_merge_is_commutative_and_associative(data):
     """Order does not matter, as long as no partial merge swings a heading past ±π.
@@ -141,6 +145,7 @@ def test_merge_with_an_exact_at_returns_it(data):
         assert np.abs(m.cov).max() <= 1e-12
 
 
+@pytest.mark.slow
 @given(st.data())
 def test_merge_never_increases_uncertainty(data):
     """C₃ ⪯ C₁ and C₃ ⪯ C₂ (Loewner order): merging only adds information."""
@@ -174,6 +179,7 @@ def test_operations_preserve_psd(data):
         _wrapped_range(result)
 
 
+@pytest.mark.slow
 @given(st.data())
 def test_chain_equals_pairwise_compounding(data):
     shape = data.draw(SHAPES)

@@ -81,6 +81,7 @@ def _rel(a: np.ndarray, b: np.ndarray) -> float:
 
 
 # ---------------------------------------------------------------------- Monte Carlo
+@pytest.mark.slow
 def test_chain_matches_monte_carlo_within_sampling_error():
     # 8 curved links, correlated within each link, 8.6° heading error per link: first order is
     # visibly wrong here, the exact moments must agree with 2·10⁵ samples to their own error.

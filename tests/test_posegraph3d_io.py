@@ -14,9 +14,6 @@ from relmap.io import PoseGraph, read_graph, write_graph
 from relmap.io.posegraph import QUATERNION_ATOL, file_information
 from relmap.lie import SE3, se3, so3
 
-# every test twice: the general reader, and the numba kernels (relmap.io._text_kernels)
-pytestmark = pytest.mark.usefixtures("both_readers")
-
 # Counts: sphere2500, parking-garage and torus3D from ../shared/data/README.md; the grids counted
 # in the files themselves (the README gives none).
 SHARED_3D = [

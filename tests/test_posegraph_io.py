@@ -16,9 +16,6 @@ from relmap.errors import (
 from relmap.io import PoseGraph, read_graph, write_graph
 from relmap.lie import se2
 
-# every test twice: the general reader, and the numba kernels (relmap.io._text_kernels)
-pytestmark = pytest.mark.usefixtures("both_readers")
-
 # Counts from ../shared/data/README.md.
 SHARED_2D = [
     ("intel.g2o", "g2o", 1728, 2512),

@@ -112,6 +112,7 @@ def test_polar_to_cartesian_is_appendix_b():
     np.testing.assert_allclose(back_cov, cov, rtol=1e-6, atol=1e-12)
 
 
+@pytest.mark.slow
 def test_unscented_mapping_tracks_monte_carlo_where_first_order_does_not():
     """Large bearing error: the true mean is pulled towards the sensor (E[cos φ] = cos φ̂ e^{-σ²/2});
     the unscented mapping follows it, the first-order mapping does not."""
@@ -133,6 +134,7 @@ def test_unscented_mapping_tracks_monte_carlo_where_first_order_does_not():
     assert err_ut.cov_rel_error < err_lin.cov_rel_error
 
 
+@pytest.mark.slow
 def test_merging_in_polar_coordinates_beats_merging_after_mapping():
     """§6.2 step 3: k sensings of one object with a large bearing error. Merged in polar and
     mapped once, the estimate is unbiased to first order and its covariance matches its spread;

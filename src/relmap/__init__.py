@@ -9,26 +9,59 @@ Convention (everywhere): an AT on the edge ``A → B`` is where frame B is in fr
 ``(x, y, θ)`` with θ in [-π, π), covariance 3×3 on ``(x, y, θ)`` in the parent frame A.
 In 3-D (:class:`AT3`) the mean is a translation and a rotation and the covariance is 6×6 on
 ``(δx, δy, δz, δφx, δφy, δφz)``: translation in the parent frame, rotation applied on the left.
+
+Nothing heavy is imported with the package: each name below is imported from its module on first
+use (PEP 562), so ``import relmap`` and the ``relmap`` command's start-up stay light.
 """
 
-import importlib
-from typing import Any
+from __future__ import annotations
 
-from relmap import errors, gaussian, lie, moments
-from relmap.at import AT, compound, compound_chain, merge, reverse
-from relmap.at3 import AT3
-from relmap.gaussian import Ellipse
-from relmap.network import Estimate, RelationalMap
+import importlib
+
+TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (mypy knows the name)
+if TYPE_CHECKING:
+    from typing import Any
+
+    from relmap import decisions, errors, gaussian, lie, moments, montecarlo, propagate
+    from relmap.at import AT, compound, compound_chain, merge, reverse
+    from relmap.at3 import AT3
+    from relmap.gaussian import Ellipse
+    from relmap.network import Estimate, RelationalMap
 
 __version__ = "0.1.0"
 
-_LAZY = ("decisions", "montecarlo", "propagate")  # imported on first use: a faster start-up
+#: The public names and the module each comes from.
+_NAMES = {
+    "AT": "relmap.at",
+    "compound": "relmap.at",
+    "compound_chain": "relmap.at",
+    "merge": "relmap.at",
+    "reverse": "relmap.at",
+    "AT3": "relmap.at3",
+    "Ellipse": "relmap.gaussian",
+    "Estimate": "relmap.network",
+    "RelationalMap": "relmap.network",
+}
+#: The public submodules, available as attributes of the package.
+_MODULES = ("decisions", "errors", "gaussian", "lie", "moments", "montecarlo", "propagate")
 
 
 def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        return importlib.import_module(f"relmap.{name}")
-    raise AttributeError(f"module 'relmap' has no attribute {name!r}")
+    if name in _NAMES:
+        value = getattr(importlib.import_module(_NAMES[name]), name)
+    else:  # a submodule (the public ones in _MODULES; relmap.at, relmap.io, ... too)
+        try:
+            value = importlib.import_module(f"relmap.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name != f"relmap.{name}":
+                raise
+            raise AttributeError(f"module 'relmap' has no attribute {name!r}") from None
+    globals()[name] = value  # later look-ups skip this function
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})
 
 
 __all__ = [

@@ -10,33 +10,22 @@ the §7 "poles" belong to Euler angles, which exist here only as a conversion
 (:meth:`AT3.to_euler`, :meth:`AT3.from_euler`) that detects them.
 
 Compounding, reversal and merging follow Eqs. (1)-(10) with the 3-D Jacobians; batch axes
-broadcast like numpy. Batches are stored entry-major (:mod:`relmap._layout`). What runs:
-
-- for batches of :data:`relmap._numba.LARGE` elements or more, with numba
-  (:func:`relmap._numba.enabled`), compound (with or without ``cross_cov``), reverse and
-  :func:`compound_chain3` run fused kernels (:mod:`relmap._at3_kernels`): one pass over the
-  batch, the propagation in registers, vectorized across the batch. Kernels compile on first
-  use (seconds, once per machine; numba's disk cache after) and the first call in a process
-  pays numba's import and the cache load (about 1 s);
-- otherwise (smaller batches, a single pair, ``RELMAP_NUMBA=0``, no numba) the numpy kernels
-  below: batched compounding and
-  reversal on 3×3 blocks of a chunk of the batch at a time, the Jacobians' structure (a shear
-  and a rotation) written out rather than 6×6 matrix products; a single pair a path of a few
-  numpy calls.
-
-Both give the same values to rounding (the batched kernels bitwise, in the cases tested).
+broadcast like numpy. Batches are stored entry-major (:mod:`relmap._layout`). Compounding and
+reversal run in relmap's compiled core (``relmap._core.compound3`` and ``reverse3``,
+``src/core/se3.cpp``), one implementation for a single pair and for any batch: one pass over the
+batch, each element's propagation on 3×3 blocks (the Jacobians' structure, a shear and a
+rotation, rather than 6×6 matrix products).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
-from types import ModuleType
+from collections.abc import Sequence
 from typing import Literal, overload
 
 import numpy as np
 
-from relmap import _numba, gaussian
+from relmap import _core, gaussian
 from relmap._layout import components_outermost, read_only
 from relmap.errors import ArgumentTypeError, NumericalError, ParameterError, ShapeError
 from relmap.gaussian import DEFAULT_RTOL
@@ -441,16 +430,11 @@ def ellipsoid(cov3: ArrayLike, probability: float = 0.9) -> tuple[FloatArray, Fl
     return k * np.sqrt(np.clip(lam, 0, None)), U
 
 
-# ---------------------------------------------------------------- batched SE(3) kernels
-# A batch of ATs is worked on in relmap's layout (relmap._layout): every entry of every matrix is
-# one contiguous block over the batch, so a 3×3 block of a chunk of the batch is a (3, 3, w)
-# array and the Jacobian sandwiches are a handful of einsum contractions over 3×3 blocks
-# (``Ja = [[I, -[u]×], [0, I]]`` is a shear, ``Jb = blkdiag(R, R)`` a rotation). numpy's
-# batched matmul on 6×6 matrices costs about as much per matrix as the whole sandwich done this
-# way, and working in chunks keeps the scratch in cache.
-
-_CHUNK = 4096  # batch elements per pass: the scratch (~90 planes) stays in the L2 cache
-_es = np.einsum  # optimize=False: one C-level pass, no path search
+# ------------------------------------------------------- compounding and reversal (the core)
+# One implementation for one pair and for any batch: relmap._core's compound3 and reverse3
+# (src/core/se3.cpp) take the batch entry-major, as relmap stores it (relmap._layout): every
+# entry of every matrix one block over the batch, (r, c, N), any strides (a broadcast input has
+# stride 0 along the batch), and return new (4, 4, N) and (6, 6, N) arrays.
 
 
 def _planes(x: FloatArray, batch: tuple[int, ...], size: int) -> FloatArray:
@@ -467,248 +451,29 @@ def _logical(p: FloatArray, batch: tuple[int, ...]) -> FloatArray:
     return p.reshape(*p.shape[:2], *batch).transpose(*range(2, nb + 2), 0, 1)
 
 
-def _new_pose_and_cov(size: int) -> tuple[FloatArray, FloatArray]:
-    T, C = np.empty((4, 4, size)), np.empty((6, 6, size))
-    T[3, :3] = 0.0
-    T[3, 3] = 1.0
-    return T, C
-
-
-def _write_cov(
-    out: FloatArray, A: FloatArray, E: FloatArray, D: FloatArray, tmp: FloatArray
-) -> None:
-    """Write the (6, 6, w) ``out``, once and exactly symmetric, from its blocks (0, 0) ``A``,
-    (0, 1) ``E`` and (1, 1) ``D`` (each (3, 3, w) scratch; A and D symmetric up to rounding,
-    made exact by averaging with their transposes)."""
-    np.copyto(out[:3, 3:], E)
-    np.copyto(out[3:, :3], E.transpose(1, 0, 2))
-    for blk, dst in ((A, out[:3, :3]), (D, out[3:, 3:])):
-        _add(blk, blk.transpose(1, 0, 2), out=tmp)
-        np.multiply(tmp, 0.5, out=dst)
-
-
-_add, _sub = np.add, np.subtract
-
-
-def _shear(C: FloatArray, u: FloatArray, out: FloatArray, S: FloatArray, tmp: FloatArray) -> None:
-    """Blocks (0, 0) and (0, 1) of ``Ja C Jaᵀ`` into ``out`` (3, 6, w): ``E = B - [u]× D`` and
-    ``A - [u]× Bᵀ - E [u]×ᵀ``; block (1, 1) is C's own D. ``S`` (3, 3, w) receives ``[u]×``
-    (its diagonal must be zero), ``tmp`` (3, 3, w) is scratch."""
-    A, B, D = C[:3, :3], C[:3, 3:], C[3:, 3:]
-    E = out[:, 3:]
-    np.negative(u[2], out=S[0, 1])  # [u]× (its diagonal stays zero)
-    np.copyto(S[0, 2], u[1])
-    np.copyto(S[1, 0], u[2])
-    np.negative(u[0], out=S[1, 2])
-    np.negative(u[1], out=S[2, 0])
-    np.copyto(S[2, 1], u[0])
-    _es("ijw,jkw->ikw", S, D, out=tmp)
-    _sub(B, tmp, out=E)
-    _es("ijw,kjw->ikw", S, B, out=tmp)  # [u]× Bᵀ
-    _sub(A, tmp, out=out[:, :3])
-    _es("ijw,kjw->ikw", E, S, out=tmp)  # E [u]×ᵀ
-    _sub(out[:, :3], tmp, out=out[:, :3])
-
-
-def _rotate(top: FloatArray, D: FloatArray, R: FloatArray, Z: FloatArray, W: FloatArray) -> None:
-    """``Jb C Jbᵀ`` for C with top rows ``top`` (3, 6, w) and block (1, 1) ``D``: W[0] and W[1]
-    get its blocks (0, 0) and (0, 1), W[2] its block (1, 1). Z: (3, 9, w) scratch."""
-    _es("ijw,jcw->icw", R, top, out=Z[:, :6])
-    _es("ijw,jcw->icw", R, D, out=Z[:, 6:])
-    for k, zs in enumerate((Z[:, 0:3], Z[:, 3:6], Z[:, 6:9])):
-        _es("ilw,klw->ikw", zs, R, out=W[k])
-
-
-_KERNELS: list[ModuleType] = []  # relmap._at3_kernels once imported (numba's import is ~0.3 s)
-
-
-def _kernels(size: int) -> ModuleType | None:
-    """The fused numba kernels (:mod:`relmap._at3_kernels`) when they run for a batch of
-    ``size`` elements (:func:`relmap._numba.enabled`), else None (the numpy kernels here run)."""
-    if not _numba.enabled(size):
-        return None
-    if not _KERNELS:
-        from relmap import _at3_kernels
-
-        _KERNELS.append(_at3_kernels)
-    return _KERNELS[0]
-
-
-_KERNEL_CHUNK = 8192  # elements per kernel call when inputs must be copied to C order
-
-
-def _run(
-    kernel: Callable[..., tuple[FloatArray, FloatArray]],
-    planes: tuple[FloatArray, ...],
-    N: int,
-) -> tuple[FloatArray, FloatArray]:
-    """A batched numba kernel on entry-major planes (r, c, N) → new (4, 4, N), (6, 6, N).
-
-    The kernels read C-contiguous planes (relmap's own layout). Other views (slices of a larger
-    batch, one AT3 broadcast against a batch) are copied to C order, in slices of
-    _KERNEL_CHUNK elements for a large batch so that the copies stay small."""
-    planes = tuple(np.asarray(p, dtype=np.float64) for p in planes)
-    if N <= _KERNEL_CHUNK or all(p.flags.c_contiguous for p in planes):
-        return kernel(*(np.ascontiguousarray(p) for p in planes))  # type: ignore[no-any-return]
-    To, Co = np.empty((4, 4, N)), np.empty((6, 6, N))
-    for s in range(0, N, _KERNEL_CHUNK):
-        e = min(N, s + _KERNEL_CHUNK)
-        To[..., s:e], Co[..., s:e] = kernel(*(np.ascontiguousarray(p[..., s:e]) for p in planes))
-    return To, Co
-
-
 def _compound_batched(a: AT3, b: AT3, X: FloatArray | None, batch: tuple[int, ...]) -> AT3:
     N = math.prod(batch)
-    Ta, Ca = _planes(a._mean, batch, N), _planes(a._cov, batch, N)
-    Tb, Cb = _planes(b._mean, batch, N), _planes(b._cov, batch, N)
-    Xp = None if X is None else _planes(X, batch, N)
-    kernels = _kernels(N)
-    if kernels is not None:
-        if Xp is None:
-            To, Co = _run(kernels.compound_batched, (Ta, Ca, Tb, Cb), N)
-        else:
-            To, Co = _run(kernels.compound_cross_batched, (Ta, Ca, Tb, Cb, Xp), N)
-        return AT3._own(_logical(To, batch), _logical(Co, batch))
-    To, Co = _new_pose_and_cov(N)
-    m = min(N, _CHUNK)
-    scratch = np.empty((3 + 27 + 27 + 9 + 9 + 18 + (0 if X is None else 72), m))
-    scratch[57:66:4] = 0.0  # the diagonal of [u]× (S below)
-    for s in range(0, N, _CHUNK):
-        e = min(N, s + _CHUNK)
-        w = e - s
-        sc = scratch[:, :w]
-        u, Z, W = sc[0:3], sc[3:30].reshape(3, 9, w), sc[30:57].reshape(3, 3, 3, w)
-        S, tmp, top = (
-            sc[57:66].reshape(3, 3, w),
-            sc[66:75].reshape(3, 3, w),
-            sc[75:93].reshape(3, 6, w),
-        )
-        ta, tb, to = Ta[..., s:e], Tb[..., s:e], To[..., s:e]
-        ca, cb, co = Ca[..., s:e], Cb[..., s:e], Co[..., s:e]
-        R = ta[:3, :3]
-        # the mean: Ra [Rb tb], then t = ta + u with u = Ra tb (summed in scratch, stored once)
-        _es("ijw,jkw->ikw", R, tb[:3], out=Z[:, :4])
-        np.copyto(to[:3, :3], Z[:, :3])
-        np.copyto(u, Z[:, 3])
-        _add(u, ta[:3, 3], out=to[:3, 3])
-        _shear(ca, u, top, S, tmp)  # Ja Ca Jaᵀ: blocks (0, 0), (0, 1); (1, 1) is Ca's
-        _rotate(cb[:3], cb[3:, 3:], R, Z, W)  # Jb Cb Jbᵀ
-        _add(top[:, :3], W[0], out=W[0])
-        _add(top[:, 3:], W[1], out=W[1])
-        _add(ca[3:, 3:], W[2], out=W[2])
-        if Xp is not None:  # + K + Kᵀ with K = Ja X Jbᵀ
-            K, Y = sc[93:129].reshape(6, 6, w), sc[129:165].reshape(6, 6, w)
-            _es("rlw,klw->rkw", Xp[:, :3, s:e], R, out=Y[:, :3])  # Y = X Jbᵀ
-            _es("rlw,klw->rkw", Xp[:, 3:, s:e], R, out=Y[:, 3:])
-            _es("ijw,jcw->icw", S, Y[3:], out=K[:3])  # S still holds [u]×
-            _sub(Y[:3], K[:3], out=K[:3])
-            np.copyto(K[3:], Y[3:])
-            _add(K, K.transpose(1, 0, 2), out=Y)  # exactly symmetric
-            _add(W[0], Y[:3, :3], out=W[0])
-            _add(W[1], Y[:3, 3:], out=W[1])
-            _add(W[2], Y[3:, 3:], out=W[2])
-        _write_cov(co, W[0], W[1], W[2], tmp)
+    To, Co = _core.compound3(
+        _planes(a._mean, batch, N),
+        _planes(a._cov, batch, N),
+        _planes(b._mean, batch, N),
+        _planes(b._cov, batch, N),
+        None if X is None else _planes(X, batch, N),
+    )
     return AT3._own(_logical(To, batch), _logical(Co, batch))
 
 
 def _reverse_batched(a: AT3) -> AT3:
     batch = a.batch_shape
     N = math.prod(batch)
-    T, C = _planes(a._mean, batch, N), _planes(a._cov, batch, N)
-    kernels = _kernels(N)
-    if kernels is not None:
-        To, Co = _run(kernels.reverse_batched, (T, C), N)
-        return AT3._own(_logical(To, batch), _logical(Co, batch))
-    To, Co = _new_pose_and_cov(N)
-    m = min(N, _CHUNK)
-    scratch = np.empty((3 + 27 + 27 + 18 + 9 + 9, m))
-    scratch[75:84:4] = 0.0  # the diagonal of [u]× (S below)
-    for s in range(0, N, _CHUNK):
-        e = min(N, s + _CHUNK)
-        w = e - s
-        sc = scratch[:, :w]
-        u, Z, W = sc[0:3], sc[3:30].reshape(3, 9, w), sc[30:57].reshape(3, 3, 3, w)
-        top, S, tmp = (
-            sc[57:75].reshape(3, 6, w),
-            sc[75:84].reshape(3, 3, w),
-            sc[84:93].reshape(3, 3, w),
-        )
-        t, to, c, co = T[..., s:e], To[..., s:e], C[..., s:e], Co[..., s:e]
-        Rt = t[:3, :3].transpose(1, 0, 2)
-        # the inverse (Rᵀ, -Rᵀ t)
-        np.copyto(to[:3, :3], Rt)
-        _es("ijw,jw->iw", Rt, t[:3, 3], out=Z[:, 0])
-        np.negative(Z[:, 0], out=to[:3, 3])
-        # J = -blkdiag(Rᵀ, Rᵀ) [[I, [t]×], [0, I]]: a shear with u = -t, then a rotation by Rᵀ
-        np.negative(t[:3, 3], out=u)
-        _shear(c, u, top, S, tmp)
-        _rotate(top, c[3:, 3:], Rt, Z, W)
-        _write_cov(co, W[0], W[1], W[2], tmp)
+    To, Co = _core.reverse3(_planes(a._mean, batch, N), _planes(a._cov, batch, N))
     return AT3._own(_logical(To, batch), _logical(Co, batch))
-
-
-def _compound_one(
-    T1: FloatArray, C1: FloatArray, T2: FloatArray, C2: FloatArray, X: FloatArray | None
-) -> AT3:
-    """One pair (no batch axes): the Jacobian ``J = [Ja Jb]`` (6×12) from Python floats, then
-    ``J [[C1, X], [Xᵀ, C2]] Jᵀ`` in two matrix products; a few numpy calls in all."""
-    (r00, r01, r02, _), (r10, r11, r12, _), (r20, r21, r22, _), _ = T1.tolist()
-    (_, _, _, b0), (_, _, _, b1), (_, _, _, b2), _ = T2.tolist()
-    u0 = r00 * b0 + r01 * b1 + r02 * b2  # R_a t_b
-    u1 = r10 * b0 + r11 * b1 + r12 * b2
-    u2 = r20 * b0 + r21 * b1 + r22 * b2
-    J = np.array(
-        [
-            *(1.0, 0.0, 0.0, 0.0, u2, -u1, r00, r01, r02, 0.0, 0.0, 0.0),
-            *(0.0, 1.0, 0.0, -u2, 0.0, u0, r10, r11, r12, 0.0, 0.0, 0.0),
-            *(0.0, 0.0, 1.0, u1, -u0, 0.0, r20, r21, r22, 0.0, 0.0, 0.0),
-            *(0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, r00, r01, r02),
-            *(0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, r10, r11, r12),
-            *(0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, r20, r21, r22),
-        ]
-    ).reshape(6, 12)
-    big = np.zeros((12, 12))
-    big[:6, :6] = C1
-    big[6:, 6:] = C2
-    if X is not None:
-        big[:6, 6:] = X
-        big[6:, :6] = X.T
-    C = J @ big @ J.T
-    C += C.T
-    C *= 0.5
-    return AT3._own(T1 @ T2, C)
-
-
-def _reverse_one(T: FloatArray, C: FloatArray) -> AT3:
-    """One AT3: ``J = -[[Rᵀ, Rᵀ [t]×], [0, Rᵀ]]`` from Python floats (its sign cancels)."""
-    (r00, r01, r02, x0), (r10, r11, r12, x1), (r20, r21, r22, x2), _ = T.tolist()
-    v0 = r00 * x0 + r10 * x1 + r20 * x2  # Rᵀ t
-    v1 = r01 * x0 + r11 * x1 + r21 * x2
-    v2 = r02 * x0 + r12 * x1 + r22 * x2
-    # M = [[Rᵀ, Rᵀ [t]×], [0, Rᵀ]] (row i of Rᵀ [t]× is (Rᵀ)ᵢ × t), then T⁻¹
-    flat = np.array(
-        [
-            *(r00, r10, r20, r10 * x2 - r20 * x1, r20 * x0 - r00 * x2, r00 * x1 - r10 * x0),
-            *(r01, r11, r21, r11 * x2 - r21 * x1, r21 * x0 - r01 * x2, r01 * x1 - r11 * x0),
-            *(r02, r12, r22, r12 * x2 - r22 * x1, r22 * x0 - r02 * x2, r02 * x1 - r12 * x0),
-            *(0.0, 0.0, 0.0, r00, r10, r20),
-            *(0.0, 0.0, 0.0, r01, r11, r21),
-            *(0.0, 0.0, 0.0, r02, r12, r22),
-            *(r00, r10, r20, -v0, r01, r11, r21, -v1, r02, r12, r22, -v2, 0.0, 0.0, 0.0, 1.0),
-        ]
-    )
-    M = flat[:36].reshape(6, 6)
-    out = M @ C @ M.T
-    out += out.T
-    out *= 0.5
-    return AT3._own(flat[36:].reshape(4, 4), out)
 
 
 def compound3(a: AT3, b: AT3, *, cross_cov: ArrayLike | None = None) -> AT3:
     """``a ⊕ b`` in 3-D: ``C = J_a C_a J_aᵀ + J_b C_b J_bᵀ`` (+ the cross terms of a dependent
     pair, ``cross_cov = E[δa δbᵀ]`` (..., 6, 6)), with ``J_a = [[I, -[R_a t_b]×], [0, I]]``,
-    ``J_b = blkdiag(R_a, R_a)`` (:func:`relmap.lie.se3.compose`). Runs the numba kernels when
-    enabled, else the numpy ones (module docstring)."""
+    ``J_b = blkdiag(R_a, R_a)`` (:func:`relmap.lie.se3.compose`)."""
     for i, x in enumerate((a, b)):
         if not isinstance(x, AT3):
             raise ArgumentTypeError(f"argument {i} is a {type(x).__name__}, not an AT3")
@@ -718,10 +483,6 @@ def compound3(a: AT3, b: AT3, *, cross_cov: ArrayLike | None = None) -> AT3:
 
         X = _cross_cov(a._cov, b._cov, cross_cov, 6)
     Ta, Tb = a._mean, b._mean
-    if Ta.ndim == 2 and Tb.ndim == 2 and (X is None or X.ndim == 2):
-        out = _compound_one(Ta, a._cov, Tb, b._cov, X)
-        _finite("compound", out._mean, out._cov)
-        return out
     batch = Ta.shape[:-2]
     try:
         if Tb.shape[:-2] != batch:
@@ -736,21 +497,13 @@ def compound3(a: AT3, b: AT3, *, cross_cov: ArrayLike | None = None) -> AT3:
     return out
 
 
-_SCAN_BELOW = 32  # chains: fewer than this are scanned one at a time (lanes would go unused)
-
-
 def compound_chain3(steps: AT3, *, axis: int = -1) -> AT3:
     """Every prefix ``A₁ ⊕ A₂ ⊕ … ⊕ A_k`` of the chains laid along batch ``axis`` of ``steps``.
 
     Returns an AT3 of the same batch shape whose element k along ``axis`` is frame k in the
-    chain's first parent frame, for independent steps (Eq. 4's assumption): the same values as
-    compounding one step at a time, ``acc = acc @ step`` (to rounding; bitwise in the numba
-    kernel), in one call. With numba (:func:`relmap._numba.enabled`) one kernel pass over the
-    steps, step-major: vectorized across the chains (32 or more; fewer are scanned one at a
-    time, the running prefix in registers). Step-major is relmap's storage when ``axis`` is the
-    first batch axis; for another axis the steps are first copied in that order (one more pass
-    over memory). Without numba (or for fewer than :data:`relmap._numba.LARGE` elements), one
-    batched :func:`compound3` per step along ``axis``.
+    chain's first parent frame, for independent steps (Eq. 4's assumption): compounding one step
+    at a time, ``acc = acc @ step``, one batched :func:`compound3` per step along ``axis``
+    (vectorized across the chains).
     """
     if not isinstance(steps, AT3):
         raise ArgumentTypeError(f"expected an AT3, got {type(steps).__name__}")
@@ -767,28 +520,11 @@ def compound_chain3(steps: AT3, *, axis: int = -1) -> AT3:
         )
     if 0 in batch:  # no chains: no prefixes either
         return steps
-    kernels = _kernels(math.prod(batch))
-    if kernels is None:
-        out = [steps[(slice(None),) * axis + (0,)]]
-        for k in range(1, batch[axis]):
-            out.append(out[-1] @ steps[(slice(None),) * axis + (k,)])
-        return AT3.stack(out, axis=axis)
-    # step-major planes (4, 4, L, M), the chain axis first among the batch axes: a view for
-    # relmap's layout when the chain axis is the first batch axis; a copy otherwise
-    moved = (batch[axis], *batch[:axis], *batch[axis + 1 :])
-    L, M = moved[0], math.prod(moved[1:])
-    planes = []
-    for x in (steps._mean, steps._cov):
-        x = np.moveaxis(x, axis, 0)
-        nd = x.ndim
-        p = x.transpose(nd - 2, nd - 1, *range(nd - 2))
-        planes.append(np.ascontiguousarray(p).reshape(*p.shape[:2], L, M))
-    # vectorized across the chains; fewer than _SCAN_BELOW are scanned one at a time
-    chain = kernels.compound_chain if M >= _SCAN_BELOW else kernels.compound_chain_scan
-    To, Co = chain(*planes)
-    T, C = (np.moveaxis(_logical(p.reshape(*p.shape[:2], -1), moved), 0, axis) for p in (To, Co))
-    _finite("compound_chain", T, C)
-    return AT3._trusted(T, C)
+    index = (slice(None),) * axis
+    out = [steps[(*index, 0)]]
+    for k in range(1, steps.batch_shape[axis]):
+        out.append(out[-1] @ steps[(*index, k)])
+    return AT3.stack(out, axis=axis)
 
 
 @overload
@@ -797,11 +533,10 @@ def reverse3(a: AT3, *, jacobian: Literal[False] = ...) -> AT3: ...
 def reverse3(a: AT3, *, jacobian: Literal[True]) -> tuple[AT3, FloatArray]: ...
 def reverse3(a: AT3, *, jacobian: bool = False) -> AT3 | tuple[AT3, FloatArray]:
     """``Aᴿ`` in 3-D: ``C' = J C Jᵀ`` with J the inverse's Jacobian (returned too with
-    ``jacobian=True``; A's cross-covariance with its reversal is then ``C Jᵀ``). Runs the numba
-    kernels when enabled, else the numpy ones (module docstring); the Jacobian is numpy's."""
+    ``jacobian=True``; A's cross-covariance with its reversal is then ``C Jᵀ``)."""
     if not isinstance(a, AT3):
         raise ArgumentTypeError(f"expected an AT3, got {type(a).__name__}")
-    out = _reverse_one(a._mean, a._cov) if a._mean.ndim == 2 else _reverse_batched(a)
+    out = _reverse_batched(a)
     _finite("reverse", out._mean, out._cov)
     if jacobian:
         return out, se3.inverse(a._mean, jacobians=True)[1]

@@ -93,7 +93,7 @@ from typing import Literal, NamedTuple, TypeVar
 import numpy as np
 import numpy.typing as npt
 
-from relmap import _numba, gaussian
+from relmap import gaussian
 from relmap.at import AT
 from relmap.at3 import AT3
 from relmap.errors import (
@@ -304,41 +304,6 @@ class _Table(NamedTuple):
     lines: list[int]  # 1-based line numbers
     ids: IntArray  # (k, n_ids)
     values: FloatArray  # (k, n_values)
-
-
-def _read_fast(path: Path, text: str) -> tuple[_Spec, _Table, _Table] | None:
-    """The format, the vertex records and the edge records of a large file, read by the numba
-    kernels of :mod:`relmap.io._text_kernels` in one pass each over its bytes — or None, and the
-    general path reads it: numba off, a file of fewer vertices than the solver would hand to
-    its kernels (the first kernel call in a process costs ~0.35 s, while the kernels save ~2 µs
-    a line: 103 against 41 ms on city10000), a ``FIX`` record, or anything the kernels do not
-    take (the general path then names the error). Both paths give identical arrays."""
-    if not _numba.enabled(text.count("VERTEX")):  # every vertex tag has it
-        return None
-    from relmap.io import _text_kernels as kernels
-
-    buf = np.frombuffer(text.encode("utf-8"), dtype=np.uint8)
-    start, end, first, n_lines = kernels.tags(buf)
-    if n_lines < 0:
-        return None
-    first_line = {
-        buf[s:e].tobytes().decode("ascii"): int(f)
-        for s, e, f in zip(start, end, first, strict=True)
-    }
-    spec = _classify(path, first_line)
-    if not set(first_line) <= {spec.vertex, spec.edge}:
-        return None
-    tables = []
-    n_edge_values = spec.measurement_size + len(spec.info_order)
-    for tag, n_ids, n_values in ((spec.vertex, 1, spec.pose_size), (spec.edge, 2, n_edge_values)):
-        word = np.frombuffer(tag.encode("ascii"), dtype=np.uint8)
-        lines, ids, values, slow, bad = kernels.records(buf, word, n_ids, n_values, n_lines)
-        if bad >= 0:
-            return None
-        for row, col, s, e in slow.tolist():  # numbers beyond the exact fast path
-            values[row, col] = float(buf[s:e].tobytes())
-        tables.append(_Table(lines.tolist(), ids, values))
-    return spec, tables[0], tables[1]
 
 
 def _parse(
@@ -570,27 +535,21 @@ def graph_from_text(p: Path, text: str) -> PoseGraph:
     file ``p`` (named in errors): a pipe can be read only once."""
     fixed_list: list[int] = []
     fixed_lines: list[int] = []
-    fast = _read_fast(p, text)
-    if fast is not None:
-        spec, vtx, edg = fast
-    else:
-        spec, groups = _group(p, text)
-        empty = _Records([], [])
-        records = groups.get(spec.vertex, empty)
-        vtx = _Table(
-            records.lines, *_parse(p, spec.vertex, records, 1, spec.pose_size, spec.vertex_fields)
-        )
-        records = groups.get(spec.edge, empty)
-        n_edge_values = spec.measurement_size + len(spec.info_order)
-        edg = _Table(
-            records.lines, *_parse(p, spec.edge, records, 2, n_edge_values, spec.edge_fields)
-        )
-        for line, rest in zip(*groups.get(spec.fix or "", empty), strict=True):
-            if not rest.split():
-                raise FileFormatError(p, "FIX needs at least one vertex id", line=line)
-            for tok in rest.split():
-                fixed_list.append(_int(p, "FIX", tok, line))
-                fixed_lines.append(line)
+    spec, groups = _group(p, text)
+    empty = _Records([], [])
+    records = groups.get(spec.vertex, empty)
+    vtx = _Table(
+        records.lines, *_parse(p, spec.vertex, records, 1, spec.pose_size, spec.vertex_fields)
+    )
+    records = groups.get(spec.edge, empty)
+    n_edge_values = spec.measurement_size + len(spec.info_order)
+    edg = _Table(records.lines, *_parse(p, spec.edge, records, 2, n_edge_values, spec.edge_fields))
+    for line, rest in zip(*groups.get(spec.fix or "", empty), strict=True):
+        if not rest.split():
+            raise FileFormatError(p, "FIX needs at least one vertex id", line=line)
+        for tok in rest.split():
+            fixed_list.append(_int(p, "FIX", tok, line))
+            fixed_lines.append(line)
     vertex_ids, poses = vtx.ids[:, 0], vtx.values
     edge_ids, edge_values = edg.ids, edg.values
     fixed = np.array(fixed_list, dtype=np.int64)

@@ -13,11 +13,68 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from relmap._at3_kernels import _hat, _mm, _mmt, _mv, _tr
 from relmap._numba_math import wrap as _wrap
 from relmap.typing import FloatArray, IntArray
 
 __all__ = ["hessian_blocks", "planar", "se3_residuals"]
+
+_inline = numba.njit(cache=True, fastmath=False, inline="always")
+
+# 3×3 blocks (row-major 9-tuples) and 3-vectors as tuples (moved here from relmap._at3_kernels,
+# whose SE(3) kernels became relmap._core's)
+
+
+@_inline
+def _mm(a, b):  # type: ignore[no-untyped-def]
+    """a @ b."""
+    return (
+        a[0] * b[0] + a[1] * b[3] + a[2] * b[6],
+        a[0] * b[1] + a[1] * b[4] + a[2] * b[7],
+        a[0] * b[2] + a[1] * b[5] + a[2] * b[8],
+        a[3] * b[0] + a[4] * b[3] + a[5] * b[6],
+        a[3] * b[1] + a[4] * b[4] + a[5] * b[7],
+        a[3] * b[2] + a[4] * b[5] + a[5] * b[8],
+        a[6] * b[0] + a[7] * b[3] + a[8] * b[6],
+        a[6] * b[1] + a[7] * b[4] + a[8] * b[7],
+        a[6] * b[2] + a[7] * b[5] + a[8] * b[8],
+    )
+
+
+@_inline
+def _mmt(a, b):  # type: ignore[no-untyped-def]
+    """a @ bᵀ."""
+    return (
+        a[0] * b[0] + a[1] * b[1] + a[2] * b[2],
+        a[0] * b[3] + a[1] * b[4] + a[2] * b[5],
+        a[0] * b[6] + a[1] * b[7] + a[2] * b[8],
+        a[3] * b[0] + a[4] * b[1] + a[5] * b[2],
+        a[3] * b[3] + a[4] * b[4] + a[5] * b[5],
+        a[3] * b[6] + a[4] * b[7] + a[5] * b[8],
+        a[6] * b[0] + a[7] * b[1] + a[8] * b[2],
+        a[6] * b[3] + a[7] * b[4] + a[8] * b[5],
+        a[6] * b[6] + a[7] * b[7] + a[8] * b[8],
+    )
+
+
+@_inline
+def _tr(a):  # type: ignore[no-untyped-def]
+    return (a[0], a[3], a[6], a[1], a[4], a[7], a[2], a[5], a[8])
+
+
+@_inline
+def _mv(a, v):  # type: ignore[no-untyped-def]
+    """a @ v."""
+    return (
+        a[0] * v[0] + a[1] * v[1] + a[2] * v[2],
+        a[3] * v[0] + a[4] * v[1] + a[5] * v[2],
+        a[6] * v[0] + a[7] * v[1] + a[8] * v[2],
+    )
+
+
+@_inline
+def _hat(u):  # type: ignore[no-untyped-def]
+    """[u]× (its zeros take part in the products, as in the numpy path)."""
+    return (0.0, -u[2], u[1], u[2], 0.0, -u[0], -u[1], u[0], 0.0)
 
 
 @numba.njit(cache=True)
@@ -191,8 +248,8 @@ def se3_residuals(
 
     (:func:`relmap.lie.se3.between`'s Jacobians, with ``R_iᵀ [t_i]× = [R_iᵀ t_i]× R_iᵀ``
     folded in, times the residual's Jacobian). Log and J_l⁻¹ as in :mod:`relmap.lie.so3`,
-    with its small-angle series and its branch near π; 3×3 algebra on the tuples of
-    :mod:`relmap._at3_kernels`."""
+    with its small-angle series and its branch near π; 3×3 algebra on tuples (the
+    helpers above)."""
     m = len(i)
     r = np.empty((m, 6))
     Ji = np.zeros((m, 6, 6))

@@ -1,0 +1,305 @@
+// SE(3) compounding and reversal with first-order covariance over a batch (relmap.at3).
+//
+// Conventions (relmap.at3, docs/architecture.md): a pose is a homogeneous 4×4 matrix, its
+// covariance 6×6 on (δt, δφ): translation perturbation in the parent frame, rotation
+// perturbation on the left, T' = (t + δt, Exp(δφ) R). Batches arrive entry-major, as relmap
+// stores them: poses (4, 4, N), covariances (6, 6, N), any strides (a stride of 0 broadcasts one
+// input against the batch); outputs are new C-contiguous (4, 4, N) and (6, 6, N) arrays.
+//
+// The Jacobians' structure is used, not 6×6 products: compounding's J_a = [[I, S], [0, I]]
+// with S = -[R_a t_b]× is a shear, J_b = blkdiag(R_a, R_a) a rotation; the reversal's
+// J = -blkdiag(Rᵀ, Rᵀ) [[I, [t]×], [0, I]] a shear and a rotation (its sign cancels). Output
+// covariances are exactly symmetric (diagonal blocks averaged with their transposes).
+//
+// The batch is worked on in chunks of W elements, each quantity a row of W lanes (the layout
+// relmap stores), so that every loop below runs over lanes and the compiler vectorizes it.
+#include "se3.hpp"
+
+#include <algorithm>
+#include <cstddef>
+#include <cstdint>
+#include <initializer_list>
+#include <optional>
+
+#include <nanobind/stl/optional.h>
+
+namespace relmap {
+namespace {
+
+using Pose = nb::ndarray<const double, nb::shape<4, 4, -1>, nb::device::cpu>;
+using Cov = nb::ndarray<const double, nb::shape<6, 6, -1>, nb::device::cpu>;
+using PoseOut = nb::ndarray<nb::numpy, double, nb::shape<4, 4, -1>, nb::c_contig>;
+using CovOut = nb::ndarray<nb::numpy, double, nb::shape<6, 6, -1>, nb::c_contig>;
+
+constexpr size_t W = 32;  // batch elements per chunk (lanes): a chunk's blocks stay in L1
+
+using Lanes = double[W];
+struct M3 {  // a 3×3 block of W elements, row-major: m[3 i + j][lane]
+    Lanes m[9];
+};
+struct V3 {
+    Lanes v[3];
+};
+
+// Rows (r0..r0+3, c0..c0+3) of a chunk of an entry-major (R, C, N) array (any strides) into a
+// 3×3 block; lanes beyond w are zero.
+template <class A>
+void load(const A& a, size_t r0, size_t c0, size_t n0, size_t w, M3& out) {
+    const double* p = a.data();
+    const int64_t s0 = a.stride(0), s1 = a.stride(1), s2 = a.stride(2);
+    for (size_t i = 0; i < 3; ++i)
+        for (size_t j = 0; j < 3; ++j) {
+            const double* q = p + int64_t(r0 + i) * s0 + int64_t(c0 + j) * s1 + int64_t(n0) * s2;
+            double* o = out.m[3 * i + j];
+            if (s2 == 1)
+                std::copy(q, q + w, o);
+            else
+                for (size_t l = 0; l < w; ++l) o[l] = q[int64_t(l) * s2];
+            std::fill(o + w, o + W, 0.0);
+        }
+}
+
+template <class A>
+void load_column(const A& a, size_t c, size_t n0, size_t w, V3& out) {
+    const double* p = a.data();
+    const int64_t s0 = a.stride(0), s1 = a.stride(1), s2 = a.stride(2);
+    for (size_t i = 0; i < 3; ++i) {
+        const double* q = p + int64_t(i) * s0 + int64_t(c) * s1 + int64_t(n0) * s2;
+        if (s2 == 1)
+            std::copy(q, q + w, out.v[i]);
+        else
+            for (size_t l = 0; l < w; ++l) out.v[i][l] = q[int64_t(l) * s2];
+        std::fill(out.v[i] + w, out.v[i] + W, 0.0);
+    }
+}
+
+inline void put(double* out, size_t N, size_t entry, size_t n0, size_t w, const double* lanes) {
+    std::copy(lanes, lanes + w, out + entry * N + n0);
+}
+
+inline void mul(const M3& a, const M3& b, M3& o) {  // o = a b (o distinct from a, b)
+    for (size_t i = 0; i < 3; ++i)
+        for (size_t j = 0; j < 3; ++j)
+            for (size_t l = 0; l < W; ++l)
+                o.m[3 * i + j][l] = a.m[3 * i][l] * b.m[j][l] + a.m[3 * i + 1][l] * b.m[3 + j][l] +
+                                    a.m[3 * i + 2][l] * b.m[6 + j][l];
+}
+
+inline void mul_t(const M3& a, const M3& b, M3& o) {  // o = a bᵀ
+    for (size_t i = 0; i < 3; ++i)
+        for (size_t j = 0; j < 3; ++j)
+            for (size_t l = 0; l < W; ++l)
+                o.m[3 * i + j][l] = a.m[3 * i][l] * b.m[3 * j][l] +
+                                    a.m[3 * i + 1][l] * b.m[3 * j + 1][l] +
+                                    a.m[3 * i + 2][l] * b.m[3 * j + 2][l];
+}
+
+inline void t_mul(const M3& a, const M3& b, M3& o) {  // o = aᵀ b
+    for (size_t i = 0; i < 3; ++i)
+        for (size_t j = 0; j < 3; ++j)
+            for (size_t l = 0; l < W; ++l)
+                o.m[3 * i + j][l] = a.m[i][l] * b.m[j][l] + a.m[3 + i][l] * b.m[3 + j][l] +
+                                    a.m[6 + i][l] * b.m[6 + j][l];
+}
+
+inline void add_to(M3& a, const M3& b) {  // a += b
+    for (size_t k = 0; k < 9; ++k)
+        for (size_t l = 0; l < W; ++l) a.m[k][l] += b.m[k][l];
+}
+
+inline void add_t_to(M3& a, const M3& b) {  // a += bᵀ
+    for (size_t i = 0; i < 3; ++i)
+        for (size_t j = 0; j < 3; ++j)
+            for (size_t l = 0; l < W; ++l) a.m[3 * i + j][l] += b.m[3 * j + i][l];
+}
+
+inline void hat(const V3& u, double sign, M3& o) {  // o = sign [u]×
+    for (size_t l = 0; l < W; ++l) {
+        o.m[0][l] = o.m[4][l] = o.m[8][l] = 0.0;
+        o.m[1][l] = -sign * u.v[2][l];
+        o.m[2][l] = sign * u.v[1][l];
+        o.m[3][l] = sign * u.v[2][l];
+        o.m[5][l] = -sign * u.v[0][l];
+        o.m[6][l] = -sign * u.v[1][l];
+        o.m[7][l] = sign * u.v[0][l];
+    }
+}
+
+// R M Rᵀ (rotate, R_left = false: Rᵀ M R) into o; tmp is scratch.
+inline void rotate(const M3& R, const M3& M, bool transpose, M3& tmp, M3& o) {
+    if (transpose) {
+        t_mul(R, M, tmp);
+        mul(tmp, R, o);
+    } else {
+        mul(R, M, tmp);
+        mul_t(tmp, R, o);
+    }
+}
+
+// The shear [[I, S], [0, I]] C [[I, S], [0, I]]ᵀ of C = [[A, B], [Bᵀ, D]]: its block (0, 1)
+// B + S D into e, then (0, 0) A + S Bᵀ + e Sᵀ into a; block (1, 1) stays D. tmp is scratch.
+inline void shear(const M3& S, const M3& A, const M3& B, const M3& D, M3& tmp, M3& a, M3& e) {
+    mul(S, D, e);
+    add_to(e, B);
+    mul_t(S, B, a);
+    add_to(a, A);
+    mul_t(e, S, tmp);
+    add_to(a, tmp);
+}
+
+// Writes a chunk's covariances from blocks (0, 0) a, (0, 1) e, (1, 1) d; a and d (symmetric to
+// rounding) averaged with their transposes so that the result is exactly symmetric.
+void write_cov(double* out, size_t N, size_t n0, size_t w, const M3& a, const M3& e, const M3& d) {
+    Lanes s;
+    for (size_t i = 0; i < 3; ++i)
+        for (size_t j = 0; j < 3; ++j) {
+            for (size_t l = 0; l < W; ++l) s[l] = 0.5 * (a.m[3 * i + j][l] + a.m[3 * j + i][l]);
+            put(out, N, 6 * i + j, n0, w, s);
+            for (size_t l = 0; l < W; ++l) s[l] = 0.5 * (d.m[3 * i + j][l] + d.m[3 * j + i][l]);
+            put(out, N, 6 * (3 + i) + 3 + j, n0, w, s);
+            put(out, N, 6 * i + 3 + j, n0, w, e.m[3 * i + j]);
+            put(out, N, 6 * (3 + j) + i, n0, w, e.m[3 * i + j]);
+        }
+}
+
+void write_pose(double* out, size_t N, size_t n0, size_t w, const M3& R, const V3& t) {
+    Lanes zero, one;
+    std::fill(zero, zero + W, 0.0);
+    std::fill(one, one + W, 1.0);
+    for (size_t i = 0; i < 3; ++i) {
+        for (size_t j = 0; j < 3; ++j) put(out, N, 4 * i + j, n0, w, R.m[3 * i + j]);
+        put(out, N, 4 * i + 3, n0, w, t.v[i]);
+        put(out, N, 12 + i, n0, w, zero);
+    }
+    put(out, N, 15, n0, w, one);
+}
+
+size_t batch_size(size_t n, std::initializer_list<size_t> others) {
+    for (size_t m : others)
+        if (m != n) throw nb::value_error("relmap._core: batch sizes differ");
+    return n;
+}
+
+// New C-contiguous numpy array of shape (R, C, N) owning `data`.
+template <class Out, size_t R, size_t C>
+Out owned(double* data, size_t N) {
+    nb::capsule owner(data, [](void* p) noexcept { delete[] static_cast<double*>(p); });
+    return Out(data, {R, C, N}, owner);
+}
+
+// a ⊕ b for N pairs: C = J_a C_a J_aᵀ + J_b C_b J_bᵀ (+ K + Kᵀ, K = J_a X J_bᵀ, for a dependent
+// pair with cross-covariance X = E[δa δbᵀ]).
+nb::tuple compound3(Pose Ta, Cov Ca, Pose Tb, Cov Cb, std::optional<Cov> X) {
+    const size_t N = batch_size(Ta.shape(2), {Ca.shape(2), Tb.shape(2), Cb.shape(2)});
+    if (X) batch_size(N, {X->shape(2)});
+    double* To = new double[16 * N];
+    double* Co = new double[36 * N];
+    {
+        nb::gil_scoped_release release;
+        M3 Ra, Rb, R, S, a, e, d, blk, tmp, k11, k12, x21, x22;
+        V3 ta, tb, t;
+        for (size_t n0 = 0; n0 < N; n0 += W) {
+            const size_t w = std::min(W, N - n0);
+            load(Ta, 0, 0, n0, w, Ra);
+            load(Tb, 0, 0, n0, w, Rb);
+            load_column(Ta, 3, n0, w, ta);
+            load_column(Tb, 3, n0, w, tb);
+            // the mean: (Ra Rb, ta + u) with u = Ra tb
+            mul(Ra, Rb, R);
+            for (size_t i = 0; i < 3; ++i)
+                for (size_t l = 0; l < W; ++l)
+                    t.v[i][l] = Ra.m[3 * i][l] * tb.v[0][l] + Ra.m[3 * i + 1][l] * tb.v[1][l] +
+                                Ra.m[3 * i + 2][l] * tb.v[2][l];
+            hat(t, -1.0, S);  // S = -[u]× (t holds u here)
+            for (size_t i = 0; i < 3; ++i)
+                for (size_t l = 0; l < W; ++l) t.v[i][l] += ta.v[i][l];
+            write_pose(To, N, n0, w, R, t);
+            // J_a C_a J_aᵀ: the shear; block (1, 1) is D_a
+            M3& A = R;  // R is written out: reuse its storage
+            load(Ca, 0, 0, n0, w, A);
+            load(Ca, 0, 3, n0, w, blk);
+            load(Ca, 3, 3, n0, w, d);
+            shear(S, A, blk, d, tmp, a, e);
+            // + J_b C_b J_bᵀ: each block rotated by Ra
+            load(Cb, 0, 0, n0, w, blk);
+            rotate(Ra, blk, false, tmp, Rb);
+            add_to(a, Rb);
+            load(Cb, 0, 3, n0, w, blk);
+            rotate(Ra, blk, false, tmp, Rb);
+            add_to(e, Rb);
+            load(Cb, 3, 3, n0, w, blk);
+            rotate(Ra, blk, false, tmp, Rb);
+            add_to(d, Rb);
+            if (X) {  // + K + Kᵀ, K = J_a X J_bᵀ = [[X11 + S X21, X12 + S X22], [X21, X22]] Raᵀ
+                load(*X, 3, 0, n0, w, x21);
+                load(*X, 3, 3, n0, w, x22);
+                load(*X, 0, 0, n0, w, blk);
+                mul(S, x21, k11);
+                add_to(k11, blk);
+                mul_t(k11, Ra, tmp);  // K11
+                add_to(a, tmp);
+                add_t_to(a, tmp);
+                load(*X, 0, 3, n0, w, blk);
+                mul(S, x22, k12);
+                add_to(k12, blk);
+                mul_t(k12, Ra, tmp);  // K12
+                add_to(e, tmp);
+                mul_t(x21, Ra, tmp);  // K21
+                add_t_to(e, tmp);
+                mul_t(x22, Ra, tmp);  // K22
+                add_to(d, tmp);
+                add_t_to(d, tmp);
+            }
+            write_cov(Co, N, n0, w, a, e, d);
+        }
+    }
+    return nb::make_tuple(owned<PoseOut, 4, 4>(To, N), owned<CovOut, 6, 6>(Co, N));
+}
+
+// Aᴿ for N poses: T⁻¹ = (Rᵀ, -Rᵀ t), C' = M C Mᵀ with M = blkdiag(Rᵀ, Rᵀ) [[I, [t]×], [0, I]].
+nb::tuple reverse3(Pose T, Cov C) {
+    const size_t N = batch_size(T.shape(2), {C.shape(2)});
+    double* To = new double[16 * N];
+    double* Co = new double[36 * N];
+    {
+        nb::gil_scoped_release release;
+        M3 R, Rt, S, A, B, D, a, e, tmp, o1, o2, o3;
+        V3 t, v;
+        for (size_t n0 = 0; n0 < N; n0 += W) {
+            const size_t w = std::min(W, N - n0);
+            load(T, 0, 0, n0, w, R);
+            load_column(T, 3, n0, w, t);
+            for (size_t i = 0; i < 3; ++i)
+                for (size_t j = 0; j < 3; ++j)
+                    for (size_t l = 0; l < W; ++l) Rt.m[3 * i + j][l] = R.m[3 * j + i][l];
+            for (size_t i = 0; i < 3; ++i)
+                for (size_t l = 0; l < W; ++l)
+                    v.v[i][l] = -(R.m[i][l] * t.v[0][l] + R.m[3 + i][l] * t.v[1][l] +
+                                  R.m[6 + i][l] * t.v[2][l]);
+            write_pose(To, N, n0, w, Rt, v);
+            load(C, 0, 0, n0, w, A);
+            load(C, 0, 3, n0, w, B);
+            load(C, 3, 3, n0, w, D);
+            hat(t, 1.0, S);  // S = [t]×
+            shear(S, A, B, D, tmp, a, e);
+            rotate(R, a, true, tmp, o1);  // Rᵀ X R for each block
+            rotate(R, e, true, tmp, o2);
+            rotate(R, D, true, tmp, o3);
+            write_cov(Co, N, n0, w, o1, o2, o3);
+        }
+    }
+    return nb::make_tuple(owned<PoseOut, 4, 4>(To, N), owned<CovOut, 6, 6>(Co, N));
+}
+
+}  // namespace
+
+void register_se3(nb::module_& m) {
+    m.def("compound3", &compound3, nb::arg("Ta"), nb::arg("Ca"), nb::arg("Tb"), nb::arg("Cb"),
+          nb::arg("X").none(),
+          "a ⊕ b for N SE(3) pairs, entry-major (4, 4, N) poses and (6, 6, N) covariances (any "
+          "strides), X the (6, 6, N) cross-covariance E[δa δbᵀ] or None: new (T, C) arrays.");
+    m.def("reverse3", &reverse3, nb::arg("T"), nb::arg("C"),
+          "Aᴿ for N SE(3) poses, entry-major (4, 4, N) and (6, 6, N) (any strides): new (T, C).");
+}
+
+}  // namespace relmap
