@@ -115,7 +115,7 @@ def main() -> None:
         t_r, t_g = min(t_rel), min(t_gt)
         print(f"\n{name}: {n} poses, {len(graph.edge_from)} edges")
         print(f"  end to end, in process (best of {args.repeat}, range over the runs)")
-        how = f"{sol.iterations} iterations, backend {sol.factor.backend}"
+        how = f"{sol.iterations} iterations, {sol.factor.nnz_L} entries in L"
         print(
             f"    relmap  load + optimize + relative AT   {t_r * 1e3:8.1f} ms"
             f"   ({_span(t_rel)}; {how})"

@@ -141,7 +141,7 @@ def main() -> None:
         print(
             f"  relmap  read_graph + solve_graph + relative(0, {n - 1})        {tr * 1e3:8.1f} ms"
             f"   ({sol.iterations} iterations, {sol.iterations + 1} factorizations,"
-            f" backend {sol.factor.backend})"
+            f" {sol.factor.nnz_L} entries in L)"
         )
         ranges = ", ".join(
             f"{label} {min(t) * 1e3:.0f}-{max(t) * 1e3:.0f} ms"

@@ -1,8 +1,15 @@
 // The list of the core's parts: each part's register function is declared and called here.
 #include "core.hpp"
+#include "blocks.hpp"
+#include "ordering.hpp"
+#include "sparse_chol.hpp"
 
 namespace relmap {
 
-void register_parts(nb::module_& m) { (void)m; }
+void register_parts(nb::module_& m) {
+    register_sparse_chol(m);
+    register_blocks(m);
+    register_ordering(m);
+}
 
 }  // namespace relmap

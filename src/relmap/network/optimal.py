@@ -24,12 +24,11 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
-from relmap import _numba
 from relmap.at import AT
 from relmap.at3 import AT3
 from relmap.errors import SolverError
 from relmap.gaussian import inverse_pd
-from relmap.lie import SE2, SE3, Group, se2, so3
+from relmap.lie import SE2, Group, se2, so3
 from relmap.network.problem import Parameterization, Problem, parameterize
 from relmap.network.sparse import SymmetricFactor, SymmetricPattern, selected_inverse_blocks
 from relmap.typing import FloatArray, IntArray
@@ -320,21 +319,6 @@ class _System:
         param, w = self.param, self.w
         poses = param.poses(xy, theta)
         Jf = param.frame_jacobian(poses)
-        if Jf is None and not w.groups and _numba.enabled(len(self.i)):
-            from relmap.network import _linearize
-
-            cost, data, grad = _linearize.planar(
-                poses,
-                self.i,
-                self.j,
-                self._z,
-                self.W,
-                self._position,
-                self.g_index,
-                self.pattern.nnz,
-                param.size,
-            )
-            return cost, poses, data, grad
         if Jf is None:
             cost, blocks, g = self._blocks(poses)
         else:
@@ -443,29 +427,10 @@ class _LieSystem:
     def linearize(self, poses: FloatArray) -> tuple[float, FloatArray, FloatArray, FloatArray]:
         """(cost, poses, normal-matrix CSC data, gradient) at ``poses``."""
         p, group, b = self.p, self.group, self.dof
-        kernels = not self.w.groups and _numba.enabled(len(self.i))
-        if kernels:
-            from relmap.network import _linearize
-        if kernels and group is SE3:
-            r, Ji, Jj = _linearize.se3_residuals(poses, self.i, self.j, self._z)
-        else:
-            d, Ji, Jj = group.between(poses[self.i], poses[self.j], jacobians=True)
-            r, Jr = _residual(group, d, p.z[self.w.edges])
-            if Jr is not None:
-                Ji, Jj = Jr @ Ji, Jr @ Jj
-        if kernels:
-            cost, data, grad = _linearize.hessian_blocks(
-                np.ascontiguousarray(Ji),
-                np.ascontiguousarray(Jj),
-                self.W,
-                np.ascontiguousarray(r),
-                self._position,
-                self.g_index,
-                self.pattern.nnz,
-                self.param.size,
-                (0,) * b,
-            )
-            return cost, poses, data, grad
+        d, Ji, Jj = group.between(poses[self.i], poses[self.j], jacobians=True)
+        r, Jr = _residual(group, d, p.z[self.w.edges])
+        if Jr is not None:
+            Ji, Jj = Jr @ Ji, Jr @ Jj
         Wr = np.einsum("kab,kb->ka", self.W, r)
         cost = float(np.einsum("ka,ka->", r, Wr))
         JiT, JjT = np.swapaxes(Ji, -1, -2), np.swapaxes(Jj, -1, -2)
