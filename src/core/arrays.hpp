@@ -1,6 +1,6 @@
 // Array types of the core's bindings: read-only C-contiguous CPU inputs with fixed dtype and
-// rank (nanobind converts nothing implicitly; the Python layer passes the right arrays), and
-// new NumPy arrays owned by a capsule.
+// rank (nanobind copies an array of another dtype or layout; the Python layer passes the right
+// ones), and new NumPy arrays owned by a capsule.
 #pragma once
 
 #include <cstdint>

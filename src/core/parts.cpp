@@ -1,6 +1,7 @@
 // The list of the core's parts: each part's register function is declared and called here.
 #include "core.hpp"
 #include "blocks.hpp"
+#include "linearize.hpp"
 #include "ordering.hpp"
 #include "sparse_chol.hpp"
 
@@ -10,6 +11,7 @@ void register_parts(nb::module_& m) {
     register_sparse_chol(m);
     register_blocks(m);
     register_ordering(m);
+    register_linearize(m);
 }
 
 }  // namespace relmap

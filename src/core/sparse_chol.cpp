@@ -6,6 +6,7 @@
 #include <stdexcept>
 
 #include "arrays.hpp"
+#include "dense.hpp"
 
 namespace relmap {
 
@@ -141,7 +142,7 @@ SparseCholesky::SparseCholesky(int64_t n, const int64_t* indptr, const int64_t* 
             const int64_t w = c - a, nr = w + count[c - 1] - 1;
             const double stored = static_cast<double>(w * nr - w * (w - 1) / 2);
             const double zeros = (stored - static_cast<double>(true_count[c] - true_count[a])) / stored;
-            if (w <= 4 || (w <= 16 && zeros < 0.5) || (w <= 48 && zeros < 0.1) || zeros < 0.05)
+            if (w <= 4 || (w <= 16 && zeros < 0.8) || (w <= 48 && zeros < 0.1) || zeros < 0.05)
                 continue;
         }
         first_.push_back(b);
@@ -210,7 +211,7 @@ int64_t SparseCholesky::factorize(const double* data) {
     int64_t S = supernodes();
     // Left-looking (Ng & Peyton 1993): head[s] links the supernodes d whose next update goes
     // to s; ptr[d] is the first row of d not yet used.
-    std::vector<int64_t> head(S, -1), next(S, -1), ptr(S, 0), map(n_);
+    std::vector<int64_t> head(S, -1), next(S, -1), ptr(S, 0), map(n_), rel(n_);
     std::vector<double> W(max_update_);
     for (int64_t s = 0; s < S; ++s) {
         const int64_t f = first_[s], l = first_[s + 1], w = l - f;
@@ -226,39 +227,14 @@ int64_t SparseCholesky::factorize(const double* data) {
             const int64_t p = ptr[d], r = nrd - p;
             int64_t q = 0;
             while (p + q < nrd && Rd[p + q] < l) ++q;
-            // W = L_d[p:, :] L_d[p:p+q, :]ᵀ (r × q, lower part), columns of 4 at a time
-            for (int64_t jj = 0; jj < q; ++jj) {
-                double* Wj = W.data() + jj * r;
-                std::fill(Wj + jj, Wj + r, 0.0);
-                int64_t c = 0;
-                for (; c + 4 <= wd; c += 4) {
-                    const double* c0 = Xd + c * nrd + p;
-                    const double* c1 = c0 + nrd;
-                    const double* c2 = c1 + nrd;
-                    const double* c3 = c2 + nrd;
-                    const double a0 = c0[jj], a1 = c1[jj], a2 = c2[jj], a3 = c3[jj];
-                    for (int64_t ii = jj; ii < r; ++ii)
-                        Wj[ii] += c0[ii] * a0 + c1[ii] * a1 + c2[ii] * a2 + c3[ii] * a3;
-                }
-                if (wd - c == 3) {
-                    const double* c0 = Xd + c * nrd + p;
-                    const double* c1 = c0 + nrd;
-                    const double* c2 = c1 + nrd;
-                    const double a0 = c0[jj], a1 = c1[jj], a2 = c2[jj];
-                    for (int64_t ii = jj; ii < r; ++ii)
-                        Wj[ii] += c0[ii] * a0 + c1[ii] * a1 + c2[ii] * a2;
-                    c = wd;
-                }
-                for (; c < wd; ++c) {
-                    const double* c0 = Xd + c * nrd + p;
-                    const double a0 = c0[jj];
-                    for (int64_t ii = jj; ii < r; ++ii) Wj[ii] += c0[ii] * a0;
-                }
-            }
+            // W = L_d[p:, :] L_d[p:p+q, :]ᵀ (r × q, lower part)
+            std::fill(W.begin(), W.begin() + r * q, 0.0);
+            dense::lower_product(r, q, wd, 1.0, Xd + p, nrd, W.data(), r);
+            for (int64_t ii = 0; ii < r; ++ii) rel[ii] = map[Rd[p + ii]];  // relative indices
             for (int64_t jj = 0; jj < q; ++jj) {  // scatter-subtract into s's panel
-                double* Xc = Xs + (Rd[p + jj] - f) * nr;
+                double* Xc = Xs + rel[jj] * nr;    // column Rd[p + jj] - f
                 const double* Wj = W.data() + jj * r;
-                for (int64_t ii = jj; ii < r; ++ii) Xc[map[Rd[p + ii]]] -= Wj[ii];
+                for (int64_t ii = jj; ii < r; ++ii) Xc[rel[ii]] -= Wj[ii];
             }
             ptr[d] = p + q;
             if (p + q < nrd) {
@@ -456,14 +432,7 @@ bool SparseCholesky::selected_inverse_blocks(const int64_t* groups, int64_t coun
             }
         }
         ZSJ.assign(r * w, 0.0);  // Z_SJ = -Z_SS L̃_SJ
-        for (int64_t j = 0; j < w; ++j) {
-            double* zc = ZSJ.data() + j * r;
-            for (int64_t c = 0; c < r; ++c) {
-                const double a = -Lt[j * r + c];
-                const double* zss = Zss.data() + c * r;
-                for (int64_t i = 0; i < r; ++i) zc[i] += zss[i] * a;
-            }
-        }
+        dense::gemm<false>(r, w, r, -1.0, Zss.data(), r, Lt.data(), r, ZSJ.data(), r);
         double* Zs = Z.data() + panel_ptr_[s];
         for (int64_t j = 0; j < w; ++j) {
             for (int64_t a = 0; a < w; ++a) {  // Z_JJ = L_JJ⁻ᵀ L_JJ⁻¹ - L̃_SJᵀ Z_SJ
