@@ -244,29 +244,26 @@ int64_t SparseCholesky::factorize(const double* data) {
             }
             d = nxt;
         }
-        // Dense left-looking Cholesky of the panel (its diagonal block and the rows below).
-        for (int64_t c = 0; c < w; ++c) {
-            double* Xc = Xs + c * nr;
-            int64_t j = 0;
-            for (; j + 4 <= c; j += 4) {
-                const double* j0 = Xs + j * nr;
-                const double* j1 = j0 + nr;
-                const double* j2 = j1 + nr;
-                const double* j3 = j2 + nr;
-                const double a0 = j0[c], a1 = j1[c], a2 = j2[c], a3 = j3[c];
-                for (int64_t i = c; i < nr; ++i)
-                    Xc[i] -= j0[i] * a0 + j1[i] * a1 + j2[i] * a2 + j3[i] * a3;
+        // Dense Cholesky of the panel (its diagonal block and the rows below), right-looking by
+        // blocks of 16 columns: each block column by column, then its product into the rest.
+        for (int64_t c0 = 0; c0 < w; c0 += 16) {
+            const int64_t c1 = std::min<int64_t>(c0 + 16, w);
+            for (int64_t c = c0; c < c1; ++c) {
+                double* Xc = Xs + c * nr;
+                for (int64_t j = c0; j < c; ++j) {
+                    const double* Xj = Xs + j * nr;
+                    const double a = Xj[c];
+                    for (int64_t i = c; i < nr; ++i) Xc[i] -= Xj[i] * a;
+                }
+                const double diag = Xc[c];
+                if (!(diag > 0.0) || !std::isfinite(diag)) return f + c;
+                const double root = std::sqrt(diag), scale = 1.0 / root;
+                Xc[c] = root;
+                for (int64_t i = c + 1; i < nr; ++i) Xc[i] *= scale;
             }
-            for (; j < c; ++j) {
-                const double* j0 = Xs + j * nr;
-                const double a0 = j0[c];
-                for (int64_t i = c; i < nr; ++i) Xc[i] -= j0[i] * a0;
-            }
-            const double diag = Xc[c];
-            if (!(diag > 0.0) || !std::isfinite(diag)) return f + c;
-            const double root = std::sqrt(diag), scale = 1.0 / root;
-            Xc[c] = root;
-            for (int64_t i = c + 1; i < nr; ++i) Xc[i] *= scale;
+            if (c1 < w)
+                dense::lower_product(nr - c1, w - c1, c1 - c0, -1.0, Xs + c0 * nr + c1, nr,
+                                     Xs + c1 * nr + c1, nr);
         }
         ptr[s] = w;
         if (w < nr) {
@@ -428,11 +425,16 @@ bool SparseCholesky::selected_inverse_blocks(const int64_t* groups, int64_t coun
                 const int64_t ga = R[w + a];
                 while (pos < nrt && Rt[pos] != ga) ++pos;
                 if (pos == nrt) throw std::logic_error("selected inversion: pattern not chordal");
-                Zss[c * r + a] = Zss[a * r + c] = Zt[pos];
+                Zss[c * r + a] = Zt[pos];
             }
         }
+        for (int64_t c0 = 0; c0 < r; c0 += 32)  // the upper triangle, by 32 × 32 tiles
+            for (int64_t a0 = c0; a0 < r; a0 += 32)
+                for (int64_t c = c0; c < std::min(c0 + 32, r); ++c)
+                    for (int64_t a = std::max(a0, c + 1); a < std::min(a0 + 32, r); ++a)
+                        Zss[a * r + c] = Zss[c * r + a];
         ZSJ.assign(r * w, 0.0);  // Z_SJ = -Z_SS L̃_SJ
-        dense::gemm<false>(r, w, r, -1.0, Zss.data(), r, Lt.data(), r, ZSJ.data(), r);
+        dense::gemm_nn(r, w, r, -1.0, Zss.data(), r, Lt.data(), r, ZSJ.data(), r);
         double* Zs = Z.data() + panel_ptr_[s];
         for (int64_t j = 0; j < w; ++j) {
             for (int64_t a = 0; a < w; ++a) {  // Z_JJ = L_JJ⁻ᵀ L_JJ⁻¹ - L̃_SJᵀ Z_SJ

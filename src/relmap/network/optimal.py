@@ -7,12 +7,12 @@ joint covariance (the inverse of the normal matrix at the optimum), by solving f
 columns needed from the one sparse factorization. Exact in the linear case (no angular error),
 where one step reaches the optimum.
 
-Planar problems assemble the normal equations from closed forms (:class:`_System`); 3-D ones
-(and any group) from the group's Jacobians (:class:`_LieSystem`); one Levenberg-Marquardt loop
-drives both. For large problems with numba (:func:`relmap._numba.enabled`), without dependent
-groups, one compiled pass (:mod:`relmap.network._linearize`) adds every AT's blocks straight
-into the normal matrix: on city10000 2.5 ms a linearization instead of 10, on sphere2500 the
-products and assembly 2.6 ms after the group's Jacobians (about 7 ms, numpy).
+Residuals and chart Jacobians come from :mod:`relmap.lie` (numpy, vectorized over the ATs);
+the normal equations are accumulated straight into the sparse matrix's slots by one pass of
+relmap's compiled core (``relmap._core.normal_equations``), and factorized by its sparse
+Cholesky (:mod:`relmap.network.sparse`); one Levenberg-Marquardt loop drives the planar
+(:class:`_System`: frames tied into rigid sets and exact headings) and the group
+(:class:`_LieSystem`, any pose group) problems.
 
 Residuals, weights and exact components: see :mod:`relmap.network.problem`.
 """
@@ -209,10 +209,10 @@ def _normal_equations(
 class _System:
     """Residuals, Jacobians and the normal equations, assembled with a fixed pattern.
 
-    The contributions of every AT are laid out component-major: for each of the four 3×3
-    blocks (i,i), (i,j), (j,i), (j,j) and each of its 9 entries, one value per AT, so the
-    closed forms below fill them without any per-AT work. Entries of fixed parameters go to a
-    discarded slot.
+    The pattern's contributions are laid out component-major: for each of the four 3×3 blocks
+    (i,i), (i,j), (j,i), (j,j) and each of its 9 entries, one slot per AT (then the dependent
+    groups' blocks); entries of fixed parameters go to a discarded slot. The core fills the
+    plain ATs' slots from the chart Jacobians of :func:`relmap.lie.se2.between`.
     """
 
     def __init__(self, p: Problem, param: Parameterization, w: _Weights):
