@@ -404,9 +404,8 @@ class _LieSystem:
             grad += ggrad
         if blocks:  # laid out [entry q][block k], as the pattern's positions
             values = np.concatenate([B.reshape(-1, b * b) for B in blocks]).T
-            data = data + np.bincount(
-                self._group_position.reshape(-1), values.reshape(-1), self.pattern.nnz + 1
-            )[:-1]
+            slots = self._group_position.reshape(-1)
+            data = data + np.bincount(slots, values.reshape(-1), self.pattern.nnz + 1)[:-1]
         return cost, poses, data, grad
 
     def _group(
