@@ -34,23 +34,27 @@ def _cpu(fn, repeat: int) -> str:
     return f"{min(times) * 1e3:6.1f} ms (median {np.median(times) * 1e3:6.1f})"
 
 
+def report(name: str, folder: str, repeat: int) -> None:
+    sol = solve_graph(read_graph(DATA / folder / f"{name}.g2o"))
+    f, data = sol.factor, sol._data
+    assert f is not None and data is not None
+    rhs = np.ones(f.pattern.size)
+    print(
+        f"{name}: {f.pattern.size} parameters, {f.core.supernodes} supernodes,"
+        f" {f.nnz_L} entries stored in L"
+    )
+    print(f"  symbolic analysis {_cpu(lambda: SymmetricFactor(f.pattern).core, 3)}")
+    print(f"  factorization     {_cpu(lambda: f.factorize(data), repeat)}")
+    print(f"  solve             {_cpu(lambda: f.solve(rhs), repeat)}")
+    print(f"  every marginal    {_cpu(sol.marginals, 3)}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=9)
     args = parser.parse_args()
     for name, folder in GRAPHS.items():
-        sol = solve_graph(read_graph(DATA / folder / f"{name}.g2o"))
-        f, data = sol.factor, sol._data
-        assert f is not None and data is not None
-        rhs = np.ones(f.pattern.size)
-        print(
-            f"{name}: {f.pattern.size} parameters, {f.core.supernodes} supernodes,"
-            f" {f.nnz_L} entries stored in L"
-        )
-        print(f"  symbolic analysis {_cpu(lambda: SymmetricFactor(f.pattern).core, 3)}")
-        print(f"  factorization     {_cpu(lambda: f.factorize(data), args.repeat)}")
-        print(f"  solve             {_cpu(lambda: f.solve(rhs), args.repeat)}")
-        print(f"  every marginal    {_cpu(sol.marginals, 3)}")
+        report(name, folder, args.repeat)
 
 
 if __name__ == "__main__":
