@@ -49,8 +49,6 @@ PENDING_NUMBA = {
     "relmap._numba_math": "numba helpers, gone with the last kernel (issue 17)",
     "relmap.cli": "numba's one_shot switch, gone with relmap._numba (issue 17)",
 }
-for _m in ("_blockchol", "_linearize", "_tarjan", "blocks", "optimal", "sparse"):
-    PENDING_NUMBA[f"relmap.network.{_m}"] = "the network's numba kernels (issue 17, network part)"
 PENDING_LAYERS = {
     "relmap.network.graph": "imports io's PoseGraph/ATRecord (issue 17: the map knows no files)",
     "relmap.plot": "imports relmap.localize (issue 17: applications in one layer above)",

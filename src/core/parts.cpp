@@ -1,11 +1,19 @@
 // The list of the core's parts: each part's register function is declared and called here.
 #include "core.hpp"
+#include "blocks.hpp"
+#include "linearize.hpp"
+#include "ordering.hpp"
 #include "se3.hpp"
+#include "sparse_chol.hpp"
 
 namespace relmap {
 
 void register_parts(nb::module_& m) {
     register_se3(m);
+    register_sparse_chol(m);
+    register_blocks(m);
+    register_ordering(m);
+    register_linearize(m);
 }
 
 }  // namespace relmap

@@ -1,8 +1,8 @@
 """Compiled kernels through numba, when numba can be used; numpy paths otherwise.
 
-Hot loops that numpy cannot express without a Python loop (a sparse block factorization, a
-fused SE(3) kernel, the EKF's per-reading arithmetic) have a numba kernel beside their numpy
-path. ``enabled()`` says which one runs: numba is importable and the environment variable
+The EKF's per-reading arithmetic has a numba kernel beside its numpy path: the last of relmap's
+numba kernels (the others moved into the compiled core, relmap._core; the EKF's will too).
+``enabled()`` says which one runs: numba is importable and the environment variable
 ``RELMAP_NUMBA`` is not ``0`` (the tests set it to check that both paths agree). Kernels live in
 modules that import numba at their top and are imported lazily, only when ``enabled()``, so
 ``import relmap`` never pays numba's import. Kernels are compiled on first use and cached on
@@ -12,10 +12,8 @@ Loading numba is not free: its import and the first call of any kernel in a proc
 CPU target, which imports ``scipy.linalg``) cost about 0.5-1 s here (measured). So kernels
 serve large problems (:data:`LARGE` items or more, where they repay that cost on first use)
 and repeated work (an EKF's steps: callers that pass no size); small maps stay on numpy. A
-one-shot command runs inside :func:`one_shot`, which raises the size to
-:data:`ONE_SHOT_LARGE` and keeps repeated work on numpy: it solves once, and repays the
-start-up only on far larger problems (measured on city10000, 10 000 poses: ``relmap query``
-2.0-2.3 s with the kernels, 1.2-1.8 s without).
+one-shot command (``relmap demo``) runs inside :func:`one_shot`, which raises the size to
+:data:`ONE_SHOT_LARGE` and keeps repeated work on numpy.
 """
 
 from __future__ import annotations

@@ -31,7 +31,7 @@ def _demo(args: argparse.Namespace) -> int:
         raise ParameterError(f"--data {args.data}: no landmarks/mrclam6 folder in it")
     bar = TerminalProgress("relmap demo")
     try:
-        with _numba.one_shot():  # small problems, run once: numba's start-up would not pay
+        with _numba.one_shot():  # the EKF runs once: numba's start-up would not pay
             demo = run(
                 seed=args.seed,
                 samples=args.samples,
@@ -177,17 +177,14 @@ def _query(args: argparse.Namespace) -> int:
         )
     bar = TerminalProgress("reduction")
     try:
-        with _numba.one_shot():
-            g = load_map(args.map)
-            pairs = [
-                (_frame(g, frames[k]), _frame(g, frames[k + 1])) for k in range(0, len(frames), 2)
-            ]
-            estimates = g.query_many(
-                pairs,
-                method=args.method,
-                on_irreducible=args.on_irreducible,
-                progress=lambda done, total: bar.update(f"{done} of {total}"),
-            )
+        g = load_map(args.map)
+        pairs = [(_frame(g, frames[k]), _frame(g, frames[k + 1])) for k in range(0, len(frames), 2)]
+        estimates = g.query_many(
+            pairs,
+            method=args.method,
+            on_irreducible=args.on_irreducible,
+            progress=lambda done, total: bar.update(f"{done} of {total}"),
+        )
     finally:
         bar.close()
     if args.json:
@@ -316,12 +313,11 @@ def _solve(args: argparse.Namespace) -> int:
         )
     bar = TerminalProgress(f"solving {args.graph}")
     try:
-        with _numba.one_shot():
-            sol = solve_graph(
-                graph,
-                progress=lambda k, err: bar.update(f"iteration {k}, error {err:.6g}", force=True),
-                max_iterations=args.max_iterations,
-            )
+        sol = solve_graph(
+            graph,
+            progress=lambda k, err: bar.update(f"iteration {k}, error {err:.6g}", force=True),
+            max_iterations=args.max_iterations,
+        )
     finally:
         bar.close()
     if args.out:

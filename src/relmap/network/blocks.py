@@ -9,12 +9,14 @@ compound of one AT per block.
 
 from __future__ import annotations
 
+import itertools
 from collections import deque
 from collections.abc import Hashable, Iterable, Mapping
 from typing import NamedTuple
 
 import numpy as np
 
+from relmap import _core
 from relmap.errors import DisconnectedError
 
 __all__ = ["Block", "blocks_between"]
@@ -38,21 +40,15 @@ def blocks_between(
 ) -> list[Block]:
     """The blocks on the way from ``src`` to ``dst``, in order (empty if ``src == dst``).
 
-    ``incident`` maps each frame to the names of its ATs, in the order of ``ends``, which maps
-    each name to its ``(src, dst)`` frames. Self-loops are ignored. Raises
-    :class:`DisconnectedError` when no chain of ATs links the frames. Iterative Tarjan (no
-    recursion limit), O(frames + ATs); compiled (:mod:`relmap.network._tarjan`) for large
-    maps when numba is enabled (:func:`relmap._numba.enabled`), with the same blocks in the
-    same order.
+    ``ends`` maps each AT's name to its ``(src, dst)`` frames; ``incident`` (each frame's AT
+    names in the order of ``ends``) follows from it, and the search visits a frame's ATs in
+    that order. Self-loops are ignored. Raises
+    :class:`DisconnectedError` when no chain of ATs links the frames. The blocks come from
+    Tarjan's depth-first search in relmap's compiled core, O(frames + ATs).
     """
     if src == dst:
         return []
-    from relmap import _numba
-
-    if _numba.enabled(len(ends)):
-        blocks = _compiled_components(ends, src)
-    else:
-        blocks = _biconnected_components(incident, ends, src)
+    blocks = _biconnected_components(ends, src)
     frames_of = [{f for nm in blk for f in ends[nm]} for blk in blocks]
     # Block-cut tree search: from src, through blocks and the frames they share, to dst.
     blocks_at: dict[Frame, list[int]] = {}
@@ -91,61 +87,16 @@ def blocks_between(
     ]
 
 
-def _compiled_components(ends: Mapping[str, tuple[Frame, Frame]], root: Frame) -> list[list[str]]:
-    """:func:`_biconnected_components` on integer frames, compiled (same lists, same order)."""
-    from relmap.network._tarjan import blocks
-
+def _biconnected_components(
+    ends: Mapping[str, tuple[Frame, Frame]], root: Frame
+) -> list[list[str]]:
+    """Edge sets of the 2-connected blocks of ``root``'s connected component, in the order
+    Tarjan's search closes them (relmap._core.biconnected_blocks on integer frames)."""
     names = list(ends)
     index: dict[Frame, int] = {root: 0}
     a = np.array([index.setdefault(s, len(index)) for s, _ in ends.values()], dtype=np.int64)
     b = np.array([index.setdefault(d, len(index)) for _, d in ends.values()], dtype=np.int64)
-    return [[names[e] for e in block.tolist()] for block in blocks(len(index), a, b, 0)]
-
-
-def _biconnected_components(
-    incident: Mapping[Frame, Iterable[str]],
-    ends: Mapping[str, tuple[Frame, Frame]],
-    root: Frame,
-) -> list[list[str]]:
-    """Edge sets of the 2-connected blocks of ``root``'s connected component."""
-    disc: dict[Frame, int] = {root: 0}
-    low: dict[Frame, int] = {root: 0}
-    clock = 1
-    edge_stack: list[str] = []
-    components: list[list[str]] = []
-    stack = [(root, None, iter(incident[root]))]
-    while stack:
-        v, parent_edge, it = stack[-1]
-        advanced = False
-        for name in it:
-            if name == parent_edge:
-                continue
-            a, b = ends[name]
-            w = b if a == v else a
-            if w == v:
-                continue  # a self-loop relates a frame to itself: no information here
-            if w not in disc:
-                edge_stack.append(name)
-                disc[w] = low[w] = clock
-                clock += 1
-                stack.append((w, name, iter(incident[w])))
-                advanced = True
-                break
-            if disc[w] < disc[v]:  # back edge (or a parallel AT to the parent)
-                edge_stack.append(name)
-                low[v] = min(low[v], disc[w])
-        if advanced:
-            continue
-        stack.pop()
-        if stack:
-            u = stack[-1][0]
-            low[u] = min(low[u], low[v])
-            if low[v] >= disc[u]:  # u separates v's subtree: close a block
-                component = []
-                while True:
-                    name = edge_stack.pop()
-                    component.append(name)
-                    if name == parent_edge:
-                        break
-                components.append(component)
-    return components
+    edges, bounds = _core.biconnected_blocks(len(index), a, b, 0)
+    cuts = bounds.tolist()
+    order = edges.tolist()
+    return [[names[e] for e in order[lo:hi]] for lo, hi in itertools.pairwise(cuts)]

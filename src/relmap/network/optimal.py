@@ -7,12 +7,12 @@ joint covariance (the inverse of the normal matrix at the optimum), by solving f
 columns needed from the one sparse factorization. Exact in the linear case (no angular error),
 where one step reaches the optimum.
 
-Planar problems assemble the normal equations from closed forms (:class:`_System`); 3-D ones
-(and any group) from the group's Jacobians (:class:`_LieSystem`); one Levenberg-Marquardt loop
-drives both. For large problems with numba (:func:`relmap._numba.enabled`), without dependent
-groups, one compiled pass (:mod:`relmap.network._linearize`) adds every AT's blocks straight
-into the normal matrix: on city10000 2.5 ms a linearization instead of 10, on sphere2500 the
-products and assembly 2.6 ms after the group's Jacobians (about 7 ms, numpy).
+Residuals and chart Jacobians come from :mod:`relmap.lie` (numpy, vectorized over the ATs);
+the normal equations are accumulated straight into the sparse matrix's slots by one pass of
+relmap's compiled core (``relmap._core.normal_equations``), and factorized by its sparse
+Cholesky (:mod:`relmap.network.sparse`); one Levenberg-Marquardt loop drives the planar
+(:class:`_System`: frames tied into rigid sets and exact headings) and the group
+(:class:`_LieSystem`, any pose group) problems.
 
 Residuals, weights and exact components: see :mod:`relmap.network.problem`.
 """
@@ -24,12 +24,12 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
-from relmap import _numba
+from relmap import _core
 from relmap.at import AT
 from relmap.at3 import AT3
 from relmap.errors import NumericalError, SolverError, UnknownFrameError
 from relmap.gaussian import inverse_pd
-from relmap.lie import SE2, SE3, Group, se2, so3
+from relmap.lie import SE2, Group, se2, so3
 from relmap.network.problem import Parameterization, Problem, parameterize
 from relmap.network.sparse import SymmetricFactor, SymmetricPattern, selected_inverse_blocks
 from relmap.typing import FloatArray, IntArray
@@ -196,16 +196,6 @@ class Solution:
         return kind._trusted(d, 0.5 * (out + out.T))
 
 
-def _between_terms(pi: FloatArray, pj: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """between(p_i, p_j) with cos θ_i, sin θ_i."""
-    c, s = np.cos(pi[:, 2]), np.sin(pi[:, 2])
-    ex, ey = pj[:, 0] - pi[:, 0], pj[:, 1] - pi[:, 1]
-    d = np.column_stack(
-        [c * ex + s * ey, -s * ex + c * ey, se2.angle_difference(pj[:, 2], pi[:, 2])]
-    )
-    return d, c, s
-
-
 def _information(cov: FloatArray, kind: IntArray) -> FloatArray:
     """W = Σ⁻¹ (k, dof, dof), symmetrized; heading-exact ATs weight their position only.
 
@@ -239,13 +229,46 @@ def _weights(p: Problem, param: Parameterization) -> _Weights:
     return _Weights(edges, _information(p.cov[edges], param.kind[edges]), groups)
 
 
+def _slots(position: IntArray) -> IntArray:
+    """The CSC slots of every plain AT's four blocks, (m, 4·b²) contiguous int64."""
+    m, b2 = position.shape[0], int(np.prod(position.shape[1:]))
+    return np.ascontiguousarray(position.reshape(m, b2), dtype=np.int64)
+
+
+def _normal_equations(
+    r: FloatArray,
+    Ji: FloatArray,
+    Jj: FloatArray,
+    W: FloatArray,
+    slots: IntArray,
+    g_index: IntArray,
+    nnz: int,
+    size: int,
+) -> tuple[float, FloatArray, FloatArray]:
+    """(cost Σ rᵀ W r, normal-matrix CSC data Σ Jᵀ W J, gradient Σ Jᵀ W r) of the plain ATs,
+    from residuals r (m, b) and chart Jacobians Ji, Jj (m, b, b) with respect to frames i and
+    j: one pass of relmap's compiled core straight into the pattern's slots."""
+    c = np.ascontiguousarray
+    cost, data, grad = _core.normal_equations(
+        c(r, dtype=np.float64),
+        c(Ji, dtype=np.float64),
+        c(Jj, dtype=np.float64),
+        c(W, dtype=np.float64),
+        slots,
+        c(g_index, dtype=np.int64),
+        nnz,
+        size,
+    )
+    return float(cost), data[:nnz], grad[:size]
+
+
 class _System:
     """Residuals, Jacobians and the normal equations, assembled with a fixed pattern.
 
-    The contributions of every AT are laid out component-major: for each of the four 3×3
-    blocks (i,i), (i,j), (j,i), (j,j) and each of its 9 entries, one value per AT, so the
-    closed forms below fill them without any per-AT work. Entries of fixed parameters go to a
-    discarded slot.
+    The pattern's contributions are laid out component-major: for each of the four 3×3 blocks
+    (i,i), (i,j), (j,i), (j,j) and each of its 9 entries, one slot per AT (then the dependent
+    groups' blocks); entries of fixed parameters go to a discarded slot. The core fills the
+    plain ATs' slots from the chart Jacobians of :func:`relmap.lie.se2.between`.
     """
 
     def __init__(self, p: Problem, param: Parameterization, w: _Weights):
@@ -274,8 +297,8 @@ class _System:
         self.g_index = np.where(g_index >= 0, g_index, param.size)
         self.W = w.W  # information Σ⁻¹ of each soft AT
         self._z = np.ascontiguousarray(p.z[w.edges])
-        m = len(i)  # the plain ATs' contribution slots, AT by AT (for the numba kernel)
-        self._position = np.ascontiguousarray(self.pattern.position[: 36 * m].reshape(36, m).T)
+        m = len(i)  # the plain ATs' contribution slots, AT by AT: (m, [block t][entry q])
+        self._slots = _slots(self.pattern.position[: 36 * m].reshape(4, 9, m).transpose(2, 0, 1))
 
     def _scalar_pattern(
         self, p: Problem, param: Parameterization, w: _Weights, i: IntArray, j: IntArray
@@ -304,71 +327,6 @@ class _System:
         node[param.col[:, 2][free[:, 2]]] = heading_node[free[:, 2]]
         return SymmetricPattern(param.size, r, c, node)
 
-    def _blocks(self, poses: FloatArray) -> tuple[float, FloatArray, FloatArray]:
-        """(cost, block values (4, 9, m), gradient parts (2, 3, m)) of the plain ATs.
-
-        With J_j = blkdiag(R(θ_i)ᵀ, 1) and J_i = -J_j T, T = [[1, 0, -Δy], [0, 1, Δx], [0, 0, 1]]
-        ((Δx, Δy) = t_j - t_i), the blocks are H_jj = Ω = J_jᵀ W J_j, H_ij = -Tᵀ Ω,
-        H_ji = H_ijᵀ, H_ii = Tᵀ Ω T, written out entry by entry.
-        """
-        p, W = self.p, self.W
-        i, j = self.i, self.j
-        pi, pj = poses[i], poses[j]
-        d, c, s = _between_terms(pi, pj)
-        r = se2.minus(d, p.z[self.w.edges])
-        Wr = np.einsum("kab,kb->ka", W, r)
-        cost = float(np.einsum("ka,ka->", r, Wr))
-        w00, w01, w02, w11, w12, w22 = (
-            W[:, a, b] for a, b in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
-        )
-        # Ω = K W Kᵀ with K = blkdiag(R(θ_i), 1)
-        cc, ss, cs = c * c, s * s, c * s
-        a = cc * w00 - 2 * cs * w01 + ss * w11
-        b = cs * (w00 - w11) + (cc - ss) * w01
-        e02 = c * w02 - s * w12
-        d11 = ss * w00 + 2 * cs * w01 + cc * w11
-        e12 = s * w02 + c * w12
-        f = w22
-        dx, dy = pj[:, 0] - pi[:, 0], pj[:, 1] - pi[:, 1]
-        u0 = -dy * a + dx * b + e02  # third column of Ω T
-        u1 = -dy * b + dx * d11 + e12
-        u2 = -dy * e02 + dx * e12 + f
-        m = len(i)
-        out = np.empty((4, 9, m))
-        Hjj = (a, b, e02, b, d11, e12, e02, e12, f)
-        Hij = (-a, -b, -e02, -b, -d11, -e12, -u0, -u1, -u2)  # -Tᵀ Ω
-        Hii = (a, b, u0, b, d11, u1, u0, u1, -dy * u0 + dx * u1 + u2)
-        for q in range(9):
-            out[0, q] = Hii[q]
-            out[1, q] = Hij[q]
-            out[2, q] = Hij[3 * (q % 3) + q // 3]  # the transpose
-            out[3, q] = Hjj[q]
-        # gradient: g_j = J_jᵀ W r = blkdiag(R, 1) W r, g_i = -Tᵀ g_j
-        gj0 = c * Wr[:, 0] - s * Wr[:, 1]
-        gj1 = s * Wr[:, 0] + c * Wr[:, 1]
-        gj2 = Wr[:, 2]
-        grad = np.empty((2, 3, m))
-        grad[1, 0], grad[1, 1], grad[1, 2] = gj0, gj1, gj2
-        grad[0, 0], grad[0, 1], grad[0, 2] = -gj0, -gj1, -(-dy * gj0 + dx * gj1 + gj2)
-        return cost, out, grad
-
-    def _blocks_general(
-        self, poses: FloatArray, Jf: FloatArray
-    ) -> tuple[float, FloatArray, FloatArray]:
-        """The same through explicit Jacobians, for frames tied into rigid sets."""
-        p, w = self.p, self.w
-        i, j = self.i, self.j
-        d, Ji, Jj = se2.between(poses[i], poses[j], jacobians=True)
-        r = se2.minus(d, p.z[w.edges])
-        Ji, Jj = Ji @ Jf[i], Jj @ Jf[j]
-        Wr = np.einsum("kab,kb->ka", self.W, r)
-        cost = float(np.einsum("ka,ka->", r, Wr))
-        JiT, JjT = np.swapaxes(Ji, -1, -2), np.swapaxes(Jj, -1, -2)
-        blocks = [JiT @ self.W @ Ji, JiT @ self.W @ Jj, JjT @ self.W @ Ji, JjT @ self.W @ Jj]
-        out = np.stack([np.moveaxis(b.reshape(-1, 9), 0, -1) for b in blocks])
-        grad = np.stack([np.einsum("kba,kb->ak", Ji, Wr), np.einsum("kba,kb->ak", Jj, Wr)])
-        return cost, out, grad
-
     def linearize(
         self, xy: FloatArray, theta: FloatArray
     ) -> tuple[float, FloatArray, FloatArray, FloatArray]:
@@ -376,34 +334,22 @@ class _System:
         param, w = self.param, self.w
         poses = param.poses(xy, theta)
         Jf = param.frame_jacobian(poses)
-        if Jf is None and not w.groups and _numba.enabled(len(self.i)):
-            from relmap.network import _linearize
-
-            cost, data, grad = _linearize.planar(
-                poses,
-                self.i,
-                self.j,
-                self._z,
-                self.W,
-                self._position,
-                self.g_index,
-                self.pattern.nnz,
-                param.size,
-            )
-            return cost, poses, data, grad
-        if Jf is None:
-            cost, blocks, g = self._blocks(poses)
-        else:
-            cost, blocks, g = self._blocks_general(poses, Jf)
-        values = [blocks.reshape(-1)]
-        grad = np.bincount(self.g_index, weights=g.reshape(-1), minlength=param.size + 1)[:-1]
-        grad = grad.astype(np.float64, copy=False)  # an empty bincount is integer
+        d, Ji, Jj = se2.between(poses[self.i], poses[self.j], jacobians=True)
+        if Jf is not None:  # frames tied into rigid sets
+            Ji, Jj = Ji @ Jf[self.i], Jj @ Jf[self.j]
+        r = se2.minus(d, self._z)
+        cost, data, grad = _normal_equations(
+            r, Ji, Jj, self.W, self._slots, self.g_index, self.pattern.nnz, param.size
+        )
+        values = []
         for (members, Lg), frames in zip(w.groups, self.group_frames, strict=True):
             gcost, gvals, ggrad = self._group(poses, Jf, members, Lg, frames)
             cost += gcost
             values.extend(gvals)
             grad += ggrad
-        data = self.pattern.assemble(np.concatenate(values) if len(values) > 1 else values[0])
+        if values:
+            extra = self.pattern.position[36 * len(self.i) :]
+            data = data + np.bincount(extra, np.concatenate(values), self.pattern.nnz + 1)[:-1]
         return cost, poses, data, grad
 
     def _group(
@@ -491,57 +437,32 @@ class _LieSystem:
         self.g_index = np.where(g_index >= 0, g_index, param.size)
         self.W = w.W
         self._z = np.ascontiguousarray(p.z[w.edges])
-        m = len(self.i)  # the plain ATs' contribution slots, AT by AT (for the numba kernel)
-        self._position = np.ascontiguousarray(
-            self.pattern.position[: 4 * b * b * m].reshape(b * b, 4, m).transpose(2, 0, 1)
-        )
+        m = len(self.i)  # the plain ATs' contribution slots, AT by AT: (m, [block t][entry q])
+        position = self.pattern.position.reshape(b * b, -1)  # [entry q][block k]
+        self._slots = _slots(position[:, : 4 * m].reshape(b * b, 4, m).transpose(2, 1, 0))
+        self._group_position = position[:, 4 * m :]
 
     def linearize(self, poses: FloatArray) -> tuple[float, FloatArray, FloatArray, FloatArray]:
         """(cost, poses, normal-matrix CSC data, gradient) at ``poses``."""
         p, group, b = self.p, self.group, self.dof
-        kernels = not self.w.groups and _numba.enabled(len(self.i))
-        if kernels:
-            from relmap.network import _linearize
-        if kernels and group is SE3:
-            r, Ji, Jj = _linearize.se3_residuals(poses, self.i, self.j, self._z)
-        else:
-            d, Ji, Jj = group.between(poses[self.i], poses[self.j], jacobians=True)
-            r, Jr = _residual(group, d, p.z[self.w.edges])
-            if Jr is not None:
-                Ji, Jj = Jr @ Ji, Jr @ Jj
-        if kernels:
-            cost, data, grad = _linearize.hessian_blocks(
-                np.ascontiguousarray(Ji),
-                np.ascontiguousarray(Jj),
-                self.W,
-                np.ascontiguousarray(r),
-                self._position,
-                self.g_index,
-                self.pattern.nnz,
-                self.param.size,
-                (0,) * b,
-            )
-            return cost, poses, data, grad
-        Wr = np.einsum("kab,kb->ka", self.W, r)
-        cost = float(np.einsum("ka,ka->", r, Wr))
-        JiT, JjT = np.swapaxes(Ji, -1, -2), np.swapaxes(Jj, -1, -2)
-        WJi, WJj = self.W @ Ji, self.W @ Jj
-        blocks = [JiT @ WJi, JiT @ WJj, JjT @ WJi, JjT @ WJj]
-        grad_parts = [
-            np.einsum("kba,kb->ak", Ji, Wr).reshape(-1),
-            np.einsum("kba,kb->ak", Jj, Wr).reshape(-1),
-        ]
-        grad = np.bincount(
-            self.g_index, weights=np.concatenate(grad_parts), minlength=self.param.size + 1
-        )[:-1]
-        grad = grad.astype(np.float64, copy=False)
+        d, Ji, Jj = group.between(poses[self.i], poses[self.j], jacobians=True)
+        r, Jr = _residual(group, d, p.z[self.w.edges])
+        if Jr is not None:
+            Ji, Jj = Jr @ Ji, Jr @ Jj
+        cost, data, grad = _normal_equations(
+            r, Ji, Jj, self.W, self._slots, self.g_index, self.pattern.nnz, self.param.size
+        )
+        blocks = []
         for (members, Lg), frames in zip(self.w.groups, self.group_frames, strict=True):
             gcost, H, ggrad = self._group(poses, members, Lg, frames)
             cost += gcost
             blocks.append(H)
             grad += ggrad
-        values = np.concatenate([B.reshape(-1, b * b) for B in blocks]).T.reshape(-1)
-        return cost, poses, self.pattern.assemble(values), grad
+        if blocks:  # laid out [entry q][block k], as the pattern's positions
+            values = np.concatenate([B.reshape(-1, b * b) for B in blocks]).T
+            slots = self._group_position.reshape(-1)
+            data = data + np.bincount(slots, values.reshape(-1), self.pattern.nnz + 1)[:-1]
+        return cost, poses, data, grad
 
     def _group(
         self, poses: FloatArray, members: IntArray, Lg: FloatArray, frames: IntArray

@@ -1,0 +1,38 @@
+// Array types of the core's bindings: read-only C-contiguous CPU inputs with fixed dtype and
+// rank (nanobind copies an array of another dtype or layout; the Python layer passes the right
+// ones), and new NumPy arrays owned by a capsule.
+#pragma once
+
+#include <cstdint>
+#include <initializer_list>
+#include <vector>
+
+#include "core.hpp"
+
+namespace relmap {
+
+using Index1 = nb::ndarray<const int64_t, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
+using Index2 = nb::ndarray<const int64_t, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
+using Float1 = nb::ndarray<const double, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
+using Float2 = nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
+using Float3 = nb::ndarray<const double, nb::ndim<3>, nb::c_contig, nb::device::cpu>;
+
+// A new zero-filled NumPy array of the given shape.
+template <class T = double>
+nb::ndarray<nb::numpy, T> new_array(std::initializer_list<size_t> shape) {
+    size_t size = 1;
+    for (size_t s : shape) size *= s;
+    T* data = new T[size ? size : 1]();
+    nb::capsule owner(data, [](void* p) noexcept { delete[] static_cast<T*>(p); });
+    return nb::ndarray<nb::numpy, T>(data, shape, owner);
+}
+
+// A NumPy copy of a vector.
+template <class T>
+nb::ndarray<nb::numpy, T> vector_array(const std::vector<T>& v) {
+    auto out = new_array<T>({v.size()});
+    std::copy(v.begin(), v.end(), out.data());
+    return out;
+}
+
+}  // namespace relmap

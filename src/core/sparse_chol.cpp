@@ -1,0 +1,533 @@
+// Supernodal sparse Cholesky, solves, joint blocks and selected inversion (see sparse_chol.hpp).
+#include "sparse_chol.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+
+#include "arrays.hpp"
+#include "dense.hpp"
+
+namespace relmap {
+
+namespace {
+
+// The strict upper triangle (i < k) of P A Pᵀ, column by column (CSC), from the pattern of A
+// (either triangle or both; duplicates are harmless below).
+void upper_pattern(int64_t n, const int64_t* indptr, const int64_t* indices,
+                   const std::vector<int64_t>& inv, std::vector<int64_t>& up,
+                   std::vector<int64_t>& ui) {
+    up.assign(n + 1, 0);
+    for (int64_t c = 0; c < n; ++c)
+        for (int64_t e = indptr[c]; e < indptr[c + 1]; ++e) {
+            int64_t i = inv[indices[e]], k = inv[c];
+            if (i != k) ++up[std::max(i, k) + 1];
+        }
+    for (int64_t k = 0; k < n; ++k) up[k + 1] += up[k];
+    ui.resize(up[n]);
+    std::vector<int64_t> fill(up.begin(), up.end() - 1);
+    for (int64_t c = 0; c < n; ++c)
+        for (int64_t e = indptr[c]; e < indptr[c + 1]; ++e) {
+            int64_t i = inv[indices[e]], k = inv[c];
+            if (i != k) ui[fill[std::max(i, k)]++] = std::min(i, k);
+        }
+}
+
+// Elimination tree of the matrix with strict upper pattern (up, ui): Liu's algorithm with
+// path compression (Davis 2006, cs_etree).
+std::vector<int64_t> elimination_tree(int64_t n, const std::vector<int64_t>& up,
+                                      const std::vector<int64_t>& ui) {
+    std::vector<int64_t> parent(n, -1), ancestor(n, -1);
+    for (int64_t k = 0; k < n; ++k)
+        for (int64_t p = up[k]; p < up[k + 1]; ++p)
+            for (int64_t i = ui[p]; i != -1 && i < k;) {
+                int64_t next = ancestor[i];
+                ancestor[i] = k;
+                if (next == -1) parent[i] = k;
+                i = next;
+            }
+    return parent;
+}
+
+// A postorder of the forest (new → old): children before parents, subtrees contiguous
+// (Davis 2006, cs_post).
+std::vector<int64_t> postorder(const std::vector<int64_t>& parent) {
+    int64_t n = static_cast<int64_t>(parent.size());
+    std::vector<int64_t> head(n, -1), next(n, -1), post, stack;
+    post.reserve(n);
+    for (int64_t j = n - 1; j >= 0; --j)
+        if (parent[j] != -1) {
+            next[j] = head[parent[j]];
+            head[parent[j]] = j;
+        }
+    for (int64_t root = 0; root < n; ++root) {
+        if (parent[root] != -1) continue;
+        stack.push_back(root);
+        while (!stack.empty()) {
+            int64_t v = stack.back();
+            int64_t child = head[v];
+            if (child == -1) {
+                stack.pop_back();
+                post.push_back(v);
+            } else {
+                head[v] = next[child];
+                stack.push_back(child);
+            }
+        }
+    }
+    return post;
+}
+
+}  // namespace
+
+SparseCholesky::SparseCholesky(int64_t n, const int64_t* indptr, const int64_t* indices,
+                               const int64_t* perm)
+    : n_(n), nnz_A_(indptr[n]) {
+    // The caller's ordering, then the postorder of its elimination tree (same fill).
+    std::vector<int64_t> inv(n), up, ui;
+    for (int64_t k = 0; k < n; ++k) inv[perm[k]] = k;
+    upper_pattern(n, indptr, indices, inv, up, ui);
+    std::vector<int64_t> post = postorder(elimination_tree(n, up, ui));
+    perm_.resize(n);
+    inv_.resize(n);
+    for (int64_t k = 0; k < n; ++k) perm_[k] = perm[post[k]];
+    for (int64_t k = 0; k < n; ++k) inv_[perm_[k]] = k;
+    upper_pattern(n, indptr, indices, inv_, up, ui);
+    parent_ = elimination_tree(n, up, ui);
+
+    // Column counts of L by row subtrees: row k of L is the set of columns met walking up
+    // the tree from each i < k of A's row k until a column already marked for k (cs_ereach).
+    std::vector<int64_t> mark(n, -1), count(n, 1);
+    auto each_row_entry = [&](auto&& visit) {
+        std::fill(mark.begin(), mark.end(), -1);
+        for (int64_t k = 0; k < n; ++k) {
+            mark[k] = k;
+            for (int64_t p = up[k]; p < up[k + 1]; ++p)
+                for (int64_t j = ui[p]; j != -1 && mark[j] != k; j = parent_[j]) {
+                    mark[j] = k;
+                    visit(j, k);
+                }
+        }
+    };
+    each_row_entry([&](int64_t j, int64_t) { ++count[j]; });
+
+    // Fundamental supernodes: column j joins j-1's supernode when j is j-1's parent and
+    // struct(j-1) = {j} ∪ struct(j).
+    std::vector<int64_t> fund(1, 0);
+    for (int64_t j = 1; j < n; ++j)
+        if (!(parent_[j - 1] == j && count[j - 1] == count[j] + 1)) fund.push_back(j);
+    fund.push_back(n);
+    const int64_t F = static_cast<int64_t>(fund.size()) - 1;
+    // The row structure of each fundamental supernode's first column, in increasing order.
+    std::vector<int64_t> fsn(n), fptr(F + 1, 0);
+    for (int64_t t = 0; t < F; ++t) {
+        for (int64_t j = fund[t]; j < fund[t + 1]; ++j) fsn[j] = t;
+        fptr[t + 1] = fptr[t] + count[fund[t]];
+    }
+    std::vector<int64_t> frows(fptr[F]), filled(F, 1);
+    for (int64_t t = 0; t < F; ++t) frows[fptr[t]] = fund[t];
+    each_row_entry([&](int64_t j, int64_t k) {
+        const int64_t t = fsn[j];
+        if (fund[t] == j) frows[fptr[t] + filled[t]++] = k;
+    });
+    // Relaxed supernodes (amalgamation as in CHOLMOD): a fundamental supernode joins the
+    // group before it when its first column is the parent of the group's last and the group
+    // stays narrow or almost free of explicit zeros (fewer, wider dense updates).
+    std::vector<int64_t> true_count(n + 1, 0);
+    for (int64_t j = 0; j < n; ++j) true_count[j + 1] = true_count[j] + count[j];
+    first_.assign(1, 0);
+    for (int64_t t = 1; t < F; ++t) {
+        const int64_t a = first_.back(), b = fund[t], c = fund[t + 1];
+        if (parent_[b - 1] == b) {
+            const int64_t w = c - a, nr = w + count[c - 1] - 1;
+            const double stored = static_cast<double>(w * nr - w * (w - 1) / 2);
+            const double zeros = (stored - static_cast<double>(true_count[c] - true_count[a])) / stored;
+            if (w <= 4 || (w <= 16 && zeros < 0.8) || (w <= 48 && zeros < 0.1) || zeros < 0.05)
+                continue;
+        }
+        first_.push_back(b);
+    }
+    first_.push_back(n);
+    const int64_t S = supernodes();
+    sn_.resize(n);
+    rows_ptr_.assign(S + 1, 0);
+    panel_ptr_.assign(S + 1, 0);
+    for (int64_t s = 0; s < S; ++s) {
+        const int64_t f = first_[s], w = first_[s + 1] - f, nr = w + count[first_[s + 1] - 1] - 1;
+        for (int64_t j = f; j < f + w; ++j) sn_[j] = s;
+        rows_ptr_[s + 1] = rows_ptr_[s] + nr;
+        panel_ptr_[s + 1] = panel_ptr_[s] + nr * w;
+        max_update_ = std::max(max_update_, (nr - w) * (nr - w));
+    }
+    // A group's rows: its columns, then the rows below its last fundamental supernode.
+    rows_.resize(rows_ptr_[S]);
+    for (int64_t s = 0; s < S; ++s) {
+        const int64_t f = first_[s], l = first_[s + 1], t = fsn[l - 1];
+        int64_t* out = rows_.data() + rows_ptr_[s];
+        for (int64_t j = f; j < l; ++j) *out++ = j;
+        const int64_t wt = fund[t + 1] - fund[t];
+        std::copy(frows.begin() + fptr[t] + wt, frows.begin() + fptr[t + 1], out);
+    }
+    // A's entries on or below the diagonal (new order) → their slots in the panels.
+    src_.clear();
+    dst_.clear();
+    for (int64_t c = 0; c < n; ++c)
+        for (int64_t e = indptr[c]; e < indptr[c + 1]; ++e) {
+            int64_t i = inv_[indices[e]], k = inv_[c];
+            if (i < k) continue;
+            int64_t s = sn_[k];
+            int64_t nr = rows_ptr_[s + 1] - rows_ptr_[s];
+            src_.push_back(e);
+            dst_.push_back(panel_ptr_[s] + (k - first_[s]) * nr + position(s, i));
+        }
+    X_.assign(panel_ptr_[S], 0.0);
+}
+
+int64_t SparseCholesky::nnz_L() const {
+    int64_t total = 0;
+    for (int64_t s = 0; s < supernodes(); ++s) {
+        int64_t w = first_[s + 1] - first_[s], nr = rows_ptr_[s + 1] - rows_ptr_[s];
+        total += w * nr - w * (w - 1) / 2;
+    }
+    return total;
+}
+
+int64_t SparseCholesky::sparent(int64_t s) const {
+    int64_t w = first_[s + 1] - first_[s];
+    int64_t below = rows_ptr_[s] + w;
+    return below < rows_ptr_[s + 1] ? sn_[rows_[below]] : -1;
+}
+
+int64_t SparseCholesky::position(int64_t s, int64_t row) const {
+    const int64_t* begin = rows_.data() + rows_ptr_[s];
+    const int64_t* end = rows_.data() + rows_ptr_[s + 1];
+    const int64_t* it = std::lower_bound(begin, end, row);
+    return (it != end && *it == row) ? it - begin : -1;
+}
+
+int64_t SparseCholesky::factorize(const double* data) {
+    std::fill(X_.begin(), X_.end(), 0.0);
+    for (size_t e = 0; e < src_.size(); ++e) X_[dst_[e]] += data[src_[e]];
+    int64_t S = supernodes();
+    // Left-looking (Ng & Peyton 1993): head[s] links the supernodes d whose next update goes
+    // to s; ptr[d] is the first row of d not yet used.
+    std::vector<int64_t> head(S, -1), next(S, -1), ptr(S, 0), map(n_), rel(n_);
+    std::vector<double> W(max_update_);
+    for (int64_t s = 0; s < S; ++s) {
+        const int64_t f = first_[s], l = first_[s + 1], w = l - f;
+        const int64_t nr = rows_ptr_[s + 1] - rows_ptr_[s];
+        const int64_t* R = rows_.data() + rows_ptr_[s];
+        double* Xs = X_.data() + panel_ptr_[s];
+        for (int64_t i = 0; i < nr; ++i) map[R[i]] = i;  // relative indices of s's rows
+        for (int64_t d = head[s]; d != -1;) {
+            const int64_t nxt = next[d];
+            const int64_t nrd = rows_ptr_[d + 1] - rows_ptr_[d], wd = first_[d + 1] - first_[d];
+            const int64_t* Rd = rows_.data() + rows_ptr_[d];
+            const double* Xd = X_.data() + panel_ptr_[d];
+            const int64_t p = ptr[d], r = nrd - p;
+            int64_t q = 0;
+            while (p + q < nrd && Rd[p + q] < l) ++q;
+            // W = L_d[p:, :] L_d[p:p+q, :]ᵀ (r × q, lower part)
+            std::fill(W.begin(), W.begin() + r * q, 0.0);
+            dense::lower_product(r, q, wd, 1.0, Xd + p, nrd, W.data(), r);
+            for (int64_t ii = 0; ii < r; ++ii) rel[ii] = map[Rd[p + ii]];  // relative indices
+            for (int64_t jj = 0; jj < q; ++jj) {  // scatter-subtract into s's panel
+                double* Xc = Xs + rel[jj] * nr;    // column Rd[p + jj] - f
+                const double* Wj = W.data() + jj * r;
+                for (int64_t ii = jj; ii < r; ++ii) Xc[rel[ii]] -= Wj[ii];
+            }
+            ptr[d] = p + q;
+            if (p + q < nrd) {
+                const int64_t t = sn_[Rd[p + q]];
+                next[d] = head[t];
+                head[t] = d;
+            }
+            d = nxt;
+        }
+        // Dense Cholesky of the panel (its diagonal block and the rows below), right-looking by
+        // blocks of 16 columns: each block column by column, then its product into the rest.
+        for (int64_t c0 = 0; c0 < w; c0 += 16) {
+            const int64_t c1 = std::min<int64_t>(c0 + 16, w);
+            for (int64_t c = c0; c < c1; ++c) {
+                double* Xc = Xs + c * nr;
+                for (int64_t j = c0; j < c; ++j) {
+                    const double* Xj = Xs + j * nr;
+                    const double a = Xj[c];
+                    for (int64_t i = c; i < nr; ++i) Xc[i] -= Xj[i] * a;
+                }
+                const double diag = Xc[c];
+                if (!(diag > 0.0) || !std::isfinite(diag)) return f + c;
+                const double root = std::sqrt(diag), scale = 1.0 / root;
+                Xc[c] = root;
+                for (int64_t i = c + 1; i < nr; ++i) Xc[i] *= scale;
+            }
+            if (c1 < w)
+                dense::lower_product(nr - c1, w - c1, c1 - c0, -1.0, Xs + c0 * nr + c1, nr,
+                                     Xs + c1 * nr + c1, nr);
+        }
+        ptr[s] = w;
+        if (w < nr) {
+            const int64_t t = sn_[R[w]];
+            next[s] = head[t];
+            head[t] = s;
+        }
+    }
+    return -1;
+}
+
+void SparseCholesky::forward(double* y, int64_t m, const std::vector<int64_t>* only) const {
+    // Supernode by supernode: L_JJ x_J = y_J, then y_S -= L_SJ x_J (one gather-free product
+    // into a buffer, one scatter).
+    const int64_t S = only ? static_cast<int64_t>(only->size()) : supernodes();
+    std::vector<double> tmp;
+    for (int64_t t = 0; t < S; ++t) {
+        const int64_t s = only ? (*only)[t] : t;
+        const int64_t f = first_[s], w = first_[s + 1] - f;
+        const int64_t nr = rows_ptr_[s + 1] - rows_ptr_[s], r = nr - w;
+        const int64_t* R = rows_.data() + rows_ptr_[s] + w;
+        const double* L = X_.data() + panel_ptr_[s];
+        double* x = y + f * m;
+        for (int64_t c = 0; c < w; ++c) {
+            const double* Lc = L + c * nr;
+            const double scale = 1.0 / Lc[c];
+            for (int64_t q = 0; q < m; ++q) x[c * m + q] *= scale;
+            for (int64_t i = c + 1; i < w; ++i)
+                for (int64_t q = 0; q < m; ++q) x[i * m + q] -= Lc[i] * x[c * m + q];
+        }
+        tmp.assign(r * m, 0.0);
+        for (int64_t c = 0; c < w; ++c) {
+            const double* Lc = L + c * nr + w;
+            if (m == 1) {
+                const double xc = x[c];
+                for (int64_t i = 0; i < r; ++i) tmp[i] += Lc[i] * xc;
+            } else {
+                for (int64_t i = 0; i < r; ++i)
+                    for (int64_t q = 0; q < m; ++q) tmp[i * m + q] += Lc[i] * x[c * m + q];
+            }
+        }
+        for (int64_t i = 0; i < r; ++i)
+            for (int64_t q = 0; q < m; ++q) y[R[i] * m + q] -= tmp[i * m + q];
+    }
+}
+
+void SparseCholesky::backward(double* y, int64_t m) const {
+    // Supernodes in reverse: x_J = L_JJ⁻ᵀ (y_J - L_SJᵀ x_S).
+    std::vector<double> tmp;
+    for (int64_t s = supernodes() - 1; s >= 0; --s) {
+        const int64_t f = first_[s], w = first_[s + 1] - f;
+        const int64_t nr = rows_ptr_[s + 1] - rows_ptr_[s], r = nr - w;
+        const int64_t* R = rows_.data() + rows_ptr_[s] + w;
+        const double* L = X_.data() + panel_ptr_[s];
+        double* x = y + f * m;
+        tmp.resize(r * m);
+        for (int64_t i = 0; i < r; ++i)
+            for (int64_t q = 0; q < m; ++q) tmp[i * m + q] = y[R[i] * m + q];
+        for (int64_t c = 0; c < w; ++c) {
+            const double* Lc = L + c * nr + w;
+            if (m == 1) {
+                double acc = 0.0;
+                for (int64_t i = 0; i < r; ++i) acc += Lc[i] * tmp[i];
+                x[c] -= acc;
+            } else {
+                for (int64_t i = 0; i < r; ++i)
+                    for (int64_t q = 0; q < m; ++q) x[c * m + q] -= Lc[i] * tmp[i * m + q];
+            }
+        }
+        for (int64_t c = w - 1; c >= 0; --c) {
+            const double* Lc = L + c * nr;
+            for (int64_t i = c + 1; i < w; ++i)
+                for (int64_t q = 0; q < m; ++q) x[c * m + q] -= Lc[i] * x[i * m + q];
+            const double scale = 1.0 / Lc[c];
+            for (int64_t q = 0; q < m; ++q) x[c * m + q] *= scale;
+        }
+    }
+}
+
+void SparseCholesky::solve(const double* b, double* x, int64_t m) const {
+    std::vector<double> y(n_ * m);
+    for (int64_t k = 0; k < n_; ++k)
+        std::copy(b + perm_[k] * m, b + perm_[k] * m + m, y.data() + k * m);
+    forward(y.data(), m, nullptr);
+    backward(y.data(), m);
+    for (int64_t k = 0; k < n_; ++k)
+        std::copy(y.data() + k * m, y.data() + k * m + m, x + perm_[k] * m);
+}
+
+void SparseCholesky::inverse_submatrix(const int64_t* idx, int64_t k, double* out) const {
+    // The supernodes on the elimination-tree paths of the parameters, in increasing order:
+    // L⁻¹ e_p is zero elsewhere.
+    const int64_t S = supernodes();
+    std::vector<char> on_path(S, 0);
+    std::vector<int64_t> path;
+    for (int64_t a = 0; a < k; ++a)
+        for (int64_t s = sn_[inv_[idx[a]]]; s != -1 && !on_path[s]; s = sparent(s)) {
+            on_path[s] = 1;
+            path.push_back(s);
+        }
+    std::sort(path.begin(), path.end());
+    std::vector<double> y(n_ * k, 0.0);
+    for (int64_t a = 0; a < k; ++a) y[inv_[idx[a]] * k + a] = 1.0;
+    forward(y.data(), k, &path);
+    std::fill(out, out + k * k, 0.0);
+    for (int64_t s : path)
+        for (int64_t j = first_[s]; j < first_[s + 1]; ++j) {
+            const double* yj = y.data() + j * k;
+            for (int64_t a = 0; a < k; ++a)
+                for (int64_t c = 0; c < k; ++c) out[a * k + c] += yj[a] * yj[c];
+        }
+}
+
+bool SparseCholesky::selected_inverse_blocks(const int64_t* groups, int64_t count, int64_t b,
+                                             double* out) const {
+    // Z = A⁻¹ on L's pattern, in panels like L's, by Takahashi's recurrence from the last
+    // supernode (the root) to the first. Every Z_SS a supernode needs is on the pattern of
+    // its ancestors (L's pattern is chordal) and already formed.
+    const int64_t S = supernodes();
+    std::vector<double> Z(X_.size());
+    std::vector<double> Linv, Lt, Dinv, Zss, ZSJ;
+    for (int64_t s = S - 1; s >= 0; --s) {
+        const int64_t f = first_[s], w = first_[s + 1] - f;
+        const int64_t nr = rows_ptr_[s + 1] - rows_ptr_[s], r = nr - w;
+        const int64_t* R = rows_.data() + rows_ptr_[s];
+        const double* L = X_.data() + panel_ptr_[s];  // column-major, leading dimension nr
+        Linv.assign(w * w, 0.0);                         // L_JJ⁻¹, column-major (w × w)
+        for (int64_t j = 0; j < w; ++j) {
+            Linv[j * w + j] = 1.0 / L[j * nr + j];
+            for (int64_t i = j + 1; i < w; ++i) {
+                double sum = 0.0;
+                for (int64_t t = j; t < i; ++t) sum += L[t * nr + i] * Linv[j * w + t];
+                Linv[j * w + i] = -sum / L[i * nr + i];
+            }
+        }
+        Dinv.assign(w * w, 0.0);  // L_JJ⁻ᵀ L_JJ⁻¹
+        for (int64_t a = 0; a < w; ++a)
+            for (int64_t c = 0; c <= a; ++c) {
+                double sum = 0.0;
+                for (int64_t t = a; t < w; ++t) sum += Linv[a * w + t] * Linv[c * w + t];
+                Dinv[c * w + a] = Dinv[a * w + c] = sum;
+            }
+        Lt.assign(r * w, 0.0);  // L̃_SJ = L_SJ L_JJ⁻¹ (r × w, column-major)
+        for (int64_t j = 0; j < w; ++j)
+            for (int64_t t = j; t < w; ++t) {
+                const double a = Linv[j * w + t];
+                const double* col = L + t * nr + w;
+                double* out_col = Lt.data() + j * r;
+                for (int64_t i = 0; i < r; ++i) out_col[i] += col[i] * a;
+            }
+        Zss.assign(r * r, 0.0);  // gathered from the ancestors' Z panels by merging rows
+        for (int64_t c = 0; c < r; ++c) {
+            const int64_t gc = R[w + c], t = sn_[gc], col = gc - first_[t];
+            const int64_t nrt = rows_ptr_[t + 1] - rows_ptr_[t];
+            const int64_t* Rt = rows_.data() + rows_ptr_[t];
+            const double* Zt = Z.data() + panel_ptr_[t] + col * nrt;
+            int64_t pos = col;
+            for (int64_t a = c; a < r; ++a) {
+                const int64_t ga = R[w + a];
+                while (pos < nrt && Rt[pos] != ga) ++pos;
+                if (pos == nrt) throw std::logic_error("selected inversion: pattern not chordal");
+                Zss[c * r + a] = Zt[pos];
+            }
+        }
+        for (int64_t c0 = 0; c0 < r; c0 += 32)  // the upper triangle, by 32 × 32 tiles
+            for (int64_t a0 = c0; a0 < r; a0 += 32)
+                for (int64_t c = c0; c < std::min(c0 + 32, r); ++c)
+                    for (int64_t a = std::max(a0, c + 1); a < std::min(a0 + 32, r); ++a)
+                        Zss[a * r + c] = Zss[c * r + a];
+        ZSJ.assign(r * w, 0.0);  // Z_SJ = -Z_SS L̃_SJ
+        dense::gemm_nn(r, w, r, -1.0, Zss.data(), r, Lt.data(), r, ZSJ.data(), r);
+        double* Zs = Z.data() + panel_ptr_[s];
+        for (int64_t j = 0; j < w; ++j) {
+            for (int64_t a = 0; a < w; ++a) {  // Z_JJ = L_JJ⁻ᵀ L_JJ⁻¹ - L̃_SJᵀ Z_SJ
+                double sum = Dinv[j * w + a];
+                const double* lt = Lt.data() + a * r;
+                const double* zc = ZSJ.data() + j * r;
+                for (int64_t i = 0; i < r; ++i) sum -= lt[i] * zc[i];
+                Zs[j * nr + a] = sum;
+            }
+            std::copy(ZSJ.data() + j * r, ZSJ.data() + (j + 1) * r, Zs + j * nr + w);
+        }
+    }
+    for (int64_t g = 0; g < count; ++g)
+        for (int64_t a = 0; a < b; ++a)
+            for (int64_t c = 0; c < b; ++c) {
+                const int64_t i = inv_[groups[g * b + a]], j = inv_[groups[g * b + c]];
+                const int64_t lo = std::min(i, j), hi = std::max(i, j), t = sn_[lo];
+                const int64_t pos = position(t, hi);
+                if (pos < 0) return false;
+                const int64_t nrt = rows_ptr_[t + 1] - rows_ptr_[t];
+                out[(g * b + a) * b + c] = Z[panel_ptr_[t] + (lo - first_[t]) * nrt + pos];
+            }
+    return true;
+}
+
+// ---- bindings ------------------------------------------------------------------------------
+
+void register_sparse_chol(nb::module_& m) {
+    nb::class_<SparseCholesky>(m, "SparseCholesky",
+                               "Supernodal sparse Cholesky A = L Lᵀ with a fixed pattern "
+                               "(internal: see relmap.network.sparse).")
+        .def(
+            "__init__",
+            [](SparseCholesky* self, Index1 indptr, Index1 indices, Index1 perm) {
+                const int64_t n = static_cast<int64_t>(perm.shape(0));
+                if (static_cast<int64_t>(indptr.shape(0)) != n + 1)
+                    throw nb::value_error("indptr must have n + 1 entries");
+                if (static_cast<int64_t>(indices.shape(0)) < indptr.data()[n])
+                    throw nb::value_error("indices shorter than indptr[-1]");
+                new (self) SparseCholesky(n, indptr.data(), indices.data(), perm.data());
+            },
+            nb::arg("indptr"), nb::arg("indices"), nb::arg("perm"))
+        .def_prop_ro("n", &SparseCholesky::n)
+        .def_prop_ro("nnz_L", &SparseCholesky::nnz_L)
+        .def_prop_ro("supernodes", &SparseCholesky::supernodes)
+        .def(
+            "ordering", [](const SparseCholesky& f) { return vector_array(f.perm()); },
+            "The elimination order (new → old): the caller's ordering, postordered.")
+        .def(
+            "factorize",
+            [](SparseCholesky& f, Float1 data) {
+                nb::gil_scoped_release unlocked;
+                return f.factorize(data.data());
+            },
+            nb::arg("data"))
+        .def(
+            "solve",
+            [](const SparseCholesky& f, Float2 b) {
+                if (static_cast<int64_t>(b.shape(0)) != f.n())
+                    throw nb::value_error("right-hand side has the wrong number of rows");
+                const int64_t m = static_cast<int64_t>(b.shape(1));
+                auto out = new_array({static_cast<size_t>(f.n()), static_cast<size_t>(m)});
+                {
+                    nb::gil_scoped_release unlocked;
+                    f.solve(b.data(), out.data(), m);
+                }
+                return out;
+            },
+            nb::arg("b"))
+        .def(
+            "inverse_submatrix",
+            [](const SparseCholesky& f, Index1 idx) {
+                const int64_t k = static_cast<int64_t>(idx.shape(0));
+                auto out = new_array({static_cast<size_t>(k), static_cast<size_t>(k)});
+                f.inverse_submatrix(idx.data(), k, out.data());
+                return out;
+            },
+            nb::arg("idx"))
+        .def(
+            "selected_inverse_blocks",
+            [](const SparseCholesky& f, Index2 groups) {
+                const size_t count = groups.shape(0), b = groups.shape(1);
+                auto out = new_array({count, b, b});
+                bool ok;
+                {
+                    nb::gil_scoped_release unlocked;
+                    ok = f.selected_inverse_blocks(groups.data(), static_cast<int64_t>(count),
+                                                   static_cast<int64_t>(b), out.data());
+                }
+                if (!ok) throw nb::value_error("a group's entries are not on the factor's pattern");
+                return out;
+            },
+            nb::arg("groups"));
+}
+
+}  // namespace relmap

@@ -1,0 +1,93 @@
+"""The pose-graph normal equations (relmap._core.normal_equations through relmap.network.optimal)
+against the mathematics: cost, gradient and Gauss-Newton matrix from residuals written with
+relmap.lie and Jacobians by central differences."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from relmap.lie import SE2, SE3
+from relmap.network import optimal
+from relmap.network.problem import Problem, parameterize
+
+from .helpers import random_covs
+
+
+def _problem(group, seed: int, n: int = 7, m: int = 14) -> Problem:
+    rng = np.random.default_rng(seed)
+    b = group.dof
+    i = np.concatenate([np.arange(n - 1), rng.integers(0, n, m - n + 1)])
+    j = np.concatenate([np.arange(1, n), rng.integers(0, n, m - n + 1)])
+    j = np.where(i == j, (j + 1) % n, j)
+    truth = group.plus(group.identity((n,)), rng.normal(scale=1.5, size=(n, b)))
+    z = group.plus(group.between(truth[i], truth[j]), rng.normal(scale=0.1, size=(m, b)))
+    cov = random_covs(rng, (m,), n=b, scale=0.05) + 1e-3 * np.eye(b)
+    guess = group.plus(truth, rng.normal(scale=0.3, size=(n, b)))
+    return Problem(n, i, j, z, cov, [], guess, 0, [f"e{k}" for k in range(m)], group)
+
+
+def _numeric(residual, x0: np.ndarray, h: float = 1e-6) -> np.ndarray:
+    cols = []
+    for k in range(len(x0)):
+        e = np.zeros_like(x0)
+        e[k] = h
+        cols.append((residual(e) - residual(-e)) / (2 * h))
+    return np.stack(cols, axis=1)
+
+
+def _check(p: Problem, linearize, moved, pattern) -> None:
+    group = p.group
+    W = np.linalg.inv(p.cov)
+
+    def residual(delta):
+        poses = moved(delta)
+        return group.minus(group.between(poses[p.i], poses[p.j]), p.z).reshape(-1)
+
+    size = pattern.size
+    r = residual(np.zeros(size))
+    J = _numeric(residual, np.zeros(size))
+    Wbig = np.zeros((len(r), len(r)))
+    b = group.dof
+    for k in range(len(p.i)):
+        Wbig[b * k : b * k + b, b * k : b * k + b] = W[k]
+    cost, _, data, grad = linearize()
+    assert cost == pytest.approx(r @ Wbig @ r, rel=1e-12)
+    np.testing.assert_allclose(grad, J.T @ Wbig @ r, rtol=1e-6, atol=1e-6 * abs(grad).max())
+    H = pattern.matrix(data).toarray()
+    H_ref = J.T @ Wbig @ J
+    np.testing.assert_allclose(H, H_ref, rtol=1e-6, atol=1e-6 * abs(H_ref).max())
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_planar_normal_equations_equal_numeric_jacobians(seed):
+    p = _problem(SE2, seed)
+    param = parameterize(p)
+    system = optimal._System(p, param, optimal._weights(p, param))
+    state = param.initial_state(p.guess, p.anchor)
+    move = param.stepper()
+    _check(
+        p, lambda: system.linearize(*state), lambda d: param.poses(*move(*state, d)), system.pattern
+    )
+
+
+@pytest.mark.parametrize("group", [SE2, SE3])
+@pytest.mark.parametrize("seed", range(3))
+def test_lie_normal_equations_equal_numeric_jacobians(group, seed):
+    p = _problem(group, seed)
+    param = parameterize(p)
+    system = optimal._LieSystem(p, param, optimal._weights(p, param))
+    poses = np.array(p.guess)
+    _check(p, lambda: system.linearize(poses), lambda d: system.step(poses, d), system.pattern)
+
+
+def test_bad_arguments_are_refused_by_the_core():
+    from relmap import _core
+
+    r, J = np.zeros((2, 3)), np.zeros((2, 3, 3))
+    slots, g = np.zeros((2, 36), np.int64), np.zeros(12, np.int64)
+    _core.normal_equations(r, J, J, J, slots, g, 1, 1)
+    with pytest.raises(ValueError, match="slot"):
+        _core.normal_equations(r, J, J, J, slots + 5, g, 1, 1)
+    with pytest.raises(ValueError):
+        _core.normal_equations(np.zeros((2, 4)), J, J, J, slots, g, 1, 1)
