@@ -26,7 +26,9 @@ def _report(outcome: fuzzing.Outcome) -> str:
     return "\n\n".join(f"{k}:\n{v}" for k, v in outcome.examples.items())
 
 
-@pytest.mark.parametrize(("name", "reader", "base", "suffix"), TEXT_READERS, ids=lambda v: str(v))
+@pytest.mark.parametrize(
+    ("name", "reader", "base", "suffix"), TEXT_READERS, ids=[r[0] for r in TEXT_READERS]
+)
 def test_text_readers_never_raise_an_unexpected_type(name, reader, base, suffix):
     reader(_write_once(base, suffix))  # the base input itself is valid
     outcome = fuzzing.fuzz_text_reader(reader, base, suffix, count=150, seed=16)
