@@ -31,7 +31,7 @@ def _report(outcome: fuzzing.Outcome) -> str:
 )
 def test_text_readers_never_raise_an_unexpected_type(name, reader, base, suffix):
     reader(_write_once(base, suffix))  # the base input itself is valid
-    outcome = fuzzing.fuzz_text_reader(reader, base, suffix, count=150, seed=16)
+    outcome = fuzzing.fuzz_text_reader(reader, base, suffix, count=100, seed=16)
     assert outcome.unexpected == 0, _report(outcome)
     assert outcome["refused"] > 0  # the mutations do reach the error paths
 
@@ -52,6 +52,6 @@ def _write_once(text: str, suffix: str):
 )
 def test_dataset_readers_never_raise_an_unexpected_type(tmp_path, reader, make):
     reader(make(tmp_path / "valid"))
-    outcome = fuzzing.fuzz_folder_reader(reader, make, count=60, seed=16)
+    outcome = fuzzing.fuzz_folder_reader(reader, make, count=40, seed=16)
     assert outcome.unexpected == 0, _report(outcome)
     assert outcome["refused"] > 0
