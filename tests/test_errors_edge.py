@@ -468,3 +468,18 @@ def test_decisions_with_a_huge_covariance_fail_cleanly(variance):
         decisions.through_door(a, 1.0, 0.5)  # used to be "negative dimensions"
     wide = rm.AT([1.0, 0.0, 0.0], np.diag([1e100, 1e100, 1e-2]))
     assert decisions.through_door(wide, 1.0, 0.5).probability == pytest.approx(0.0, abs=1e-12)
+
+
+def test_montecarlo_validates_its_inputs():
+    from relmap import montecarlo
+    from relmap.lie import se2
+
+    a = rm.AT([1.0, 0.0, 0.1], I3)
+    with pytest.raises(ParameterError, match="seed"):
+        montecarlo.simulate(se2.compose, a, a, n=10, seed=-1)
+    with pytest.raises(ArgumentTypeError):
+        montecarlo.simulate(se2.compose, a, "b", n=10)
+    with pytest.raises(NonFiniteError):
+        montecarlo.sample_moments(np.full((4, 3), NAN))
+    with pytest.raises(NotNumericError):
+        montecarlo.sample_moments("samples")

@@ -312,12 +312,16 @@ def test_cli_bad_input(capsys, tmp_path, mrclam_dir, plaza_dir):
     assert "neither an MRCLAM folder" in err and "nor a CMU Plaza folder" in err
     code, _, err = _cli(capsys, tmp_path / "missing")
     assert code == 2 and "neither" in err
-    code, _, err = _cli(capsys, mrclam_dir, "--robot", "9", "--json")
-    assert code == 2 and "robot must be a robot number 1-5" in err and "got 9" in err
+    with pytest.raises(SystemExit) as exc:  # argparse's range check, before any work
+        _cli(capsys, mrclam_dir, "--robot", "9", "--json")
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "--robot" in err and "between 1 and 5; got 9" in err
     code, _, err = _cli(capsys, plaza_dir, "--robot", "1")
     assert code == 2 and "one robot" in err
-    code, _, err = _cli(capsys, plaza_dir, "--plot", tmp_path / "no" / "such" / "x.png")
-    assert code == 2 and "folder does not exist" in err
+    with pytest.raises(SystemExit) as exc:  # the output checked before any work
+        _cli(capsys, plaza_dir, "--plot", tmp_path / "no" / "such" / "x.png")
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "does not exist" in err
     with pytest.raises(SystemExit) as exc:
         _cli(capsys, plaza_dir, "--associate", "nearest")
     assert exc.value.code == 2
@@ -330,7 +334,8 @@ def test_cli_localize_subprocess_exit_code(tmp_path):
         text=True,
         timeout=120,
     )
-    assert out.returncode == 2 and "relmap: error:" in out.stderr and "neither" in out.stderr
+    assert out.returncode == 2 and "relmap localize: error:" in out.stderr
+    assert "neither" in out.stderr
 
 
 def test_localize_and_plot_modules_stay_light():

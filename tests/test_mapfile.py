@@ -77,7 +77,7 @@ def test_degrees_apply_to_cov(tmp_path):
         ),
         (
             {"ats": [{"from": "a", "to": "b", "mean": [0, 0, "x"]}]},
-            "could not convert|must be numbers",
+            "could not convert|must be numbers|must hold numbers",
         ),
         (
             {

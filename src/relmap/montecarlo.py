@@ -28,7 +28,7 @@ import numpy as np
 from relmap import gaussian
 from relmap.at import AT, merge
 from relmap.at3 import AT3
-from relmap.errors import ChunkError, ParameterError, ShapeError
+from relmap.errors import ArgumentTypeError, ChunkError, ParameterError, ShapeError
 from relmap.lie import SE2, Group
 from relmap.typing import FloatArray, SeedLike
 
@@ -57,7 +57,8 @@ def sample_moments(samples: FloatArray, group: Group = SE2) -> tuple[FloatArray,
     are wrapped, so a distribution straddling ±π is handled); the covariance uses deviations in
     the chart and the unbiased 1/(n-1) normalization.
     """
-    samples = np.asarray(samples, dtype=np.float64)
+    samples = gaussian.real_array(samples, "samples")
+    gaussian.check_finite(samples, "samples")
     k = group.point_ndim
     if samples.ndim < k + 1 or samples.shape[samples.ndim - k :] != group.point_shape:
         raise ShapeError(
@@ -172,6 +173,12 @@ def _whitener(cov: FloatArray) -> tuple[FloatArray, FloatArray]:
     return np.swapaxes(U * inv_sqrt[..., None, :], -1, -2), keep.sum(axis=-1)
 
 
+def _check_inputs(inputs: tuple[object, ...]) -> None:
+    for i, a in enumerate(inputs):
+        if not isinstance(a, (AT, AT3)):
+            raise ArgumentTypeError(f"input {i} is a {type(a).__name__}, not an AT or AT3")
+
+
 def simulate(
     operation: Callable[..., FloatArray],
     *inputs: AT | AT3,
@@ -186,7 +193,8 @@ def simulate(
     """
     if not inputs:
         raise ParameterError("simulate needs at least one input AT")
-    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+    _check_inputs(inputs)
+    rng = gaussian._rng(seed)
     draws = [a.sample(n, rng) for a in inputs]
     return SampleSet.of(np.asarray(operation(*draws), dtype=np.float64), inputs[0].group)
 
@@ -202,8 +210,9 @@ def simulate_merge(
     centred on ``truth`` (default: the merge of the inputs' means) with the merged covariance;
     compare it with ``AT(truth, merge(*inputs).cov)``.
     """
-    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
-    center = merge(*inputs).mean if truth is None else np.asarray(truth, dtype=np.float64)
+    _check_inputs(inputs)
+    rng = gaussian._rng(seed)
+    center = merge(*inputs).mean if truth is None else gaussian.real_array(truth, "truth")
     kind = type(inputs[0])
     measured = [kind._trusted(kind._trusted(center, a.cov).sample(n, rng), a.cov) for a in inputs]
     return SampleSet.of(merge(*measured).mean, kind.group)
