@@ -10,13 +10,14 @@ import pytest
 import relmap as rm
 from relmap import _core, at3
 
+from .helpers import valid_cross_cov
 from .test_at3 import _close, _reference_compound, _reference_reverse, random_at3s, rng
 
 
 @pytest.mark.parametrize("n", [1, 2, 15, 16, 17, 31, 32, 33, 100])
 def test_every_batch_size_and_its_ragged_last_chunk(n):
     a, b = random_at3s(41, n), random_at3s(42, n)
-    X = rng(43).normal(scale=0.01, size=(n, 6, 6))
+    X = valid_cross_cov(a.cov, b.cov, 43)
     _close(a @ b, *_reference_compound(a, b))
     _close(rm.compound(a, b, cross_cov=X), *_reference_compound(a, b, X))
     _close(a.reverse(), *_reference_reverse(a))
@@ -30,7 +31,7 @@ def test_strided_and_broadcast_views_are_read_in_place():
     one = b[3]  # one AT3 against a batch: stride 0
     _close(sa @ one, *_reference_compound(sa, one))
     _close(one @ sa, *_reference_compound(one, sa))
-    X = np.broadcast_to(rng(53).normal(scale=0.01, size=(6, 6)), (45, 6, 6))
+    X = np.broadcast_to(valid_cross_cov(sa.cov[0], sb.cov[0], 53), (45, 6, 6))
     _close(rm.compound(sa, sb, cross_cov=X), *_reference_compound(sa, sb, X))
     grid = rm.AT3._trusted(  # a 2-D batch stored in numpy's default layout, transposed
         np.ascontiguousarray(a.mean.reshape(9, 10, 4, 4)).swapaxes(0, 1),

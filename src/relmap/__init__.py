@@ -28,7 +28,7 @@ if TYPE_CHECKING:
     from relmap.gaussian import Ellipse
     from relmap.network import Estimate, RelationalMap
 
-__version__ = "0.1.0"
+from relmap._version import __version__
 
 #: The public names and the module each comes from.
 _NAMES = {

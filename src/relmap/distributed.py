@@ -135,7 +135,7 @@ def check_workers(
     """Each worker's versions of :data:`NEEDED`; raise :class:`relmap.errors.ClusterError` if
     there is no worker within ``timeout`` s, if a worker lacks one of them (naming it), or runs
     another relmap version than this process."""
-    import relmap
+    from relmap._version import __version__
 
     try:
         client.wait_for_workers(1, timeout=timeout)
@@ -151,12 +151,12 @@ def check_workers(
             raise ClusterError(
                 f"Dask worker {worker} cannot import {', '.join(missing)}: install it on every "
                 f"worker (pip install 'relmap[distributed]', the same version as here, "
-                f"{relmap.__version__})"
+                f"{__version__})"
             )
-        if found["relmap"] != relmap.__version__:
+        if found["relmap"] != __version__:
             raise ClusterError(
                 f"Dask worker {worker} runs relmap {found['relmap']}, this process "
-                f"{relmap.__version__}: install the same version on every worker"
+                f"{__version__}: install the same version on every worker"
             )
     return versions
 

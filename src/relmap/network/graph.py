@@ -142,6 +142,13 @@ class RelationalMap:
         """The kept ``(key, value)`` pairs (see :meth:`memo`)."""
         return iter(list(self._memo.items()))
 
+    def __getstate__(self) -> dict[str, Any]:
+        """A map pickles (to a Dask worker, say) without its kept results: a solved factor lives
+        in the compiled core and is recomputed where it is needed."""
+        state = self.__dict__.copy()
+        state["_memo"] = {}
+        return state
+
     @property
     def group(self) -> Group | None:
         """The map's pose group (:data:`relmap.lie.SE2` or :data:`~relmap.lie.SE3`); None while
