@@ -221,7 +221,8 @@ def test_query_command_on_files(data_dir, tmp_path):
         and out["expression"] is None
     )
     sol = solve_graph(read_graph(data_dir / "posegraph2d" / "intel.g2o"))
-    np.testing.assert_allclose(out["cov"], sol.relative(0, 1727).cov, rtol=1e-9)
+    # covariances at the last Gauss-Newton iterate of each solve (anchored differently)
+    np.testing.assert_allclose(out["cov"], sol.relative(0, 1727).cov, rtol=1e-6)
     bad = subprocess.run(
         [
             sys.executable,
