@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import importlib
 
+from relmap._version import __version__
+
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (mypy knows the name)
 if TYPE_CHECKING:
     from typing import Any
@@ -27,8 +29,6 @@ if TYPE_CHECKING:
     from relmap.at3 import AT3
     from relmap.gaussian import Ellipse
     from relmap.network import Estimate, RelationalMap
-
-from relmap._version import __version__
 
 #: The public names and the module each comes from.
 _NAMES = {
