@@ -74,8 +74,8 @@ def test_help_imports_neither_numpy_nor_scipy():
         "import sys; from relmap.cli import main\n"
         "try:\n    main(['--help'])\nexcept SystemExit:\n    pass\n"
         "print([m for m in sys.modules if m.split('.')[0] in ('numpy', 'scipy', 'relmap') "
-        "and m not in ('relmap', 'relmap._version', 'relmap.cli', 'relmap.errors', 'relmap._numba', "
-        "'relmap.cli_trajectory')], "
+        "and m not in ('relmap', 'relmap._version', 'relmap.cli', 'relmap.errors', "
+        "'relmap._numba', 'relmap.cli_trajectory')], "
         "file=sys.stderr)"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
