@@ -483,3 +483,19 @@ def test_montecarlo_validates_its_inputs():
         montecarlo.sample_moments(np.full((4, 3), NAN))
     with pytest.raises(NotNumericError):
         montecarlo.sample_moments("samples")
+
+
+def test_map_names_and_frames_are_checked_with_relmap_errors():
+    """A duplicate AT name is a DuplicateNameError, an unhashable frame a ParameterError naming
+    the AT and the end (both RelmapErrors; before, a plain ValueError and a bare TypeError)."""
+    from relmap.errors import DuplicateNameError, ParameterError, RelmapError
+
+    g = rm.RelationalMap()
+    at = rm.AT([1.0, 0.0, 0.0], np.eye(3) * 1e-2)
+    g.add("W", "A", at, name="x")
+    with pytest.raises(DuplicateNameError, match="'x' is already in the map"):
+        g.add("A", "B", at, name="x")
+    with pytest.raises(ParameterError, match="'to' frame is a list") as info:
+        g.add("W", ["B"], at, name="y")
+    assert isinstance(info.value, RelmapError)
+    assert [e.name for e in g.edges()] == ["x"]  # nothing half-added

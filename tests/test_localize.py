@@ -386,3 +386,16 @@ def test_plot_ellipse_and_trajectory():
         plot.trajectory(ax3, many, ats=many, every=0)
     with pytest.raises(TypeError):
         plot.ellipse(ax3, np.zeros(3))
+
+
+def test_a_plaza_run_without_range_readings_is_refused_not_calibrated_to_nan(plaza_dir):
+    """No usable reading in the training half: a ParameterError naming it (before: the filter
+    ran with σ range NaN and the command printed "σ range nan m")."""
+    from relmap.errors import ParameterError
+    from relmap.io import read_plaza
+    from relmap.localize import calibrate_plaza
+
+    data = read_plaza(plaza_dir)
+    silent = data._replace(meas_beacon_index=np.full_like(data.meas_beacon_index, -1))
+    with pytest.raises(ParameterError, match="first half of the Plaza run: 0 usable readings"):
+        calibrate_plaza(silent)

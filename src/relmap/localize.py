@@ -220,8 +220,18 @@ def _quadratic(e: FloatArray, cov: FloatArray) -> FloatArray:
 
 
 # -------------------------------------------------------------------------- calibration
-def _robust(residuals: FloatArray) -> tuple[float, float]:
-    """``(σ, median)``: σ = 1.4826·median(|r - median(r)|)."""
+def _check_readings(count: int, what: str) -> None:
+    """A ParameterError unless ``what`` has at least two readings to estimate a noise from."""
+    if count < 2:
+        raise ParameterError(
+            f"cannot calibrate the sensor noise on {what}: {count} usable readings inside its "
+            "ground-truth span (at least 2 needed)"
+        )
+
+
+def _robust(residuals: FloatArray, what: str) -> tuple[float, float]:
+    """``(σ, median)``: σ = 1.4826·median(|r - median(r)|) of ``what``'s residuals."""
+    _check_readings(len(residuals), what)
     med = float(np.median(residuals))
     return MAD_TO_SIGMA * float(np.median(np.abs(residuals - med))), med
 
@@ -257,8 +267,8 @@ def calibrate_mrclam(data: Mrclam, robot: int, *, window: float = ODOMETRY_WINDO
         window=window,
     )
     res = sensor_residuals(data, robot)
-    sr, br = _robust(res[:, 0])
-    sb, bb = _robust(res[:, 1])
+    sr, br = _robust(res[:, 0], f"robot {robot}")
+    sb, bb = _robust(res[:, 1], f"robot {robot}")
     return Calibration(fit.noise, sr, sb, br, bb, len(res), f"robot {robot}")
 
 
@@ -288,10 +298,11 @@ def calibrate_plaza(data: Plaza, *, window: float = ODOMETRY_WINDOW) -> Calibrat
         & _inside_truth(data.meas_t, data.truth_t)
         & (data.meas_t <= mid)
     )
+    _check_readings(int(keep.sum()), "the first half of the Plaza run")
     xy = data.truth_at(data.meas_t[keep])[:, :2]
     predicted = np.hypot(*(data.beacon_xy[data.meas_beacon_index[keep]] - xy).T)
     scale = float(np.median(data.meas_range[keep] / predicted))
-    sr, br = _robust(data.meas_range[keep] / scale - predicted)
+    sr, br = _robust(data.meas_range[keep] / scale - predicted, "the first half of the Plaza run")
     return Calibration(
         fit.noise, sr, None, br, None, int(keep.sum()), "Plaza first half", range_scale=scale
     )

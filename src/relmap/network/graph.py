@@ -23,7 +23,14 @@ import numpy as np
 from relmap import gaussian
 from relmap.at import AT
 from relmap.at3 import AT3
-from relmap.errors import ShapeError, UnknownATError, UnknownFrameError
+from relmap.errors import (
+    ArgumentTypeError,
+    DuplicateNameError,
+    ParameterError,
+    ShapeError,
+    UnknownATError,
+    UnknownFrameError,
+)
 from relmap.lie import Group
 from relmap.typing import ArrayLike, FloatArray
 
@@ -163,11 +170,11 @@ class RelationalMap:
     def _accept(self, at: object) -> None:
         """Check that ``at`` is an AT of the map's kind (fixing the kind on the first one)."""
         if not isinstance(at, (AT, AT3)):
-            raise TypeError(f"expected an AT or AT3, got {type(at).__name__}")
+            raise ArgumentTypeError(f"expected an AT or AT3, got {type(at).__name__}")
         if self._kind is None:
             self._kind = type(at)
         elif type(at) is not self._kind:
-            raise TypeError(
+            raise ArgumentTypeError(
                 f"this map holds {self._kind.group} ATs ({self._kind.__name__}); "
                 f"got a {type(at).__name__}"
             )
@@ -276,7 +283,7 @@ class RelationalMap:
             if len(set(names)) < m:
                 count = Counter(names)
                 dup = next(nm for nm in names if count[nm] > 1)
-                raise ValueError(f"an AT named {dup!r} is already in the map")
+                raise DuplicateNameError(f"an AT named {dup!r} is already in the map")
         edges = g._edges
         incident = g._incident
         for name, s, d, k in zip(names, src, dst, range(m), strict=True):
@@ -309,7 +316,7 @@ class RelationalMap:
             self._auto += 1
         name = str(name)
         if name in self._edges or name in reserved:
-            raise ValueError(f"an AT named {name!r} is already in the map")
+            raise DuplicateNameError(f"an AT named {name!r} is already in the map")
         return name
 
     def _new_group_name(self, group: str | None) -> str:
@@ -319,10 +326,18 @@ class RelationalMap:
                 k += 1
             return f"g{k}"
         if group in self._groups:
-            raise ValueError(f"a group named {group!r} is already in the map")
+            raise DuplicateNameError(f"a group named {group!r} is already in the map")
         return group
 
     def _insert(self, edge: Edge) -> None:
+        for end, frame in (("from", edge.src), ("to", edge.dst)):
+            try:
+                hash(frame)
+            except TypeError:
+                raise ParameterError(
+                    f"AT {edge.name!r}: frames are hashable names (str, int, ...); its {end!r} "
+                    f"frame is a {type(frame).__name__}"
+                ) from None
         self._changed()
         self._edges[edge.name] = edge
         for frame in (edge.src, edge.dst):
