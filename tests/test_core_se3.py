@@ -11,7 +11,7 @@ import relmap as rm
 from relmap import _core, at3
 
 from .helpers import valid_cross_cov
-from .test_at3 import _close, _reference_compound, _reference_reverse, random_at3s
+from .test_at3 import _close, _reference_compound, _reference_reverse, random_at3s, rng
 
 
 @pytest.mark.parametrize("n", [1, 2, 15, 16, 17, 31, 32, 33, 100])
