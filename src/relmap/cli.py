@@ -128,7 +128,9 @@ def _validate(args: argparse.Namespace) -> int:
             f"{lin['cov_rel_error']:.2%} off, mean {lin['mean_error_sigmas']:.3g}σ off"
             + ("" if s["moments"] == "first_order" else f" (this query: {s['moments']})")
         )
-    print(f"  NEES {s['nees']:.3f} (expected {s['nees_expected']} if the covariance is right)")
+    print(f"  NEES {s['nees']:.3f} of the {s['nees_expected']}-dof error (expected "
+          f"{s['nees_expected']} if the covariance is right; ANEES = NEES/dof = "
+          f"{s['nees'] / max(s['nees_expected'], 1):.3f}, 1 if right)")  # fmt: skip
     print(f"  {s['coverage']:.1%} of the samples inside the {s['probability']:.0%} ellipsoid")
     print(
         f"  Mardia skewness {s['mardia_skewness']:.4f}, excess kurtosis "
@@ -413,6 +415,10 @@ def _localize(args: argparse.Namespace) -> int:
             f"  {name:16s}{s.rmse_position:13.3f} m{s.rmse_heading:11.3f} rad"
             f"{s.coverage_90:13.2f}{s.anees:9.2f}"
         )
+    print(
+        "  (ANEES: mean NEES of the 3-dof pose error / 3, 1 if consistent; coverage_90: share "
+        "of times the true position is inside the 90% ellipse)"
+    )
     if args.plot:
         print(f"  plot written to {args.plot}")
     return 0

@@ -644,11 +644,12 @@ def print_demo(demo: Demo, out: TextIO = sys.stdout) -> None:
     w(
         f"Simulated EKF localization ({len(lec.ekf_landmarks)} landmarks): position RMSE "
         f"{lec.ekf_score.rmse_position:.3f} m (dead reckoning {lec.ekf_baseline.rmse_position:.3f}"
-        f" m), ANEES {lec.ekf_score.anees:.2f}\n"
+        f" m), ANEES {lec.ekf_score.anees:.2f} (1 if consistent)\n"
     )
     if lec.mrclam is not None:
         m = lec.mrclam
         w(
             f"MRCLAM robot {m.robot} EKF: position RMSE {m.score.rmse_position:.3f} m "
-            f"(dead reckoning {m.baseline.rmse_position:.3f} m), ANEES {m.score.anees:.2f}\n"
+            f"(dead reckoning {m.baseline.rmse_position:.3f} m), ANEES {m.score.anees:.2f} "
+            f"(1 if consistent)\n"
         )

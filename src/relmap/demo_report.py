@@ -372,7 +372,7 @@ def write_report(demo: Demo, folder: str | os.PathLike[str], progress: Progress 
         )
     rep.table(
         ["query", "method", "expression", "σx [m]", "σy [m]", "σθ [°]",
-         "Monte Carlo cov error", "NEES (3 if right)", "samples"],
+         "Monte Carlo cov error", "NEES of the 3-dof error (3 if right)", "samples"],
         brows,
         caption="Predicted uncertainty and its Monte Carlo check",
     )  # fmt: skip
@@ -463,8 +463,9 @@ def write_report(demo: Demo, folder: str | os.PathLike[str], progress: Progress 
         f"{float(lec.odometry[-1].ellipse(PROBABILITY).semi_major):.3f} m. Simulated EKF "
         f"localization (Eqs. 13-28) with {len(lec.ekf_landmarks)} landmarks: position RMSE "
         f"{lec.ekf_score.rmse_position:.3f} m against {lec.ekf_baseline.rmse_position:.3f} m by "
-        f"dead reckoning; ANEES {lec.ekf_score.anees:.2f} (3 if consistent), "
-        f"{lec.ekf_score.coverage_90:.0%} of the true poses inside the 90% ellipsoid."
+        f"dead reckoning; ANEES {lec.ekf_score.anees:.2f} (mean NEES of the 3-dof pose error / 3: "
+        f"1 if consistent), {lec.ekf_score.coverage_90:.0%} of the true positions inside the 90% "
+        f"ellipse."
     )
     rep.figure(
         figure_lecture(lec),
@@ -479,8 +480,8 @@ def write_report(demo: Demo, folder: str | os.PathLike[str], progress: Progress 
         rep.paragraph(
             f"MRCLAM dataset 6, robot {m.robot} (real data, `--data`): {m.steps:,} filter times; "
             f"EKF position RMSE {m.score.rmse_position:.3f} m (dead reckoning "
-            f"{m.baseline.rmse_position:.3f} m), ANEES {m.score.anees:.2f}, "
-            f"{m.score.coverage_90:.0%} of the true poses inside the 90% ellipsoid."
+            f"{m.baseline.rmse_position:.3f} m), ANEES {m.score.anees:.2f} (1 if consistent), "
+            f"{m.score.coverage_90:.0%} of the true positions inside the 90% ellipse."
         )
         fig, ax = plot.figure(figsize=(8, 7))
         plot.localization(ax, m)
