@@ -208,3 +208,15 @@ def test_quaternion_rotation_matches_so3():  # type: ignore[no-untyped-def]
     np.testing.assert_allclose(
         t.matrices[:, :3, :3], so3.from_quaternion(t.poses.quaternion), atol=1e-14
     )
+
+
+def test_a_bom_and_crlf_read_like_plain_text(tmp_path):  # type: ignore[no-untyped-def]
+    """Trajectory files are read by relmap's one text reader (relmap.io.textfile): a UTF-8
+    byte-order mark and CRLF line ends give the same trajectory as plain LF text."""
+    text = "# t x y z qx qy qz qw\n0 0 0 0 0 0 0 1\n1 1 0.5 0 0 0 0.0998 0.995\n"
+    plain, dos = tmp_path / "plain.txt", tmp_path / "dos.txt"
+    plain.write_text(text)
+    dos.write_bytes(b"\xef\xbb\xbf" + text.replace("\n", "\r\n").encode())
+    a, b = read_trajectory(plain), read_trajectory(dos)
+    np.testing.assert_array_equal(a.stamps, b.stamps)
+    np.testing.assert_array_equal(a.matrices, b.matrices)

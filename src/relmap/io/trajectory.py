@@ -38,6 +38,7 @@ import numpy as np
 
 from relmap.errors import FileFormatError, ParameterError, RelmapError
 from relmap.io.atomic import write_text_atomic
+from relmap.io.textfile import read_text
 from relmap.lie import so3
 from relmap.trajectory import Trajectory, check_increasing, check_rotations
 from relmap.typing import FloatArray, IntArray
@@ -51,23 +52,6 @@ _HEADER = re.compile(r"#\s*relmap trajectory\b(.*)")
 
 
 # ------------------------------------------------------------------------------- tables
-def _text(path: Path) -> str:
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise FileFormatError(path, "no such file") from None
-    except IsADirectoryError:
-        raise FileFormatError(path, "is a folder, not a trajectory file") from None
-    except OSError as exc:
-        raise FileFormatError(path, f"cannot read: {exc.strerror}") from None
-    if data.startswith(b"\xef\xbb\xbf"):
-        data = data[3:]
-    try:
-        return data.decode("utf-8")
-    except UnicodeDecodeError:
-        raise FileFormatError(path, "not a text trajectory file (not UTF-8 text)") from None
-
-
 def _rows(text: str) -> tuple[list[str], IntArray]:
     """The data lines (not blank, not ``#``) and their 1-based line numbers."""
     lines = text.splitlines()
@@ -239,7 +223,7 @@ def _read_graph_vertices(path: Path) -> Trajectory:
 
 
 def _read_times(path: Path) -> FloatArray:
-    rows, numbers = _rows(_text(path))
+    rows, numbers = _rows(read_text(path))
     values = _table(path, rows, numbers, None)
     if values.shape[1] != 1:
         raise FileFormatError(
@@ -267,7 +251,7 @@ def recognise_trajectory(path: str | os.PathLike[str]) -> str:
         raise FileFormatError(p, f"cannot read: {exc.strerror}") from None
     if head.startswith((b"#ROSBAG V2.0", b"\x89MCAP", b"SQLite format 3\x00")):
         return "bag"
-    text = head.decode("utf-8", errors="replace")
+    text = head.removeprefix(b"\xef\xbb\xbf").decode("utf-8", errors="replace")
     first = next(
         (s.strip() for s in text.splitlines() if s.strip() and not s.lstrip().startswith("#")), ""
     )
@@ -302,7 +286,7 @@ def read_trajectory(
     if fmt == "g2o":
         traj = _read_graph_vertices(p)
     else:
-        text = _text(p)
+        text = read_text(p)
         rows, numbers = _rows(text)
         if fmt == "euroc":
             traj = _read_euroc(p, rows, numbers)
