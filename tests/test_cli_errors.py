@@ -187,3 +187,30 @@ def test_closed_pipe_ends_quietly(tmp_path):
     proc.wait(60)
     assert "Traceback" not in err and "BrokenPipe" not in err
     assert err == ""
+
+
+@pytest.mark.real_data
+def test_localize_on_overflowing_odometry_is_one_line_and_a_failure(data_dir, tmp_path):
+    """A log with a 1e300 m/s velocity: exit 1 with one error line naming the overflow, no
+    numpy warnings and no score printed (before: exit 0 with an inf RMSE and a NaN ANEES)."""
+    source = data_dir / "landmarks" / "mrclam6"
+    for f in source.iterdir():
+        (tmp_path / f.name).symlink_to(f)
+    odometry = tmp_path / "Robot1_Odometry.dat"
+    lines = odometry.read_text().splitlines()
+    odometry.unlink()
+    fields = lines[200].split()
+    fields[1] = "1e300"
+    lines[200] = "  ".join(fields)
+    odometry.write_text("\n".join(lines) + "\n")
+    proc = subprocess.run(  # a process of its own: stderr as a user sees it
+        [sys.executable, "-c", "import sys; from relmap.cli import main; sys.exit(main())"]
+        + ["localize", str(tmp_path), "--robot", "1"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    out, err = proc.stdout, proc.stderr
+    assert proc.returncode == 1 and "RMSE" not in out
+    assert err.count("\n") == 1 and err.startswith("relmap localize: error: ")
+    assert "overflow" in err

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 from collections.abc import Sequence
 
 from relmap import _numba
@@ -679,7 +680,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     prog = f"relmap {args.command}"
     try:
-        status = int(args.run(args))
+        with warnings.catch_warnings():
+            if not args.debug:  # numpy's overflow warnings: relmap's own checks report them
+                warnings.simplefilter("ignore", RuntimeWarning)
+            status = int(args.run(args))
         sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
         return status
     except BrokenPipeError:
