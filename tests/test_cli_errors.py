@@ -203,9 +203,9 @@ def test_localize_on_overflowing_odometry_is_one_line_and_a_failure(data_dir, tm
     fields[1] = "1e300"
     lines[200] = "  ".join(fields)
     odometry.write_text("\n".join(lines) + "\n")
+    run = "import sys; from relmap.cli import main; sys.exit(main())"
     proc = subprocess.run(  # a process of its own: stderr as a user sees it
-        [sys.executable, "-c", "import sys; from relmap.cli import main; sys.exit(main())"]
-        + ["localize", str(tmp_path), "--robot", "1"],
+        [sys.executable, "-c", run, "localize", str(tmp_path), "--robot", "1"],
         capture_output=True,
         text=True,
         timeout=300,
