@@ -94,3 +94,17 @@ def test_one_shot_raises_the_compiled_kernels_size_only_while_it_runs(monkeypatc
     with pytest.raises(RuntimeError), _numba.one_shot():
         raise RuntimeError
     assert _numba.enabled() and not _numba.enabled(_numba.LARGE - 1)
+
+
+@pytest.mark.real_data
+def test_validate_on_a_real_graph_prints_no_runaway_line(data_dir):
+    """`relmap validate` on intel (2512 ATs) summarizes its list of sampled ATs (before: one
+    16 313-character line); --verbose lists them all."""
+    graph = str(data_dir / "posegraph2d" / "intel.g2o")
+    proc = _run("validate", graph, "0", "1000", "-n", "2")
+    assert proc.returncode == 0, proc.stderr
+    out = proc.stdout
+    assert "sampled ATs: e0, e1" in out and "--verbose or --json for all" in out
+    assert max(len(line) for line in out.splitlines()) <= 400
+    full = _run("validate", graph, "0", "1000", "-n", "2", "--verbose").stdout
+    assert ", e2511" in full

@@ -93,7 +93,7 @@ def _validate(args: argparse.Namespace) -> int:
 
             v = validate.run(p, n=args.n, seed=args.seed, progress=show, client=client)
     except KeyboardInterrupt:
-        print("relmap: interrupted; the pending chunks were cancelled", file=sys.stderr)
+        print("relmap validate: interrupted; the pending chunks were cancelled", file=sys.stderr)
         return 130
     s = v.summary()
     if args.json:
@@ -108,7 +108,7 @@ def _validate(args: argparse.Namespace) -> int:
     if v.estimate.expression:
         print(f"  expression: {v.estimate.expression}")
     print(f"  method: {v.reason}")
-    print(f"  sampled ATs: {', '.join(v.names)}")
+    print(f"  sampled ATs: {_summary(', '.join(v.names), args.verbose)}")
     names = ["x", "y", "θ"] if dof == 3 else ["x", "y", "z", "φx", "φy", "φz"]
     pred = np.sqrt(np.diag(np.asarray(s["predicted"]["cov"])))
     emp = np.sqrt(np.diag(np.asarray(s["empirical"]["cov"])))
@@ -552,6 +552,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="how the reduction compounds (SE(2) maps; default first_order)",
     )
     val.add_argument("--json", action="store_true", help="print one JSON object")
+    val.add_argument("--verbose", action="store_true", help="list every sampled AT")
     where = val.add_mutually_exclusive_group()
     where.add_argument(
         "--workers",
