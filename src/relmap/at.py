@@ -16,26 +16,32 @@ ATs are immutable values: operations return new ATs. User input is validated onc
 
 from __future__ import annotations
 
-import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from typing import Literal, overload
 
 import numpy as np
 
 from relmap import gaussian
 from relmap import moments as _moments
-from relmap._layout import components_outermost, matrix, read_only, stack_last
-from relmap.at3 import AT3, _finite, compound3, compound_chain3, merge3, reverse3
-from relmap.errors import ArgumentTypeError, ParameterError, ShapeError
-from relmap.gaussian import DEFAULT_RTOL, Ellipse
+from relmap._layout import components_outermost, matrix, stack_last
+from relmap.errors import ParameterError, ShapeError
+from relmap.gaussian import DEFAULT_RTOL
 from relmap.lie import SE2, se2
 from relmap.moments import MomentsMethod
-from relmap.typing import ArrayLike, FloatArray, SeedLike
+from relmap.typing import ArrayLike, FloatArray
+from relmap.uncertain import (
+    UncertainPose,
+    broadcast_error,
+    chain_axis,
+    check_result,
+    checked_cross_cov,
+    same_kind,
+)
 
 __all__ = ["AT", "compound", "compound_chain", "merge", "reverse"]
 
 
-class AT:
+class AT(UncertainPose):
     """An approximate transformation: uncertain pose of a child frame in its parent frame.
 
     Parameters
@@ -61,11 +67,8 @@ class AT:
     >>> m = rm.merge(c, c)           # merge parallel ATs (independent estimates)
     """
 
-    __slots__ = ("_cov", "_mean")
+    __slots__ = ()
     group = SE2  #: the pose group (generic code reads it)
-    _mean: FloatArray
-    _cov: FloatArray
-    __array_ufunc__ = None  # numpy defers to AT: ``a @ ndarray`` is a TypeError, not a silent cast
 
     def __init__(
         self, mean: ArrayLike, cov: ArrayLike | None = None, *, rtol: float = DEFAULT_RTOL
@@ -91,21 +94,6 @@ class AT:
         mean_arr[..., 2] = se2.wrap_angle(mean_arr[..., 2])
         self._set(components_outermost(mean_arr, 1), components_outermost(cov_arr, 2), batch)
 
-    def _set(self, mean: FloatArray, cov: FloatArray, batch: tuple[int, ...]) -> None:
-        # Read-only views: the arrays cannot be modified through the AT.
-        object.__setattr__(self, "_mean", read_only(mean, (*batch, 3)))
-        object.__setattr__(self, "_cov", read_only(cov, (*batch, 3, 3)))
-
-    @classmethod
-    def _trusted(cls, mean: FloatArray, cov: FloatArray) -> AT:
-        """Build from arrays relmap computed itself (already valid, θ wrapped): no checks."""
-        out = object.__new__(cls)
-        batch = mean.shape[:-1]
-        if cov.shape[:-2] != batch:
-            batch = np.broadcast_shapes(batch, cov.shape[:-2])
-        out._set(mean, cov, batch)
-        return out
-
     @classmethod
     def _single(cls, v: Sequence[float]) -> AT:
         """One AT from ``[x, y, θ, c00, c01, c02, c11, c12, c22]`` relmap computed itself (θ
@@ -119,27 +107,11 @@ class AT:
         object.__setattr__(out, "_cov", buf[3:].reshape(3, 3))
         return out
 
-    def __reduce__(self) -> tuple[object, ...]:
-        """Pickle as the two arrays (values travel to Dask workers, ``relmap.distributed``)."""
-        return (type(self)._trusted, (np.array(self._mean), np.array(self._cov)))
-
-    def __setattr__(self, name: str, value: object) -> None:
-        raise AttributeError("AT is immutable; operations return new ATs")
-
     # ----------------------------------------------------------------- constructors
     @classmethod
     def from_sigmas(cls, mean: ArrayLike, sigmas: ArrayLike) -> AT:
         """An AT with independent errors: standard deviations ``(σx, σy, σθ)``, ``(..., 3)``."""
-        s = gaussian.real_array(sigmas, "sigmas")
-        if s.ndim == 0 or s.shape[-1] != 3:
-            raise ShapeError(f"sigmas must have shape (..., 3); got {s.shape}")
-        gaussian.check_finite(s, "sigmas")
-        if (s < 0).any():
-            raise ParameterError(f"standard deviations must be non-negative; got {s.min()}")
-        cov = np.zeros((*s.shape, 3))
-        idx = np.arange(3)
-        cov[..., idx, idx] = s * s
-        return cls(mean, cov)
+        return cls(mean, cls._diagonal_cov(sigmas, 3))
 
     @classmethod
     def from_ellipse(
@@ -165,12 +137,6 @@ class AT:
         cov[..., :2, :2] = xy
         cov[..., 2, 2] = st * st
         return cls(mean, cov)
-
-    @classmethod
-    def identity(cls, batch_shape: tuple[int, ...] = ()) -> AT:
-        """The exactly known identity transformation."""
-        batch_shape = _batch_shape(batch_shape)
-        return cls._trusted(se2.identity(batch_shape), np.zeros((*batch_shape, 3, 3)))
 
     @classmethod
     def from_body(cls, mean: ArrayLike, cov_body: ArrayLike, *, rtol: float = DEFAULT_RTOL) -> AT:
@@ -204,66 +170,11 @@ class AT:
         planar = c6[..., [0, 1, 5], :][..., :, [0, 1, 5]]
         return cls(mean, planar, rtol=rtol)
 
-    @classmethod
-    def stack(cls, ats: Sequence[AT], axis: int = 0) -> AT:
-        """Stack ATs of equal batch shape along a new batch axis (like ``np.stack``)."""
-        ats = _sequence_of(ats, "AT.stack")
-        _check_types(ats)
-        ax = _stack_axis(ats, axis, "AT.stack")
-        return cls._trusted(
-            np.stack([a.mean for a in ats], axis=ax), np.stack([a.cov for a in ats], axis=ax)
-        )
-
     # ------------------------------------------------------------------- accessors
     @property
     def mean(self) -> FloatArray:
         """``(..., 3)`` read-only array ``(x, y, θ)``."""
         return self._mean
-
-    @property
-    def cov(self) -> FloatArray:
-        """``(..., 3, 3)`` read-only covariance on ``(x, y, θ)`` in the parent frame."""
-        return self._cov
-
-    @property
-    def batch_shape(self) -> tuple[int, ...]:
-        """Leading batch axes (``()`` for a single AT)."""
-        return self._mean.shape[:-1]
-
-    @property
-    def ndim(self) -> int:
-        """Number of batch axes."""
-        return self._mean.ndim - 1
-
-    @property
-    def sigmas(self) -> FloatArray:
-        """``(..., 3)`` standard deviations ``(σx, σy, σθ)``."""
-        return np.sqrt(np.diagonal(self._cov, axis1=-2, axis2=-1))
-
-    def __getitem__(self, index: object) -> AT:
-        """Index the batch axes (never the trailing pose axis)."""
-        if self.ndim == 0:
-            raise IndexError("a single AT has no batch axes to index")
-        idx = index if isinstance(index, tuple) else (index,)
-        if any(i is Ellipsis for i in idx):
-            raise IndexError(
-                "AT indexing does not support Ellipsis; index the batch axes explicitly"
-            )
-        if sum(i is not None for i in idx) > self.ndim:
-            raise IndexError(f"too many indices for an AT with batch shape {self.batch_shape}")
-        return AT._trusted(self._mean[idx], self._cov[idx])
-
-    def __len__(self) -> int:
-        """Length of the first batch axis (a single AT has none)."""
-        if self.ndim == 0:
-            raise TypeError("a single AT has no length")
-        return self.batch_shape[0]
-
-    def __iter__(self) -> Iterator[AT]:
-        """Iterate over the first batch axis."""
-        if self.ndim == 0:
-            raise TypeError("a single AT is not iterable")
-        return (self[i] for i in range(self.batch_shape[0]))
 
     def __repr__(self) -> str:
         if self.ndim:
@@ -272,26 +183,10 @@ class AT:
         sx, sy, st = self.sigmas
         return f"AT(mean=[{x:.6g}, {y:.6g}, {t:.6g}], sigmas=[{sx:.3g}, {sy:.3g}, {st:.3g}])"
 
+    def _position(self) -> FloatArray:
+        return self._mean[..., :2]
+
     # ------------------------------------------------------------------ operations
-    def __matmul__(self, other: AT) -> AT:
-        """``a @ b`` is :func:`compound` ``(a, b)``: frame b's AT given in frame a, chained."""
-        if not isinstance(other, AT):
-            return NotImplemented
-        return compound(self, other)
-
-    def reverse(self) -> AT:
-        """The reversed AT ``Aᴿ`` (:func:`reverse`)."""
-        return reverse(self)
-
-    def ellipse(self, probability: float = 0.90) -> Ellipse:
-        """Confidence ellipse of the ``(x, y)`` marginal, in the parent frame (Appendix A)."""
-        return gaussian._ellipse(self._mean[..., :2], self._cov[..., :2, :2], probability)
-
-    def sample(self, n: int, seed: SeedLike = None) -> FloatArray:
-        """``n`` draws of the pose from ``N(mean, cov)`` in the chart, ``(n, ..., 3)``."""
-        delta = gaussian._sample(np.zeros(3), self._cov, n, seed)
-        return se2.plus(self._mean, delta)
-
     def to_body(self) -> FloatArray:
         """The covariance in the body convention of GTSAM/manif: ``M⁻¹ Σ M⁻ᵀ``, ``(..., 3, 3)``."""
         t = self._mean[..., 2]
@@ -314,6 +209,44 @@ class AT:
         for i in (2, 3, 4):
             out[..., i, i] = unused_variance
         return out
+
+    # --------------------------------------------------- the operations (relmap.uncertain)
+    def _compound(self, other: AT, cross_cov: FloatArray | None) -> AT:
+        try:
+            mean, cov = _compound_arrays(self._mean, self._cov, other._mean, other._cov)
+        except ValueError:
+            raise broadcast_error("compound", self.batch_shape, other.batch_shape) from None
+        if cross_cov is not None:
+            _, H, K = se2.compose(self._mean, other._mean, jacobians=True)
+            HXK = H @ cross_cov @ np.swapaxes(K, -1, -2)
+            cov = cov + HXK + np.swapaxes(HXK, -1, -2)
+        check_result("compound", mean, cov)
+        return AT._trusted(mean, cov)
+
+    def _reverse(self, jacobian: bool) -> AT | tuple[AT, FloatArray]:
+        inv = se2.inverse(self._mean)
+        # R = H(x', y') · blkdiag(-R(θ)ᵀ, -1): the signs cancel in the sandwich.
+        t = self._mean[..., 2]
+        e = _shear(_rotate(_entries(self._cov), np.cos(t), -np.sin(t)), inv[..., 0], inv[..., 1])
+        cov = _sym(e)
+        check_result("reverse", inv, cov)
+        out = AT._trusted(inv, cov)
+        if jacobian:
+            return out, se2.inverse(self._mean, jacobians=True)[1]
+        return out
+
+    @classmethod
+    def _merge(cls, ats: Sequence[AT], atol: float) -> AT:
+        result = ats[0]
+        for k, b in enumerate(ats[1:], start=1):
+            result = _merge_pair(result, b, atol, k)
+        check_result("merge", result._mean, result._cov)
+        return result
+
+    def _chain(self, axis: int) -> AT:
+        mean, cov = _scan(np.moveaxis(self._mean, axis, 0), np.moveaxis(self._cov, axis, 0))
+        check_result("compound_chain", mean, cov)
+        return AT._trusted(np.moveaxis(mean, 0, axis), np.moveaxis(cov, 0, axis))
 
 
 # ------------------------------------------------------------------ fused 3×3 algebra
@@ -364,61 +297,6 @@ def _sym(e: Entries) -> FloatArray:
     return matrix([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]], shape)
 
 
-def _check_types(ats: Sequence[object]) -> None:
-    for i, a in enumerate(ats):
-        if not isinstance(a, AT):
-            raise ArgumentTypeError(f"argument {i} is a {type(a).__name__}, not an AT")
-
-
-def _sequence_of(ats: object, what: str) -> list:  # type: ignore[type-arg]
-    """``ats`` as a non-empty list (for the stack functions of AT and AT3)."""
-    try:
-        if isinstance(ats, (str, bytes, dict)):
-            raise TypeError
-        out = list(ats)  # type: ignore[call-overload]
-    except TypeError:
-        raise ArgumentTypeError(
-            f"{what} needs a sequence of ATs; got a {type(ats).__name__}"
-        ) from None
-    if not out:
-        raise ShapeError(f"{what} needs at least one AT")
-    return out
-
-
-def _stack_axis(ats: Sequence[AT] | Sequence[AT3], axis: object, what: str) -> int:
-    """The new axis of a stack of ATs of equal batch shape (checked), as a non-negative int."""
-    shapes = {a.batch_shape for a in ats}
-    if len(shapes) > 1:
-        raise ShapeError(f"{what} needs ATs of one batch shape; got {sorted(shapes)}")
-    ndim = ats[0].ndim
-    if isinstance(axis, bool) or not isinstance(axis, (int, np.integer)):
-        raise ParameterError(f"{what}: axis must be an integer; got {axis!r}")
-    if not -ndim - 1 <= axis <= ndim:
-        raise ShapeError(f"{what}: axis {axis} is out of range for {ndim + 1} batch axes")
-    return int(axis) if axis >= 0 else int(axis) + ndim + 1
-
-
-def _batch_shape(shape: object) -> tuple[int, ...]:
-    """``shape`` as a batch shape (a tuple of non-negative integers), or a ShapeError."""
-    items = (shape,) if isinstance(shape, (int, np.integer)) else shape
-    if (
-        isinstance(items, (str, bytes))
-        or not isinstance(items, (tuple, list))
-        or not all(isinstance(n, (int, np.integer)) and not isinstance(n, bool) for n in items)
-        or any(n < 0 for n in items)
-    ):
-        raise ShapeError(f"batch_shape must be a tuple of non-negative integers; got {shape!r}")
-    out = tuple(int(n) for n in items)
-    if math.prod(out) * 52 * 8 > gaussian._MAX_SAMPLE_BYTES:  # a 4×4 mean and a 6×6 cov each
-        raise ShapeError(f"batch_shape {out} is too large to hold in memory")
-    return out
-
-
-def _broadcast_error(what: str, *shapes: tuple[int, ...]) -> ShapeError:
-    shown = " and ".join(str(s) for s in shapes)
-    return ShapeError(f"{what}: batch shapes {shown} do not broadcast")
-
-
 # ------------------------------------------------------------------------ operations
 def compound(
     a: AT,
@@ -438,56 +316,23 @@ def compound(
     exact mean and covariance for Gaussian a, b (:func:`relmap.moments.compound_moments`);
     ``"unscented"`` the unscented transform (:func:`relmap.moments.unscented_compound`).
     """
-    if moments != "first_order":
-        return _compound_beyond_first_order(a, b, cross_cov, moments)
-    if isinstance(a, AT3) or isinstance(b, AT3):
-        return compound3(a, b, cross_cov=cross_cov)  # type: ignore[arg-type,return-value]
-    _check_types((a, b))
-    try:
-        mean, cov = _compound_arrays(a.mean, a.cov, b.mean, b.cov)
-    except ValueError:
-        raise _broadcast_error("compound", a.batch_shape, b.batch_shape) from None
-    if cross_cov is not None:
-        X = _cross_cov(a.cov, b.cov, cross_cov, 3)
-        _, H, K = se2.compose(a.mean, b.mean, jacobians=True)
-        HXK = H @ X @ np.swapaxes(K, -1, -2)
-        cov = cov + HXK + np.swapaxes(HXK, -1, -2)
-    _finite("compound", mean, cov)
-    return AT._trusted(mean, cov)
-
-
-def _cross_cov(Ca: FloatArray, Cb: FloatArray, cross_cov: ArrayLike, n: int) -> FloatArray:
-    """``cross_cov`` checked: shape ``(..., n, n)``, finite, and the joint covariance
-    ``[[C_a, C_ab], [C_abᵀ, C_b]]`` positive semi-definite (else the compound's variances could
-    come out negative)."""
-    X = gaussian.real_array(cross_cov, "cross_cov")
-    if X.shape[-2:] != (n, n):
-        raise ShapeError(f"cross_cov must have shape (..., {n}, {n}); got {X.shape}")
-    gaussian.check_finite(X, "cross_cov")
-    try:
-        batch = np.broadcast_shapes(Ca.shape[:-2], Cb.shape[:-2], X.shape[:-2])
-    except ValueError:
-        raise _broadcast_error("cross_cov", Ca.shape[:-2], Cb.shape[:-2], X.shape[:-2]) from None
-    joint = np.empty((*batch, 2 * n, 2 * n))
-    joint[..., :n, :n], joint[..., n:, n:] = Ca, Cb
-    joint[..., :n, n:] = X
-    joint[..., n:, :n] = np.swapaxes(X, -1, -2)
-    gaussian.validate_covariance(
-        joint, name="the joint covariance [[C_a, cross_cov], [cross_covᵀ, C_b]]"
-    )
-    return X
-
-
-def _compound_beyond_first_order(a: AT, b: AT, cross_cov: ArrayLike | None, method: str) -> AT:
-    _moments.check_method(method)
-    if isinstance(a, AT3) or isinstance(b, AT3):
-        raise ParameterError(f"moments={method!r} is available for SE(2) ATs only")
-    _check_types((a, b))
-    X = None if cross_cov is None else _cross_cov(a.cov, b.cov, cross_cov, 3)
-    f = _moments.compound_moments if method == "exact" else _moments.unscented_compound
+    kind = same_kind((a, b))
+    dof = kind.group.dof
+    X = None if cross_cov is None else checked_cross_cov(a.cov, b.cov, cross_cov, dof)
+    if moments == "first_order":
+        return a._compound(b, X)
+    _moments.check_method(moments)
+    _second_order_for(kind, moments)
+    f = _moments.compound_moments if moments == "exact" else _moments.unscented_compound
     mean, cov = f(a.mean, a.cov, b.mean, b.cov, cross_cov=X)
-    _finite(f"compound (moments={method!r})", mean, cov)
+    check_result(f"compound (moments={moments!r})", mean, cov)
     return AT._trusted(mean, cov)
+
+
+def _second_order_for(kind: type[UncertainPose], method: str) -> None:
+    """Moments beyond first order exist for SE(2) (:mod:`relmap.moments`) only."""
+    if kind.group is not SE2:
+        raise ParameterError(f"moments={method!r} is available for SE(2) ATs only")
 
 
 def _compound_arrays(
@@ -511,18 +356,8 @@ def reverse(a: AT, *, jacobian: bool = False) -> AT | tuple[AT, FloatArray]:
     the cross-covariance of A with its own reversal is then ``C_A Rᵀ``, which
     :func:`compound` accepts as ``cross_cov``. An :class:`AT3` reverses in 3-D.
     """
-    if isinstance(a, AT3):
-        return reverse3(a, jacobian=jacobian)  # type: ignore[call-overload,no-any-return]
-    _check_types((a,))
-    inv = se2.inverse(a.mean)
-    # R = H(x', y') · blkdiag(-R(θ)ᵀ, -1): the signs cancel in the sandwich.
-    t = a.mean[..., 2]
-    cov = _sym(_shear(_rotate(_entries(a.cov), np.cos(t), -np.sin(t)), inv[..., 0], inv[..., 1]))
-    _finite("reverse", inv, cov)
-    out = AT._trusted(inv, cov)
-    if jacobian:
-        return out, se2.inverse(a.mean, jacobians=True)[1]
-    return out
+    same_kind((a,))
+    return a._reverse(bool(jacobian))  # type: ignore[no-any-return]
 
 
 def merge(
@@ -560,29 +395,26 @@ def merge(
 
     if cross_cov is not None or joint_cov is not None:
         return _merge_correlated(ats, cross_cov, joint_cov, atol)  # type: ignore[return-value]
-    if isinstance(ats[0], AT3):
-        return merge3(*ats, atol=atol)  # type: ignore[arg-type,return-value]
-    _check_types(ats)
-    result = ats[0]
-    for k, b in enumerate(ats[1:], start=1):
-        result = _merge_pair(result, b, atol, k)
-    if len(ats) > 1:
-        _finite("merge", result.mean, result.cov)
-    return result
+    kind = same_kind(ats)
+    if len(ats) == 1:
+        return ats[0]
+    try:
+        np.broadcast_shapes(*(x.batch_shape for x in ats))
+    except ValueError:
+        raise broadcast_error("merge", *(x.batch_shape for x in ats)) from None
+    return kind._merge(ats, atol)  # type: ignore[return-value]
 
 
 def _merge_correlated(
-    ats: Sequence[AT | AT3],
+    ats: Sequence[UncertainPose],
     cross_cov: ArrayLike | None,
     joint_cov: ArrayLike | None,
     atol: float,
-) -> AT | AT3:
+) -> UncertainPose:
     """:func:`merge` of ATs with a cross-covariance (two) or a joint covariance (k)."""
     from relmap.errors import NotPositiveSemidefiniteError
 
-    kind = type(ats[0])
-    if any(type(a) is not kind for a in ats):
-        raise TypeError("cannot merge ATs of different kinds (AT with AT3)")
+    kind = same_kind(ats)
     group, k = ats[0].group, len(ats)
     b = group.dof
     if cross_cov is not None and joint_cov is not None:
@@ -683,33 +515,17 @@ def compound_chain(steps: AT, *, axis: int = -1, moments: MomentsMethod = "first
     An :class:`AT3` chain is compounded in 3-D (:func:`relmap.at3.compound_chain3`; first order
     only).
     """
-    if isinstance(steps, AT3):
-        if moments != "first_order":
-            _moments.check_method(moments)
-            raise ParameterError(f"moments={moments!r} is available for SE(2) ATs only")
-        return compound_chain3(steps, axis=axis)  # type: ignore[return-value]
-    _check_types((steps,))
-    if steps.ndim == 0:
-        raise ShapeError("compound_chain needs an AT with at least one batch axis (the chain)")
-    if isinstance(axis, bool) or not isinstance(axis, (int, np.integer)):
-        raise ParameterError(f"axis must be an integer; got {axis!r}")
-    if not -steps.ndim <= axis < steps.ndim:
-        raise ShapeError(f"axis {axis} is out of range for batch shape {steps.batch_shape}")
-    if steps.batch_shape[axis] == 0:
-        raise ShapeError(
-            f"compound_chain needs at least one step along axis {axis}; batch shape "
-            f"{steps.batch_shape} has none"
-        )
+    kind = same_kind((steps,))
     if moments != "first_order":
         _moments.check_method(moments)
-        f = _moments.chain_moments if moments == "exact" else _moments.unscented_chain
-        mean, cov = f(steps.mean, steps.cov, axis=axis)
-        _finite(f"compound_chain (moments={moments!r})", mean, cov)
-        return AT._trusted(mean, cov)
-    axis %= steps.ndim  # the same index in mean (..., 3) and cov (..., 3, 3)
-    mean, cov = _scan(np.moveaxis(steps.mean, axis, 0), np.moveaxis(steps.cov, axis, 0))
-    _finite("compound_chain", mean, cov)
-    return AT._trusted(np.moveaxis(mean, 0, axis), np.moveaxis(cov, 0, axis))
+        _second_order_for(kind, moments)
+    axis = chain_axis(steps, axis, "compound_chain")
+    if moments == "first_order":
+        return steps._chain(axis)
+    f = _moments.chain_moments if moments == "exact" else _moments.unscented_chain
+    mean, cov = f(steps.mean, steps.cov, axis=axis)
+    check_result(f"compound_chain (moments={moments!r})", mean, cov)
+    return AT._trusted(mean, cov)
 
 
 def _scan(mean: FloatArray, cov: FloatArray) -> tuple[FloatArray, FloatArray]:

@@ -26,29 +26,21 @@ from typing import Literal, overload
 import numpy as np
 
 from relmap import _core, gaussian
-from relmap._layout import components_outermost, read_only
-from relmap.errors import ArgumentTypeError, NumericalError, ParameterError, ShapeError
+from relmap._layout import components_outermost
+from relmap.errors import ArgumentTypeError, ParameterError, ShapeError
 from relmap.gaussian import DEFAULT_RTOL
-from relmap.lie import SE3, se3, so3
+from relmap.lie import SE2, SE3, se3, so3
 from relmap.lie.so3 import ROTATION_ATOL
-from relmap.typing import ArrayLike, FloatArray, SeedLike
+from relmap.typing import ArrayLike, FloatArray
+from relmap.uncertain import (
+    UncertainPose,
+    broadcast_error,
+    chain_axis,
+    check_result,
+    checked_cross_cov,
+)
 
 __all__ = ["AT3", "compound3", "compound_chain3", "ellipsoid", "merge3", "reverse3"]
-
-
-def _finite(what: str, *arrays: FloatArray) -> None:
-    """Raise :class:`NumericalError` if relmap's own arithmetic overflowed (inf or NaN): only
-    possible for inputs near the floating-point range (e.g. translations of 1e300 m, whose
-    squares in the covariance overflow). The one check on the paths of relmap's results."""
-    for arr in arrays:
-        # a sum is the cheapest test (NaN and inf propagate through it); only when it is not
-        # finite are the entries tested, since a sum of huge finite entries can overflow too
-        total = sum(arr.ravel().tolist()) if arr.size <= 64 else np.add.reduce(arr, axis=None)
-        if not math.isfinite(total) and not np.isfinite(arr).all():
-            raise NumericalError(
-                f"{what} overflowed the floating-point range (inputs too large): the result "
-                "would hold inf or NaN"
-            )
 
 
 def _rotation(rotation: ArrayLike, *, atol: float) -> FloatArray:
@@ -75,7 +67,7 @@ def _rotation(rotation: ArrayLike, *, atol: float) -> FloatArray:
     return U @ Vt
 
 
-class AT3:
+class AT3(UncertainPose):
     """An uncertain 3-D pose of a child frame in its parent frame.
 
     ``AT3(translation (..., 3), rotation (..., 4) quaternion (qx, qy, qz, qw) or (..., 3, 3),
@@ -85,11 +77,8 @@ class AT3:
     :class:`relmap.AT`'s.
     """
 
-    __slots__ = ("_cov", "_mean")
+    __slots__ = ()
     group = SE3  #: the pose group (generic code reads it)
-    _mean: FloatArray
-    _cov: FloatArray
-    __array_ufunc__ = None
 
     def __init__(
         self,
@@ -122,21 +111,6 @@ class AT3:
             ) from None
         self._set(T, C, batch)
 
-    def _set(self, T: FloatArray, C: FloatArray, batch: tuple[int, ...]) -> None:
-        # read-only views: the arrays cannot be modified through the AT3
-        object.__setattr__(self, "_mean", read_only(T, (*batch, 4, 4)))
-        object.__setattr__(self, "_cov", read_only(C, (*batch, 6, 6)))
-
-    @classmethod
-    def _trusted(cls, T: FloatArray, C: FloatArray) -> AT3:
-        """Build from arrays relmap computed itself (already valid): no checks."""
-        out = object.__new__(cls)
-        batch = T.shape[:-2]
-        if C.shape[:-2] != batch:
-            batch = np.broadcast_shapes(batch, C.shape[:-2])
-        out._set(T, C, batch)
-        return out
-
     @classmethod
     def _own(cls, T: FloatArray, C: FloatArray) -> AT3:
         """Take arrays relmap just made, (..., 4, 4) and (..., 6, 6) with the same batch
@@ -147,13 +121,6 @@ class AT3:
         object.__setattr__(out, "_mean", T)
         object.__setattr__(out, "_cov", C)
         return out
-
-    def __reduce__(self) -> tuple[object, ...]:
-        """Pickle as the two arrays (values travel to Dask workers, ``relmap.distributed``)."""
-        return (type(self)._trusted, (np.array(self._mean), np.array(self._cov)))
-
-    def __setattr__(self, name: str, value: object) -> None:
-        raise AttributeError("AT3 is immutable; operations return new ATs")
 
     # ------------------------------------------------------------- constructors
     @classmethod
@@ -179,23 +146,12 @@ class AT3:
     @classmethod
     def from_sigmas(cls, translation: ArrayLike, rotation: ArrayLike, sigmas: ArrayLike) -> AT3:
         """Independent errors ``(σx, σy, σz, σφx, σφy, σφz)`` (..., 6)."""
-        s = gaussian.real_array(sigmas, "sigmas")
-        if s.shape[-1:] != (6,):
-            raise ShapeError(f"sigmas must have shape (..., 6); got {s.shape}")
-        gaussian.check_finite(s, "sigmas")
-        if (s < 0).any():
-            raise ParameterError(f"standard deviations must be non-negative; got {s.min()}")
-        cov = np.zeros((*s.shape, 6))
-        idx = np.arange(6)
-        cov[..., idx, idx] = s * s
-        return cls(translation, rotation, cov)
+        return cls(translation, rotation, cls._diagonal_cov(sigmas, 6))
 
     @classmethod
     def from_planar(cls, at: object) -> AT3:
         """The AT3 of a planar :class:`relmap.AT` (rotation about z; z, roll, pitch exact)."""
-        from relmap.at import AT
-
-        if not isinstance(at, AT):
+        if not isinstance(at, UncertainPose) or at.group is not SE2:
             raise ArgumentTypeError(f"expected an AT, got {type(at).__name__}")
         x, y, th = at.mean[..., 0], at.mean[..., 1], at.mean[..., 2]
         t = np.stack([x, y, np.zeros_like(x)], axis=-1)
@@ -204,13 +160,6 @@ class AT3:
         keep = np.array([0, 1, 5])
         cov[..., keep[:, None], keep[None, :]] = at.cov
         return cls._trusted(se3.from_parts(t, R), cov)
-
-    @classmethod
-    def identity(cls, batch_shape: tuple[int, ...] = ()) -> AT3:
-        from relmap.at import _batch_shape
-
-        batch_shape = _batch_shape(batch_shape)
-        return cls._trusted(se3.identity(batch_shape), np.zeros((*batch_shape, 6, 6)))
 
     @classmethod
     def from_euler(cls, xyz_rpy: ArrayLike, cov: ArrayLike | None = None) -> AT3:
@@ -230,19 +179,6 @@ class AT3:
         J[..., :3, :3] = np.eye(3)
         J[..., 3:, 3:] = _euler_rates(v[..., 3:])  # δφ = E(rpy) δrpy
         return cls._trusted(se3.from_parts(v[..., :3], R), _sym(J @ C @ np.swapaxes(J, -1, -2)))
-
-    @classmethod
-    def stack(cls, ats: Sequence[AT3], axis: int = 0) -> AT3:
-        from relmap.at import _sequence_of, _stack_axis
-
-        ats = _sequence_of(ats, "AT3.stack")
-        for i, x in enumerate(ats):
-            if not isinstance(x, AT3):
-                raise ArgumentTypeError(f"AT3.stack: item {i} is a {type(x).__name__}, not an AT3")
-        ax = _stack_axis(ats, axis, "AT3.stack")
-        return cls._trusted(
-            np.stack([a._mean for a in ats], ax), np.stack([a._cov for a in ats], ax)
-        )
 
     # ----------------------------------------------------------------- accessors
     @property
@@ -273,33 +209,6 @@ class AT3:
         """``[x, y, z, qx, qy, qz, qw]`` (..., 7): the output format of JSON and text."""
         return np.concatenate([self.translation, self.quaternion], axis=-1)
 
-    @property
-    def cov(self) -> FloatArray:
-        """(..., 6, 6) on ``(δt, δφ)``: parent-frame translation, left rotation perturbation."""
-        return self._cov
-
-    @property
-    def batch_shape(self) -> tuple[int, ...]:
-        return self._mean.shape[:-2]
-
-    @property
-    def ndim(self) -> int:
-        return self._mean.ndim - 2
-
-    @property
-    def sigmas(self) -> FloatArray:
-        return np.sqrt(np.diagonal(self._cov, axis1=-2, axis2=-1))
-
-    def __getitem__(self, index: object) -> AT3:
-        if self.ndim == 0:
-            raise IndexError("a single AT3 has no batch axes to index")
-        return AT3._trusted(self._mean[index], self._cov[index])
-
-    def __len__(self) -> int:
-        if self.ndim == 0:
-            raise TypeError("a single AT3 has no length")
-        return self.batch_shape[0]
-
     def __repr__(self) -> str:
         if self.ndim:
             return f"AT3(batch_shape={self.batch_shape})"
@@ -309,19 +218,6 @@ class AT3:
         return f"AT3(t=[{t}], q=[{q}], sigmas=[{s}])"
 
     # ---------------------------------------------------------------- operations
-    def __matmul__(self, other: AT3) -> AT3:
-        if not isinstance(other, AT3):
-            return NotImplemented
-        return compound3(self, other)
-
-    def reverse(self) -> AT3:
-        return reverse3(self)
-
-    def sample(self, n: int, seed: SeedLike = None) -> FloatArray:
-        """``n`` pose draws (n, ..., 4, 4) from ``N(mean, cov)`` in the chart."""
-        delta = gaussian._sample(np.zeros(6), self._cov, n, seed)
-        return se3.plus(self._mean, delta)
-
     def ellipsoid(self, probability: float = 0.9) -> tuple[FloatArray, FloatArray]:
         """The position's ``probability`` confidence ellipsoid (Appendix A, N = 3): half-axes
         (..., 3) ascending and their directions (..., 3, 3) (columns), in the parent frame."""
@@ -393,6 +289,47 @@ class AT3:
         if c.shape[-1:] == (36,):
             c = c.reshape(*c.shape[:-1], 6, 6)
         return cls(translation, quaternion, c)
+
+    # --------------------------------------------------- the operations (relmap.uncertain)
+    def _position(self) -> FloatArray:
+        return self.translation
+
+    def _compound(self, other: AT3, cross_cov: FloatArray | None) -> AT3:
+        batch = self._mean.shape[:-2]
+        try:
+            if other._mean.shape[:-2] != batch:
+                batch = np.broadcast_shapes(batch, other._mean.shape[:-2])
+            if cross_cov is not None:
+                batch = np.broadcast_shapes(batch, cross_cov.shape[:-2])
+        except ValueError:
+            shapes = [self.batch_shape, other.batch_shape]
+            raise broadcast_error(
+                "compound", *shapes, *([] if cross_cov is None else [cross_cov.shape[:-2]])
+            ) from None
+        out = _compound_batched(self, other, cross_cov, batch)
+        check_result("compound", out._mean, out._cov)
+        return out
+
+    def _reverse(self, jacobian: bool) -> AT3 | tuple[AT3, FloatArray]:
+        out = _reverse_batched(self)
+        check_result("reverse", out._mean, out._cov)
+        if jacobian:
+            return out, se3.inverse(self._mean, jacobians=True)[1]
+        return out
+
+    @classmethod
+    def _merge(cls, ats: Sequence[AT3], atol: float) -> AT3:
+        return _merge_at_common_pose(ats, atol, 50)
+
+    def _chain(self, axis: int) -> AT3:
+        batch = self.batch_shape
+        if 0 in batch:  # no chains: no prefixes either
+            return self
+        index = (slice(None),) * axis
+        out = [self[(*index, 0)]]
+        for k in range(1, batch[axis]):
+            out.append(out[-1]._compound(self[(*index, k)], None))
+        return AT3.stack(out, axis=axis)
 
 
 #: :meth:`AT3.to_euler` warns when the pitch is within this many rotation σ of ±90°
@@ -470,31 +407,19 @@ def _reverse_batched(a: AT3) -> AT3:
     return AT3._own(_logical(To, batch), _logical(Co, batch))
 
 
+def _check3(items: Sequence[object]) -> None:
+    for i, x in enumerate(items):
+        if not isinstance(x, AT3):
+            raise ArgumentTypeError(f"argument {i} is a {type(x).__name__}, not an AT3")
+
+
 def compound3(a: AT3, b: AT3, *, cross_cov: ArrayLike | None = None) -> AT3:
     """``a ⊕ b`` in 3-D: ``C = J_a C_a J_aᵀ + J_b C_b J_bᵀ`` (+ the cross terms of a dependent
     pair, ``cross_cov = E[δa δbᵀ]`` (..., 6, 6)), with ``J_a = [[I, -[R_a t_b]×], [0, I]]``,
     ``J_b = blkdiag(R_a, R_a)`` (:func:`relmap.lie.se3.compose`)."""
-    for i, x in enumerate((a, b)):
-        if not isinstance(x, AT3):
-            raise ArgumentTypeError(f"argument {i} is a {type(x).__name__}, not an AT3")
-    X = None
-    if cross_cov is not None:
-        from relmap.at import _cross_cov
-
-        X = _cross_cov(a._cov, b._cov, cross_cov, 6)
-    Ta, Tb = a._mean, b._mean
-    batch = Ta.shape[:-2]
-    try:
-        if Tb.shape[:-2] != batch:
-            batch = np.broadcast_shapes(batch, Tb.shape[:-2])
-        if X is not None:
-            batch = np.broadcast_shapes(batch, X.shape[:-2])
-    except ValueError:
-        shapes = [a.batch_shape, b.batch_shape] + ([] if X is None else [X.shape[:-2]])
-        raise ShapeError(f"compound: batch shapes {shapes} do not broadcast") from None
-    out = _compound_batched(a, b, X, batch)
-    _finite("compound", out._mean, out._cov)
-    return out
+    _check3((a, b))
+    X = None if cross_cov is None else checked_cross_cov(a._cov, b._cov, cross_cov, 6)
+    return a._compound(b, X)
 
 
 def compound_chain3(steps: AT3, *, axis: int = -1) -> AT3:
@@ -505,26 +430,8 @@ def compound_chain3(steps: AT3, *, axis: int = -1) -> AT3:
     at a time, ``acc = acc @ step``, one batched :func:`compound3` per step along ``axis``
     (vectorized across the chains).
     """
-    if not isinstance(steps, AT3):
-        raise ArgumentTypeError(f"expected an AT3, got {type(steps).__name__}")
-    if steps.ndim == 0:
-        raise ShapeError("compound_chain3 needs an AT3 with at least one batch axis (the chain)")
-    if not -steps.ndim <= axis < steps.ndim:
-        raise ShapeError(f"axis {axis} is out of range for batch shape {steps.batch_shape}")
-    axis %= steps.ndim
-    batch = steps.batch_shape
-    if batch[axis] == 0:
-        raise ShapeError(
-            f"compound_chain needs at least one step along axis {axis}; batch shape {batch} "
-            "has none"
-        )
-    if 0 in batch:  # no chains: no prefixes either
-        return steps
-    index = (slice(None),) * axis
-    out = [steps[(*index, 0)]]
-    for k in range(1, steps.batch_shape[axis]):
-        out.append(out[-1] @ steps[(*index, k)])
-    return AT3.stack(out, axis=axis)
+    _check3((steps,))
+    return steps._chain(chain_axis(steps, axis, "compound_chain3"))
 
 
 @overload
@@ -534,13 +441,8 @@ def reverse3(a: AT3, *, jacobian: Literal[True]) -> tuple[AT3, FloatArray]: ...
 def reverse3(a: AT3, *, jacobian: bool = False) -> AT3 | tuple[AT3, FloatArray]:
     """``Aᴿ`` in 3-D: ``C' = J C Jᵀ`` with J the inverse's Jacobian (returned too with
     ``jacobian=True``; A's cross-covariance with its reversal is then ``C Jᵀ``)."""
-    if not isinstance(a, AT3):
-        raise ArgumentTypeError(f"expected an AT3, got {type(a).__name__}")
-    out = _reverse_batched(a)
-    _finite("reverse", out._mean, out._cov)
-    if jacobian:
-        return out, se3.inverse(a._mean, jacobians=True)[1]
-    return out
+    _check3((a,))
+    return a._reverse(bool(jacobian))  # type: ignore[no-any-return]
 
 
 def merge3(*ats: AT3, atol: float = 1e-9, max_iterations: int = 50) -> AT3:
@@ -557,17 +459,19 @@ def merge3(*ats: AT3, atol: float = 1e-9, max_iterations: int = 50) -> AT3:
     """
     if not ats:
         raise ShapeError("merge3 needs at least one AT3")
-    for i, x in enumerate(ats):
-        if not isinstance(x, AT3):
-            raise ArgumentTypeError(f"argument {i} is a {type(x).__name__}, not an AT3")
+    _check3(ats)
     atol = gaussian.check_tolerance(atol, "atol")
     if len(ats) == 1:
         return ats[0]
     try:
         np.broadcast_shapes(*(x.batch_shape for x in ats))
     except ValueError:
-        shapes = " and ".join(str(x.batch_shape) for x in ats)
-        raise ShapeError(f"merge: batch shapes {shapes} do not broadcast") from None
+        raise broadcast_error("merge", *(x.batch_shape for x in ats)) from None
+    return _merge_at_common_pose(ats, atol, max_iterations)
+
+
+def _merge_at_common_pose(ats: Sequence[AT3], atol: float, max_iterations: int) -> AT3:
+    """:func:`merge3` of two or more checked AT3s."""
     # the gains depend on the covariances only: compute them once
     gains, C = [], ats[0]._cov
     for b in ats[1:]:
@@ -593,5 +497,5 @@ def merge3(*ats: AT3, atol: float = 1e-9, max_iterations: int = 50) -> AT3:
             and np.abs(d[..., 3:]).max(initial=0.0) <= 1e-13
         ):
             break
-    _finite("merge", X, C)
+    check_result("merge", X, C)
     return AT3._trusted(X, C)

@@ -35,18 +35,17 @@ uncertainty is tiny next to the chain's length.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Literal, NamedTuple
+from typing import Literal, NamedTuple
 
 import numpy as np
 
 from relmap.errors import ParameterError, ShapeError
 from relmap.gaussian import check_finite, real_array, validate_covariance
 from relmap.lie import se2
+from relmap.lie.group import SE2 as SE2_GROUP
 from relmap.propagate import EUCLIDEAN, SE2, Chart, Moments, unscented
 from relmap.typing import ArrayLike, FloatArray
-
-if TYPE_CHECKING:
-    from relmap.at import AT
+from relmap.uncertain import UncertainPose, chain_axis, same_kind
 
 __all__ = [
     "Linearization",
@@ -485,7 +484,7 @@ class Linearization(NamedTuple):
     mean_error_sigmas: FloatArray
 
 
-def linearization_error(steps: AT, *, axis: int = -1) -> Linearization:
+def linearization_error(steps: UncertainPose, *, axis: int = -1) -> Linearization:
     """Predicted error of first-order compounding of the chain ``steps`` (every prefix).
 
     Compares :func:`relmap.compound_chain` (Eqs. 3-4) with the exact moments of
@@ -496,9 +495,9 @@ def linearization_error(steps: AT, *, axis: int = -1) -> Linearization:
     different question: sample the chain and read Mardia's skewness from
     :meth:`relmap.montecarlo.SampleSet.compare`.
     """
-    from relmap.at import compound_chain  # relmap.at imports this module
-
-    first = compound_chain(steps, axis=axis)
+    if same_kind((steps,)).group is not SE2_GROUP:
+        raise ParameterError("linearization_error is available for SE(2) ATs only")
+    first = steps._chain(chain_axis(steps, axis, "linearization_error"))  # compound_chain's
     exact_mean, exact_cov = chain_moments(steps.mean, steps.cov, axis=axis)
     norm = np.linalg.norm(exact_cov, axis=(-2, -1))
     diff = np.linalg.norm(first.cov - exact_cov, axis=(-2, -1))

@@ -41,11 +41,11 @@ import numpy as np
 
 from relmap._layout import components_outermost, matrix, stack_last
 from relmap.at import AT, compound, compound_chain
-from relmap.at3 import _finite
 from relmap.errors import ArgumentTypeError, ParameterError, ShapeError
 from relmap.gaussian import check_finite, real_array
 from relmap.lie import se2
 from relmap.typing import ArrayLike, FloatArray
+from relmap.uncertain import check_result
 
 __all__ = [
     "AlphaNoise",
@@ -418,7 +418,7 @@ def dead_reckon(
         m = drive.motion(m)
     start = AT.identity() if start is None else start
     steps = _step_ats(m, noise, integration, drive)
-    _finite("dead reckoning (the steps' covariance)", steps.mean, steps.cov)
+    check_result("dead reckoning (the steps' covariance)", steps.mean, steps.cov)
     n = len(m)
     mean = components_outermost(np.empty((n + 1, 3)), 1)
     cov = components_outermost(np.empty((n + 1, 3, 3)), 2)
@@ -442,5 +442,5 @@ def increments_from_velocities(t: ArrayLike, v: ArrayLike, w: ArrayLike) -> Floa
         k = int(np.flatnonzero(dt < 0)[0])
         raise ParameterError(f"time goes backwards at sample {k + 1}: {t[k]} → {t[k + 1]}")
     out = np.column_stack([v[:-1] * dt, w[:-1] * dt])
-    _finite("increments_from_velocities (v·dt, ω·dt)", out)
+    check_result("increments_from_velocities (v·dt, ω·dt)", out)
     return out

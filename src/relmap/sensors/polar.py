@@ -23,11 +23,11 @@ import numpy as np
 
 from relmap import gaussian
 from relmap.at import AT
-from relmap.at3 import _finite
 from relmap.errors import ParameterError, ShapeError
 from relmap.lie import se2
 from relmap.propagate import SE2, Chart, propagate, unscented
 from relmap.typing import ArrayLike, FloatArray
+from relmap.uncertain import check_result
 
 __all__ = [
     "POLAR",
@@ -229,7 +229,7 @@ def polar_to_cartesian(mean: ArrayLike, cov: ArrayLike, method: Method = "linear
         out = unscented(_to_cartesian, m, C, chart_in=POLAR, chart_out=SE2)
     else:
         raise ParameterError(f"method must be 'linear' or 'unscented'; got {method!r}")
-    _finite("polar_to_cartesian", out.mean, out.cov)
+    check_result("polar_to_cartesian", out.mean, out.cov)
     return AT._trusted(out.mean, out.cov)
 
 

@@ -1,0 +1,91 @@
+"""relmap.uncertain: what AT and AT3 share (storage, stacking, indexing, sampling, the ellipse)
+behaves the same for both kinds, and the free functions dispatch on the kind, not isinstance."""
+
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+import pytest
+
+import relmap as rm
+from relmap.errors import ArgumentTypeError, ParameterError, ShapeError
+from relmap.uncertain import UncertainPose
+
+
+def _planar(rng: np.random.Generator, n: int) -> rm.AT:
+    mean = np.column_stack([rng.normal(size=(n, 2)), rng.uniform(-3, 3, n)])
+    return rm.AT.from_sigmas(mean, rng.uniform(0.01, 0.2, (n, 3)))
+
+
+@pytest.mark.parametrize("kind", ["AT", "AT3"])
+def test_both_kinds_share_the_base(rng, kind):
+    a = _planar(rng, 4)
+    x = a if kind == "AT" else rm.AT3.from_planar(a)
+    assert isinstance(x, UncertainPose)
+    assert x.batch_shape == (4,) and x.ndim == 1 and len(x) == 4
+    assert [y.batch_shape for y in x] == [()] * 4
+    s = type(x).stack([x[0], x[1]], axis=0)
+    np.testing.assert_array_equal(s.cov, x.cov[:2])
+    with pytest.raises(IndexError):
+        x[..., 0]  # Ellipsis would reach the pose's own axes
+    with pytest.raises(IndexError):
+        x[0, 0]
+    with pytest.raises(TypeError):
+        len(x[0])
+    with pytest.raises(AttributeError):
+        x._mean = None  # type: ignore[misc]
+    np.testing.assert_array_equal(pickle.loads(pickle.dumps(x)).cov, x.cov)
+    e = type(x).identity((2,))
+    assert e.batch_shape == (2,) and not e.cov.any()
+    with pytest.raises(ArgumentTypeError):
+        type(x).stack([x[0], "no"])  # type: ignore[list-item]
+
+
+def test_the_xy_ellipse_of_a_planar_at3_is_the_ats(rng):
+    """The AT3 of a planar AT has the same (x, y) marginal, so the same Appendix-A ellipse."""
+    a = _planar(rng, 3)
+    e2, e3 = a.ellipse(0.9), rm.AT3.from_planar(a).ellipse(0.9)
+    for u, v in zip(e2, e3, strict=True):
+        np.testing.assert_allclose(u, v, rtol=1e-12, atol=1e-15)
+
+
+def test_sampling_goes_through_the_chart(rng):
+    """Samples of both kinds scatter in the chart with the AT's covariance (law of large
+    numbers: 20 000 draws give the covariance to a few percent)."""
+    a = rm.AT([1.0, 2.0, 0.5], np.diag([0.04, 0.01, 0.0025]))
+    d = rm.lie.se2.minus(a.sample(20_000, seed=1), a.mean)
+    np.testing.assert_allclose(np.cov(d.T), a.cov, atol=0.004)
+    q = rm.AT3.from_planar(a)
+    d3 = rm.lie.se3.minus(q.sample(20_000, seed=1), q.mean)
+    np.testing.assert_allclose(np.cov(d3.T)[np.ix_([0, 1, 5], [0, 1, 5])], a.cov, atol=0.004)
+
+
+def test_free_functions_take_either_kind_and_refuse_a_mix(rng):
+    a = _planar(rng, 2)
+    q = rm.AT3.from_planar(a)
+    # the planar AT3's operations are the AT's (the paper's chart is the AT3's in the plane)
+    np.testing.assert_allclose(
+        rm.compound(q[0], q[1]).cov[np.ix_([0, 1, 5], [0, 1, 5])],
+        rm.compound(a[0], a[1]).cov,
+        atol=1e-15,
+    )
+    np.testing.assert_allclose(
+        rm.reverse(q).cov[:, [0, 1, 5]][:, :, [0, 1, 5]], rm.reverse(a).cov, atol=1e-15
+    )
+    np.testing.assert_allclose(
+        rm.merge(q[0], q[1]).cov[np.ix_([0, 1, 5], [0, 1, 5])], rm.merge(a[0], a[1]).cov, atol=1e-15
+    )
+    np.testing.assert_allclose(
+        rm.compound_chain(q).cov[:, [0, 1, 5]][:, :, [0, 1, 5]],
+        rm.compound_chain(a).cov,
+        atol=1e-15,
+    )
+    for call in (lambda: rm.compound(a[0], q[0]), lambda: rm.merge(q[0], a[0]),
+                 lambda: rm.compound(1.0, a[0]), lambda: rm.reverse("a")):  # fmt: skip
+        with pytest.raises(ArgumentTypeError):
+            call()
+    with pytest.raises(ParameterError, match="SE\\(2\\)"):
+        rm.compound(q[0], q[1], moments="exact")
+    with pytest.raises(ShapeError):
+        rm.merge(q, rm.AT3.stack([q[0], q[0], q[0]]))
