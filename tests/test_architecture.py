@@ -28,7 +28,17 @@ PACKAGE = SRC / "relmap"
 LAYERS: list[tuple[str, tuple[str, ...]]] = [
     (
         "base",
-        ("errors", "typing", "_version", "_layout", "_progress", "_core", "_numba", "_numba_math"),
+        (
+            "errors",
+            "typing",
+            "_version",
+            "_layout",
+            "_sym3",
+            "_progress",
+            "_core",
+            "_numba",
+            "_numba_math",
+        ),
     ),
     ("distributed", ("distributed",)),
     ("lie", ("lie",)),

@@ -21,9 +21,10 @@ from typing import Literal, overload
 
 import numpy as np
 
+from relmap import _sym3 as sym3
 from relmap import gaussian
 from relmap import moments as _moments
-from relmap._layout import components_outermost, matrix, stack_last
+from relmap._layout import components_outermost, stack_last
 from relmap.errors import ParameterError, ShapeError
 from relmap.gaussian import DEFAULT_RTOL
 from relmap.lie import SE2, se2
@@ -151,7 +152,7 @@ class AT(UncertainPose):
             raise ShapeError(f"AT mean must have shape (..., 3); got {mean_arr.shape}")
         gaussian.check_finite(mean_arr, "AT mean")
         M = se2.body_to_chart(mean_arr)
-        return cls(mean_arr, M @ checked @ np.swapaxes(M, -1, -2), rtol=rtol)
+        return cls(mean_arr, gaussian.congruence(M, checked), rtol=rtol)
 
     @classmethod
     def from_ros(cls, mean: ArrayLike, cov6: ArrayLike, *, rtol: float = DEFAULT_RTOL) -> AT:
@@ -190,7 +191,7 @@ class AT(UncertainPose):
     def to_body(self) -> FloatArray:
         """The covariance in the body convention of GTSAM/manif: ``M⁻¹ Σ M⁻ᵀ``, ``(..., 3, 3)``."""
         t = self._mean[..., 2]
-        return _sym(_rotate(_entries(self._cov), np.cos(t), -np.sin(t)))
+        return sym3.to_matrix(sym3.rotate(sym3.entries(self._cov), np.cos(t), -np.sin(t)))
 
     def to_ros(self, unused_variance: float = 0.0) -> FloatArray:
         """The covariance as ROS's ``PoseWithCovariance`` 6×6 on ``(x, y, z, rot_x, rot_y, rot_z)``.
@@ -227,8 +228,10 @@ class AT(UncertainPose):
         inv = se2.inverse(self._mean)
         # R = H(x', y') · blkdiag(-R(θ)ᵀ, -1): the signs cancel in the sandwich.
         t = self._mean[..., 2]
-        e = _shear(_rotate(_entries(self._cov), np.cos(t), -np.sin(t)), inv[..., 0], inv[..., 1])
-        cov = _sym(e)
+        e = sym3.shear(
+            sym3.rotate(sym3.entries(self._cov), np.cos(t), -np.sin(t)), inv[..., 0], inv[..., 1]
+        )
+        cov = sym3.to_matrix(e)
         check_result("reverse", inv, cov)
         out = AT._trusted(inv, cov)
         if jacobian:
@@ -249,52 +252,7 @@ class AT(UncertainPose):
         return AT._trusted(np.moveaxis(mean, 0, axis), np.moveaxis(cov, 0, axis))
 
 
-# ------------------------------------------------------------------ fused 3×3 algebra
-# Covariance products written out on the 6 distinct entries of a symmetric 3×3 matrix
-# (c00, c01, c02, c11, c12, c22): several times faster than batched matmul for small matrices.
-Entries = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]
-
-
-def _entries(C: FloatArray) -> Entries:
-    if C.ndim == 2:  # one matrix: Python floats, far cheaper to combine than numpy scalars
-        (c00, c01, c02), (_, c11, c12), (_, _, c22) = C.tolist()
-        return c00, c01, c02, c11, c12, c22
-    return tuple(C[..., i, j] for i, j in _UPPER)  # type: ignore[return-value]
-
-
 _TWO_PI = 2.0 * np.pi
-_UPPER = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
-
-
-def _rotate(e: Entries, c: FloatArray, s: FloatArray) -> Entries:
-    """``K C Kᵀ`` with ``K = blkdiag([[c, -s], [s, c]], 1)``."""
-    q00, q01, q02, q11, q12, q22 = e
-    cc, ss, cs = c * c, s * s, c * s
-    cs_q01 = 2.0 * cs * q01
-    return (
-        cc * q00 - cs_q01 + ss * q11,
-        cs * (q00 - q11) + (cc - ss) * q01,
-        c * q02 - s * q12,
-        ss * q00 + cs_q01 + cc * q11,
-        s * q02 + c * q12,
-        q22,
-    )
-
-
-def _shear(e: Entries, dx: FloatArray, dy: FloatArray) -> Entries:
-    """``H C Hᵀ`` with ``H = [[1, 0, -dy], [0, 1, dx], [0, 0, 1]]`` (Eq. 3's H)."""
-    p00, p01, p02, p11, p12, p22 = e
-    r0 = p02 - dy * p22  # third column of H C
-    r1 = p12 + dx * p22
-    return (p00 - dy * (p02 + r0), p01 - dy * p12 + dx * r0, r0, p11 + dx * (p12 + r1), r1, p22)
-
-
-def _sym(e: Entries) -> FloatArray:
-    """The symmetric ``(..., 3, 3)`` matrix with the given distinct entries."""
-    c00, c01, c02, c11, c12, c22 = e
-    shapes = {getattr(v, "shape", ()) for v in e}
-    shape = shapes.pop() if len(shapes) == 1 else np.broadcast_shapes(*shapes)
-    return matrix([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]], shape)
 
 
 # ------------------------------------------------------------------------ operations
@@ -340,9 +298,12 @@ def _compound_arrays(
 ) -> tuple[FloatArray, FloatArray]:
     """Eqs. (1)-(4) on raw arrays: ``H C_a Hᵀ + K C_b Kᵀ`` written out elementwise."""
     mean, c, s, dx, dy = se2._compose_terms(mean_a, mean_b)
-    sheared, rotated = _shear(_entries(cov_a), dx, dy), _rotate(_entries(cov_b), c, s)
+    sheared, rotated = (
+        sym3.shear(sym3.entries(cov_a), dx, dy),
+        sym3.rotate(sym3.entries(cov_b), c, s),
+    )
     total = tuple(p + q for p, q in zip(sheared, rotated, strict=True))
-    return mean, _sym(total)  # type: ignore[arg-type]
+    return mean, sym3.to_matrix(total)  # type: ignore[arg-type]
 
 
 @overload
@@ -531,9 +492,9 @@ def compound_chain(steps: AT, *, axis: int = -1, moments: MomentsMethod = "first
 def _scan(mean: FloatArray, cov: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Inclusive prefix compounds along axis 0 (recursive pairing; depth log₂ n), on the nine
     distinct numbers of each AT kept as separate arrays until the end."""
-    parts = (mean[..., 0], mean[..., 1], mean[..., 2], *_entries(cov))
+    parts = (mean[..., 0], mean[..., 1], mean[..., 2], *sym3.entries(cov))
     x, y, t, *entries = _scan_parts(parts)
-    return stack_last([x, y, t], mean.shape[:-1]), _sym(tuple(entries))  # type: ignore[arg-type]
+    return stack_last([x, y, t], mean.shape[:-1]), sym3.to_matrix(tuple(entries))  # type: ignore[arg-type]
 
 
 def _scan_parts(p: tuple[FloatArray, ...]) -> tuple[FloatArray, ...]:
@@ -560,6 +521,6 @@ def _compound_parts(a: list[FloatArray], b: list[FloatArray]) -> tuple[FloatArra
     t = ta + tb
     np.subtract(t, _TWO_PI, out=t, where=t >= np.pi)
     np.add(t, _TWO_PI, out=t, where=t < -np.pi)
-    sheared = _shear(tuple(ca), dx, dy)  # type: ignore[arg-type]
-    rotated = _rotate(tuple(cb), c, s)  # type: ignore[arg-type]
+    sheared = sym3.shear(tuple(ca), dx, dy)  # type: ignore[arg-type]
+    rotated = sym3.rotate(tuple(cb), c, s)  # type: ignore[arg-type]
     return (xa + dx, ya + dy, t, *(u + w for u, w in zip(sheared, rotated, strict=True)))

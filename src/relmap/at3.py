@@ -178,7 +178,7 @@ class AT3(UncertainPose):
         J = np.zeros((*v.shape[:-1], 6, 6))
         J[..., :3, :3] = np.eye(3)
         J[..., 3:, 3:] = _euler_rates(v[..., 3:])  # δφ = E(rpy) δrpy
-        return cls._trusted(se3.from_parts(v[..., :3], R), _sym(J @ C @ np.swapaxes(J, -1, -2)))
+        return cls._trusted(se3.from_parts(v[..., :3], R), gaussian.congruence(J, C))
 
     # ----------------------------------------------------------------- accessors
     @property
@@ -253,16 +253,14 @@ class AT3(UncertainPose):
         J = np.zeros((*self.batch_shape, 6, 6))
         J[..., :3, :3] = np.eye(3)
         J[..., 3:, 3:] = np.linalg.inv(_euler_rates(rpy))
-        return np.concatenate([self.translation, rpy], -1), _sym(
-            J @ self._cov @ np.swapaxes(J, -1, -2)
-        )
+        return np.concatenate([self.translation, rpy], -1), gaussian.congruence(J, self._cov)
 
     def to_body(self) -> FloatArray:
         """The covariance in GTSAM's Pose3 convention: body (right) perturbation
         ``T Exp(ξ)``, ``ξ = (ω, v)`` rotation first — ``M⁻¹ Σ M⁻ᵀ``
         (:func:`relmap.lie.se3.body_to_chart`), (..., 6, 6)."""
         Mi = np.swapaxes(se3.body_to_chart(self._mean), -1, -2)  # M is orthogonal
-        return _sym(Mi @ self._cov @ np.swapaxes(Mi, -1, -2))
+        return gaussian.congruence(Mi, self._cov)
 
     @classmethod
     def from_body(cls, T: ArrayLike, cov_body: ArrayLike, *, rtol: float = DEFAULT_RTOL) -> AT3:
@@ -273,7 +271,7 @@ class AT3(UncertainPose):
             raise ShapeError(f"T must have shape (..., 4, 4); got {T.shape}")
         C = gaussian.validate_covariance(cov_body, dim=6, name="body cov", rtol=rtol)
         M = se3.body_to_chart(T)
-        return cls.from_matrix(T, _sym(M @ C @ np.swapaxes(M, -1, -2)))
+        return cls.from_matrix(T, gaussian.congruence(M, C))
 
     def to_ros(self) -> FloatArray:
         """ROS ``PoseWithCovariance``'s 6×6 on ``(x, y, z, rot_x, rot_y, rot_z)``: translation in
@@ -339,10 +337,6 @@ POLE_SIGMAS = 3.0
 class PoleWarning(UserWarning):
     """Euler angles near their pole (pitch ±90°): roll and yaw are poorly determined and their
     first-order covariance is not to be trusted (:meth:`AT3.to_euler`)."""
-
-
-def _sym(C: FloatArray) -> FloatArray:
-    return 0.5 * (C + np.swapaxes(C, -1, -2))
 
 
 def _euler_rates(rpy: FloatArray) -> FloatArray:

@@ -326,6 +326,15 @@ class Fusion(NamedTuple):
     cov: FloatArray
 
 
+def congruence(J: FloatArray, C: FloatArray) -> FloatArray:
+    """``J C Jᵀ``, symmetrized, ``(..., m, m)`` for ``J`` ``(..., m, n)`` and ``C`` ``(..., n, n)``
+    (batch axes broadcast): the covariance of ``J x`` when ``x`` has covariance ``C`` — first-order
+    propagation (the paper's Eq. 4, the lecture's ``Σy = J Σx Jᵀ``). SE(2)'s fused 3×3 cases are
+    in :mod:`relmap._sym3`."""
+    out = J @ C @ np.swapaxes(J, -1, -2)
+    return 0.5 * (out + np.swapaxes(out, -1, -2))
+
+
 def fusion(cov1: ArrayLike, cov2: ArrayLike) -> Fusion:
     """Gain, exactly known directions and fused covariance of two independent estimates; the
     mean is then ``x₁ + K (x₂ - x₁)`` once :func:`check_agreement` has accepted ``x₂ - x₁``."""
@@ -333,8 +342,7 @@ def fusion(cov1: ArrayLike, cov2: ArrayLike) -> Fusion:
     G, null = generalized_inverse(C1 + C2)
     K = C1 @ G
     I_K = np.eye(C1.shape[-1]) - K
-    cov = I_K @ C1 @ np.swapaxes(I_K, -1, -2) + K @ C2 @ np.swapaxes(K, -1, -2)
-    return Fusion(K, null, 0.5 * (cov + np.swapaxes(cov, -1, -2)))
+    return Fusion(K, null, congruence(I_K, C1) + congruence(K, C2))  # Joseph form
 
 
 def check_agreement(

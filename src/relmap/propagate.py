@@ -19,7 +19,7 @@ from typing import NamedTuple
 import numpy as np
 
 from relmap.errors import ParameterError, ShapeError
-from relmap.gaussian import _sqrt_psd, check_finite, real_array, validate_covariance
+from relmap.gaussian import _sqrt_psd, check_finite, congruence, real_array, validate_covariance
 from relmap.lie import se2, se3
 from relmap.typing import ArrayLike, FloatArray
 
@@ -149,8 +149,7 @@ def propagate(
         raise ShapeError(
             f"jacobian must have shape (..., {y.shape[-1]}, {mean.shape[-1]}); got {J.shape}"
         )
-    cov_y = J @ cov @ np.swapaxes(J, -1, -2)
-    return Moments(y, 0.5 * (cov_y + np.swapaxes(cov_y, -1, -2)))
+    return Moments(y, congruence(J, cov))
 
 
 def unscented(

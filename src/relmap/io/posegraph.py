@@ -472,11 +472,6 @@ def _g2o3_chart(R: FloatArray, rotation_scale: float = 2.0) -> FloatArray:
     return K
 
 
-def _sandwich(K: FloatArray, C: FloatArray) -> FloatArray:
-    out = K @ C @ np.swapaxes(K, -1, -2)
-    return 0.5 * (out + np.swapaxes(out, -1, -2))
-
-
 def _compose_tree(n: int, a: IntArray, b: IntArray, Z: FloatArray) -> FloatArray:
     """Poses ``(n, 4, 4)`` of vertices ``0..n-1`` from edges ``a → b`` with relative poses Z:
     breadth first from the lowest unplaced vertex (at the identity) of each connected part,
@@ -608,7 +603,7 @@ def graph_from_text(p: Path, text: str) -> PoseGraph:
         # AT.from_body without its check of the body covariance: cov_file is already the
         # symmetrized inverse of a checked information matrix (the same bits, one check fewer)
         M = se2.body_to_chart(z)
-        cov = M @ cov_file @ np.swapaxes(M, -1, -2)
+        cov = gaussian.congruence(M, cov_file)
         measurements = _validated(p, spec.edge, edg.lines, lambda k: AT(z[k], cov[k]))
         poses = poses.copy()
         poses[:, 2] = se2.wrap_angle(poses[:, 2])
@@ -617,7 +612,7 @@ def graph_from_text(p: Path, text: str) -> PoseGraph:
         edge_quaternions = _quaternions(p, spec.edge, z[:, 3:], edg.lines)
         Rz = _rotations(edge_quaternions)
         Z = se3.from_parts(z[:, :3], Rz)
-        cov = _sandwich(_g2o3_chart(Rz), cov_file)
+        cov = gaussian.congruence(_g2o3_chart(Rz), cov_file)
         measurements = _validated(
             p,
             spec.edge,
@@ -778,7 +773,7 @@ def file_information(measurements: AT | AT3, format: GraphFormat = "g2o") -> Flo
                 "legacy EDGE3 format is read only)"
             )
         Rt = np.swapaxes(np.asarray(measurements.rotation), -1, -2)
-        cov_file = _sandwich(_g2o3_chart(Rt, 0.5), np.asarray(measurements.cov))
+        cov_file = gaussian.congruence(_g2o3_chart(Rt, 0.5), np.asarray(measurements.cov))
     else:
         raise TypeError(f"expected an AT or AT3, got {type(measurements).__name__}")
     if format not in ("g2o", "toro"):

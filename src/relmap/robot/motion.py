@@ -39,10 +39,11 @@ from typing import Any, Literal
 
 import numpy as np
 
+from relmap import _sym3 as sym3
 from relmap._layout import components_outermost, matrix, stack_last
 from relmap.at import AT, compound, compound_chain
 from relmap.errors import ArgumentTypeError, ParameterError, ShapeError
-from relmap.gaussian import check_finite, real_array
+from relmap.gaussian import check_finite, congruence, real_array
 from relmap.lie import se2
 from relmap.typing import ArrayLike, FloatArray
 from relmap.uncertain import check_result
@@ -272,7 +273,7 @@ class AlphaNoise(_Noise):
         J[..., 2, 0], J[..., 2, 2] = 1.0, 1.0
         S = np.zeros((*ds.shape, 3, 3))
         S[..., 0, 0], S[..., 1, 1], S[..., 2, 2] = v_rot, v_trans, v_rot
-        return J @ S @ np.swapaxes(J, -1, -2)
+        return congruence(J, S)
 
 
 Noise = WheelNoise | DistanceNoise | AlphaNoise
@@ -295,14 +296,10 @@ def _step_ats(
     s00, s01, s11 = noise.entries(motion, drive)
     if motion.ndim == 1:
         s00, s01, s11 = (float(v) for v in (s00, s01, s11))  # type: ignore[assignment]
-    # J S Jᵀ written out: J's rows are (a, e), (b, f), (0, 1)
-    e, f = ds * da, ds * db
-    r0 = (a * s00 + e * s01, a * s01 + e * s11)  # first row of J S
-    r1 = (b * s00 + f * s01, b * s01 + f * s11)
-    c00 = a * r0[0] + e * r0[1]
-    c01 = b * r0[0] + f * r0[1]
-    c11 = b * r1[0] + f * r1[1]
-    cov = matrix([[c00, c01, r0[1]], [c01, c11, r1[1]], [r0[1], r1[1], s11]], delta.shape[:-1])
+    # J S Jᵀ with J's rows (a, ds·da), (b, ds·db), (0, 1)
+    cov = sym3.to_matrix(
+        sym3.congruence_3x2(a, ds * da, b, ds * db, s00, s01, s11), delta.shape[:-1]
+    )
     return AT._trusted(delta, cov)
 
 
@@ -349,14 +346,8 @@ def _step_single(
         a, b_, da, db = _arc_parts(dt)
     else:
         return None
-    # J S Jᵀ as in _step_ats: J's rows are (a, e), (b, f), (0, 1)
-    e, f = ds * da, ds * db
-    r0 = (a * s00 + e * s01, a * s01 + e * s11)
-    r1 = (b_ * s00 + f * s01, b_ * s01 + f * s11)
-    c00 = a * r0[0] + e * r0[1]
-    c01 = b_ * r0[0] + f * r0[1]
-    c11 = b_ * r1[0] + f * r1[1]
-    return (ds * a, ds * b_, dt), (c00, c01, r0[1], c11, r1[1], s11)
+    # J S Jᵀ as in _step_ats
+    return (ds * a, ds * b_, dt), sym3.congruence_3x2(a, ds * da, b_, ds * db, s00, s01, s11)
 
 
 def _arc_parts(dt: float) -> tuple[float, float, float, float]:
