@@ -13,7 +13,7 @@ Carlo check must therefore sum sampled headings without wrapping before taking m
 
 **What is not.** The compounded pose is not Gaussian (the paper's crescent, Fig. 5): exact
 moments describe it with the right mean and covariance, but probabilities read from the
-Gaussian with those moments (ellipses, :mod:`relmap.decisions`) remain an approximation;
+Gaussian with those moments (ellipses, :mod:`relmap.sensors.decisions`) remain an approximation;
 :meth:`relmap.montecarlo.SampleSet.compare` measures how far from Gaussian a sample is
 (Mardia's skewness and kurtosis). Merging afterwards (⊗) is still the linear-Gaussian update
 of Eqs. (8)-(10) applied to those moments (a moment-matched Gaussian), not the exact posterior.

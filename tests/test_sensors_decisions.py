@@ -1,4 +1,5 @@
-"""relmap.decisions: field-of-view and doorway decisions, the paper's test and the probability.
+"""relmap.sensors.decisions (public name relmap.decisions): field-of-view and doorway decisions,
+the paper's test and the probability.
 
 Every probability is checked against Monte Carlo (samples drawn with ``AT.sample``, agreement
 within 4 sampling standard errors ``√(p(1−p)/n)``), against closed forms where they exist, and
