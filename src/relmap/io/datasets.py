@@ -47,6 +47,7 @@ from typing import Literal, NamedTuple
 import numpy as np
 
 from relmap.errors import FileFormatError, NonFiniteError, ParameterError
+from relmap.io._parsing import fail_at, frozen, strict_float
 from relmap.io.textfile import read_text
 from relmap.lie import se2
 from relmap.typing import ArrayLike, FloatArray, IntArray
@@ -205,12 +206,6 @@ class Plaza(NamedTuple):
 
 
 # ----------------------------------------------------------------------------- helpers
-def _frozen(arr: np.ndarray) -> np.ndarray:
-    arr = np.ascontiguousarray(arr)
-    arr.flags.writeable = False
-    return arr
-
-
 def _lookup(table: IntArray, keys: ArrayLike) -> IntArray:
     """Index of each key in ``table`` (unique int64 values), ``-1`` where absent; vectorized."""
     want = np.asarray(keys)
@@ -260,9 +255,7 @@ class _Table(NamedTuple):
 
     def fail(self, bad: ArrayLike, message: str) -> None:
         """Raise ``message`` at the line of the first row flagged in ``bad`` (if any)."""
-        flagged = np.flatnonzero(bad)
-        if flagged.size:
-            raise FileFormatError(self.path, message, line=int(self.lines[flagged[0]]))
+        fail_at(self.path, bad, self.lines, message)
 
     def column(self, name: str) -> FloatArray:
         return self.values[:, self.columns.index(name)]
@@ -271,13 +264,8 @@ class _Table(NamedTuple):
         """Column ``name`` as int64, after checking every value is an exact integer."""
         col = self.column(name)
         bad = (col != np.round(col)) | (np.abs(col) >= _INT_LIMIT)
-        flagged = np.flatnonzero(bad)
-        if flagged.size:
-            raise FileFormatError(
-                self.path,
-                f"{name} must be an integer; got {col[flagged[0]]!r}",
-                line=int(self.lines[flagged[0]]),
-            )
+        if bad.any():
+            self.fail(bad, f"{name} must be an integer; got {col[np.flatnonzero(bad)[0]]!r}")
         return col.astype(np.int64)
 
     def non_negative(self, name: str) -> None:
@@ -375,9 +363,7 @@ def _parse_slowly(
         row = []
         for name, token in zip(columns, tokens, strict=True):
             try:
-                if "_" in token:
-                    raise ValueError(token)
-                row.append(float(token))
+                row.append(strict_float(token))
             except ValueError:
                 raise FileFormatError(
                     path, f"{name}: {token!r} is not a number", line=line
@@ -420,16 +406,16 @@ def _read_robot(
     is_landmark = _lookup(landmarks, subject) >= 0
     return RobotLog(
         robot=n,
-        odometry_t=_frozen(odo_t),
-        odometry_v=_frozen(odo.values[:, 1]),
-        odometry_w=_frozen(odo.values[:, 2]),
-        truth_t=_frozen(gt_t),
-        truth=_frozen(truth),
-        meas_t=_frozen(meas_t),
-        meas_barcode=_frozen(barcode),
-        meas_subject=_frozen(np.where(is_landmark, subject, -1).astype(np.int64)),
-        meas_range=_frozen(meas.values[:, 2]),
-        meas_bearing=_frozen(se2.wrap_angle(meas.values[:, 3])),
+        odometry_t=frozen(odo_t),
+        odometry_v=frozen(odo.values[:, 1]),
+        odometry_w=frozen(odo.values[:, 2]),
+        truth_t=frozen(gt_t),
+        truth=frozen(truth),
+        meas_t=frozen(meas_t),
+        meas_barcode=frozen(barcode),
+        meas_subject=frozen(np.where(is_landmark, subject, -1).astype(np.int64)),
+        meas_range=frozen(meas.values[:, 2]),
+        meas_bearing=frozen(se2.wrap_angle(meas.values[:, 3])),
         n_unknown_barcodes=int(np.count_nonzero(row < 0)),
     )
 
@@ -476,11 +462,11 @@ def read_mrclam(folder: str | os.PathLike[str]) -> Mrclam:
         _read_robot(p, n, barcodes, subjects, landmark_ids) for n in range(1, MRCLAM_ROBOTS + 1)
     )
     return Mrclam(
-        subjects=_frozen(subjects),
-        barcodes=_frozen(barcodes),
-        landmark_ids=_frozen(landmark_ids),
-        landmark_xy=_frozen(lm.values[:, 1:3]),
-        landmark_sigma=_frozen(lm.values[:, 3:5]),
+        subjects=frozen(subjects),
+        barcodes=frozen(barcodes),
+        landmark_ids=frozen(landmark_ids),
+        landmark_xy=frozen(lm.values[:, 1:3]),
+        landmark_sigma=frozen(lm.values[:, 3:5]),
         robots=robots,
     )
 
@@ -576,21 +562,21 @@ def read_plaza(folder: str | os.PathLike[str]) -> Plaza:
     dr_pose = drp[:, 1:].copy()
     dr_pose[:, 2] = se2.wrap_angle(dr_pose[:, 2])
     return Plaza(
-        dr_t=_frozen(dr_t),
-        dr_distance=_frozen(dr.values[:, 1]),
-        dr_dheading=_frozen(dr.values[:, 2]),
-        dr_pose_t=_frozen(drp[:, 0]),
-        dr_pose=_frozen(dr_pose),
-        truth_t=_frozen(gt[:, 0]),
-        truth=_frozen(truth),
-        truth_raw_heading=_frozen(raw),
-        meas_t=_frozen(td_t),
-        meas_sender=_frozen(sender),
-        meas_beacon=_frozen(beacon),
-        meas_range=_frozen(td.values[:, 3]),
-        meas_beacon_index=_frozen(index),
-        beacon_ids=_frozen(beacon_ids),
-        beacon_xy=_frozen(tl[:, 1:3]),
+        dr_t=frozen(dr_t),
+        dr_distance=frozen(dr.values[:, 1]),
+        dr_dheading=frozen(dr.values[:, 2]),
+        dr_pose_t=frozen(drp[:, 0]),
+        dr_pose=frozen(dr_pose),
+        truth_t=frozen(gt[:, 0]),
+        truth=frozen(truth),
+        truth_raw_heading=frozen(raw),
+        meas_t=frozen(td_t),
+        meas_sender=frozen(sender),
+        meas_beacon=frozen(beacon),
+        meas_range=frozen(td.values[:, 3]),
+        meas_beacon_index=frozen(index),
+        beacon_ids=frozen(beacon_ids),
+        beacon_xy=frozen(tl[:, 1:3]),
         n_unknown_beacons=int(np.count_nonzero(index < 0)),
     )
 

@@ -104,6 +104,7 @@ from relmap.errors import (
     UnknownFrameError,
 )
 from relmap.gaussian import DEFAULT_RTOL
+from relmap.io._parsing import fail_at, frozen, strict_float
 from relmap.io.atomic import write_text_atomic
 from relmap.io.textfile import read_text
 from relmap.lie import SE3, Group, se2, se3, so3
@@ -347,18 +348,10 @@ def _int(path: Path, tag: str, token: str, line: int) -> int:
 
 def _float(path: Path, tag: str, token: str, line: int) -> float:
     try:
-        if "_" not in token:
-            return float(token)
+        return strict_float(token)
     except ValueError:
         pass
     raise FileFormatError(path, f"{tag}: {token!r} is not a number", line=line)
-
-
-def _fail_at(path: Path, bad: ArrayLike, lines: Sequence[int], message: str) -> None:
-    """Raise ``message`` at the line of the first row flagged in ``bad`` (if any)."""
-    flagged = np.flatnonzero(bad)
-    if flagged.size:
-        raise FileFormatError(path, message, line=lines[int(flagged[0])])
 
 
 def _assemble(values: FloatArray, order: tuple[tuple[int, int], ...], dof: int) -> FloatArray:
@@ -499,12 +492,6 @@ def _compose_tree(n: int, a: IntArray, b: IntArray, Z: FloatArray) -> FloatArray
     return poses
 
 
-def _frozen(arr: np.ndarray) -> np.ndarray:
-    arr = np.ascontiguousarray(arr)
-    arr.flags.writeable = False
-    return arr
-
-
 def read_graph(path: str | os.PathLike[str]) -> PoseGraph:
     """Read a 2-D or 3-D pose graph in g2o or TORO format (recognised from the first record's
     tag).
@@ -554,7 +541,7 @@ def graph_from_text(p: Path, text: str) -> PoseGraph:
         (spec.edge, edge_values, edg.lines),
     ):
         bad = ~np.isfinite(values).all(axis=1)
-        _fail_at(p, bad, lines, f"non-finite number in a {tag} line (values must be finite)")
+        fail_at(p, bad, lines, f"non-finite number in a {tag} line (values must be finite)")
 
     # iSAM's EDGE3 files have no vertex lines: the edges name the vertices.
     implied = spec.edge == "EDGE3" and not vtx.lines and bool(edg.lines)
@@ -636,15 +623,15 @@ def graph_from_text(p: Path, text: str) -> PoseGraph:
             poses = se3.from_parts(poses[:, :3], so3.from_euler(poses[:, 3:]))
     return PoseGraph(
         format=spec.format,
-        vertex_ids=_frozen(vertex_ids),
-        poses=_frozen(poses),
-        edge_from=_frozen(edge_ids[:, 0]),
-        edge_to=_frozen(edge_ids[:, 1]),
+        vertex_ids=frozen(vertex_ids),
+        poses=frozen(poses),
+        edge_from=frozen(edge_ids[:, 0]),
+        edge_to=frozen(edge_ids[:, 1]),
         measurements=measurements,
-        information=_frozen(information),
-        fixed=_frozen(fixed),
-        vertex_quaternions=None if vertex_quaternions is None else _frozen(vertex_quaternions),
-        edge_quaternions=None if edge_quaternions is None else _frozen(edge_quaternions),
+        information=frozen(information),
+        fixed=frozen(fixed),
+        vertex_quaternions=None if vertex_quaternions is None else frozen(vertex_quaternions),
+        edge_quaternions=None if edge_quaternions is None else frozen(edge_quaternions),
     )
 
 
