@@ -1,4 +1,4 @@
-"""Numeric helpers shared by the tests."""
+"""Helpers shared by the tests: numeric comparisons, random poses and ATs, the Fig. 3 bridge."""
 
 from __future__ import annotations
 
@@ -51,3 +51,47 @@ def valid_cross_cov(
         return U * np.sqrt(np.clip(lam, 0.0, None))[..., None, :]
 
     return root(cov_a) @ K @ np.swapaxes(root(cov_b), -1, -2)
+
+
+def random_ats(
+    seed: int | np.random.Generator,
+    shape: tuple[int, ...],
+    scale: float = 0.1,
+    pose_scale: float = 3.0,
+):  # -> relmap.AT
+    """Random ATs ``shape``: poses as :func:`random_poses` (translations σ ``pose_scale``),
+    covariances as :func:`random_covs` (``scale``); ``seed`` or a generator."""
+    import relmap as rm
+
+    g = np.random.default_rng(seed)
+    return rm.AT(random_poses(g, shape, scale=pose_scale), random_covs(g, shape, scale=scale))
+
+
+def random_at3s(seed: int, n: int, scale: float = 0.05):  # -> relmap.AT3
+    """``n`` random AT3s: uniform rotations, translations σ 2 m, covariances as
+    :func:`random_covs` (6×6, ``scale``)."""
+    from scipy.spatial.transform import Rotation
+
+    import relmap as rm
+
+    g = np.random.default_rng(seed)
+    q = Rotation.random(n, random_state=seed).as_quat()
+    return rm.AT3(g.normal(scale=2.0, size=(n, 3)), q, random_covs(g, (n,), n=6, scale=scale))
+
+
+def fig3_bridge(sigmas=None):  # -> relmap.RelationalMap
+    """The Wheatstone bridge of Figs. 3-4 as shipped in ``relmap/data/fig3.json`` (ATs A w→t,
+    B w→v, C t→v, D t→u, E u→v); ``sigmas`` ``(σx, σy, σθ)`` replaces every AT's
+    standard deviations (the file's are 5 cm, 5 cm, 1°)."""
+    from importlib import resources
+
+    import relmap as rm
+    from relmap.io.mapfile import read_records
+
+    with resources.as_file(resources.files("relmap") / "data" / "fig3.json") as path:
+        records = read_records(path)
+    g = rm.RelationalMap()
+    for r in records:
+        at = r.at if sigmas is None else rm.AT.from_sigmas(r.at.mean, sigmas)
+        g.add(r.src, r.dst, at, name=r.name)
+    return g

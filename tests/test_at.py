@@ -19,16 +19,7 @@ from relmap.errors import (
 )
 from relmap.lie import se2
 from relmap.propagate import SE2, Chart, propagate
-from tests.helpers import assert_poses_close, random_covs, random_poses
-
-
-def rng(seed: int = 0) -> np.random.Generator:
-    return np.random.default_rng(seed)
-
-
-def random_ats(seed: int, shape: tuple[int, ...], scale: float = 0.1) -> rm.AT:
-    g = rng(seed)
-    return rm.AT(random_poses(g, shape), random_covs(g, shape, scale=scale))
+from tests.helpers import assert_poses_close, random_ats, random_covs, random_poses
 
 
 def rel_fro(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -82,7 +73,7 @@ def test_construct_rejects_bad_input(mean, cov, error):
 
 
 def test_batch_broadcast_indexing_and_stack():
-    means = random_poses(rng(1), (4, 5))
+    means = random_poses(np.random.default_rng(1), (4, 5))
     a = rm.AT(means, np.diag([0.1, 0.1, 0.01]))  # one covariance shared by the batch
     assert a.batch_shape == (4, 5) and a.cov.shape == (4, 5, 3, 3)
     b = a[2, 3]
@@ -192,7 +183,7 @@ def test_compound_with_own_reversal_cross_cov_is_exactly_zero():
 
 def test_compound_cross_cov_matches_joint_propagation():
     """A dependent pair given by its 6×6 joint covariance (§3.2), against numeric propagation."""
-    g = rng(10)
+    g = np.random.default_rng(10)
     a_mean, b_mean = random_poses(g, (6,)), random_poses(g, (6,))
     joint = random_covs(g, (6,), n=6)
     a = rm.AT(a_mean, joint[:, :3, :3])
@@ -254,7 +245,7 @@ def test_merge_reduces_to_eq11_in_one_dimension():
 
 def test_merge_equals_information_form():
     a, b = random_ats(14, (10,)), random_ats(15, (10,))
-    b = rm.AT(se2.plus(a.mean, rng(16).normal(scale=0.05, size=(10, 3))), b.cov)
+    b = rm.AT(se2.plus(a.mean, np.random.default_rng(16).normal(scale=0.05, size=(10, 3))), b.cov)
     m = rm.merge(a, b)
     Ia, Ib = np.linalg.inv(a.cov), np.linalg.inv(b.cov)
     C = np.linalg.inv(Ia + Ib)
@@ -337,7 +328,7 @@ def _chain_by_loop(steps: rm.AT) -> list[rm.AT]:
 
 
 def test_compound_chain_equals_sequential_compounding():
-    g = rng(18)
+    g = np.random.default_rng(18)
     n = 400
     means = np.column_stack([g.uniform(0.5, 1.5, n), g.normal(0, 0.1, n), g.normal(0.05, 0.3, n)])
     steps = rm.AT(means, random_covs(g, (n,), scale=0.03))
@@ -349,8 +340,8 @@ def test_compound_chain_equals_sequential_compounding():
 
 
 def test_compound_chain_batched_and_axis():
-    g = rng(19)
-    steps = rm.AT(random_poses(g, (3, 20), scale=1.0), random_covs(g, (3, 20), scale=0.05))
+    g = np.random.default_rng(19)
+    steps = random_ats(g, (3, 20), scale=0.05, pose_scale=1.0)
     chain = rm.compound_chain(steps)
     along0 = rm.compound_chain(
         rm.AT(np.swapaxes(steps.mean, 0, 1), np.swapaxes(steps.cov, 0, 1)), axis=0
@@ -368,7 +359,7 @@ def test_compound_chain_batched_and_axis():
 
 def test_compound_chain_far_from_origin_keeps_precision():
     """A chain starting 10 km away (UTM-like coordinates) still matches the loop."""
-    g = rng(20)
+    g = np.random.default_rng(20)
     means = np.column_stack([np.full(200, 1.0), np.zeros(200), g.normal(0, 0.05, 200)])
     means[0] = [1e4, -2e4, 0.3]
     steps = rm.AT(means, np.diag([1e-4, 1e-4, 1e-6]))
@@ -390,7 +381,7 @@ def test_body_convention_matches_gtsam_sampling_semantics():
     """A body covariance means T ∘ Exp(ξ); first-order, that is our chart covariance M Σ Mᵀ."""
     a = rm.AT([2.0, -1.0, 2.5], np.zeros((3, 3)))
     body = np.diag([0.01, 0.04, 0.0025]) * 1e-4
-    xi = rng(22).multivariate_normal(np.zeros(3), body, size=100_000)
+    xi = np.random.default_rng(22).multivariate_normal(np.zeros(3), body, size=100_000)
     samples = se2.compose(a.mean, se2.exp(xi))
     d = se2.minus(samples, a.mean)
     expected = rm.AT.from_body(a.mean, body).cov
@@ -412,7 +403,7 @@ def test_ros_covariance_layout_and_roundtrip():
 
 # --------------------------------------------------------------------- Monte Carlo
 def _small_angle_ats(seed: int, n: int, sigma_theta_deg: float) -> rm.AT:
-    g = rng(seed)
+    g = np.random.default_rng(seed)
     sig = np.column_stack(
         [g.uniform(0.02, 0.1, n), g.uniform(0.02, 0.1, n), np.full(n, np.deg2rad(sigma_theta_deg))]
     )
@@ -443,7 +434,7 @@ def test_reverse_monte_carlo_within_two_percent():
 def test_merge_monte_carlo_error_distribution():
     """Merged estimator's error around the truth has the merged covariance and no bias."""
     a = _small_angle_ats(35, 6, 2.0)
-    b = rm.AT(a.mean, random_covs(rng(36), (6,), scale=0.05))
+    b = rm.AT(a.mean, random_covs(np.random.default_rng(36), (6,), scale=0.05))
     c = rm.AT(a.mean, np.diag([0.02, 0.01, 1e-4]))
     merged = rm.merge(a, b, c)
     mc = montecarlo.simulate_merge(a, b, c, n=100_000, seed=37).compare(merged)

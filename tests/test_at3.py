@@ -14,22 +14,12 @@ from relmap import montecarlo
 from relmap.errors import CovarianceError, ParameterError, ShapeError
 from relmap.lie import se3, so3
 
-from .helpers import random_covs, valid_cross_cov
-
-
-def rng(seed: int) -> np.random.Generator:
-    return np.random.default_rng(seed)
-
-
-def random_at3s(seed: int, n: int, scale: float = 0.05) -> rm.AT3:
-    g = rng(seed)
-    q = Rotation.random(n, random_state=seed).as_quat()
-    return rm.AT3(g.normal(scale=2.0, size=(n, 3)), q, random_covs(g, (n,), n=6, scale=scale))
+from .helpers import random_at3s, random_covs, valid_cross_cov
 
 
 def small_angle_at3s(seed: int, n: int, sigma_rot: float = 0.02) -> rm.AT3:
     """Translation σ 0.03-0.1 m, rotation σ ``sigma_rot`` rad, random correlations up to 0.5."""
-    g = rng(seed)
+    g = np.random.default_rng(seed)
     sig = np.concatenate([g.uniform(0.03, 0.1, (n, 3)), np.full((n, 3), sigma_rot)], axis=-1)
     corr = random_covs(g, (n,), n=6, scale=1.0)
     d = np.sqrt(np.diagonal(corr, axis1=-2, axis2=-1))
@@ -42,7 +32,7 @@ def small_angle_at3s(seed: int, n: int, sigma_rot: float = 0.02) -> rm.AT3:
 # ------------------------------------------------------------------ construction
 def test_constructors_agree():
     rot = Rotation.random(3, random_state=1)
-    t = rng(1).normal(size=(3, 3))
+    t = np.random.default_rng(1).normal(size=(3, 3))
     a = rm.AT3(t, rot.as_quat())
     b = rm.AT3(t, rot.as_matrix())
     c = rm.AT3.from_vector(np.concatenate([t, rot.as_quat()], -1))
@@ -123,7 +113,9 @@ def test_body_convention_round_trips_and_matches_gtsam_sampling():
     np.testing.assert_allclose(rm.AT3.from_body(a.matrix, a.to_body()).cov, a.cov, atol=1e-15)
     # a body covariance means T Exp(ξ) (GTSAM's retract); to first order our chart covariance
     one = rm.AT3.from_body(a.matrix[0], np.diag([4, 1, 2, 3, 1, 5]) * 1e-8)
-    xi = rng(7).multivariate_normal(np.zeros(6), np.diag([4, 1, 2, 3, 1, 5]) * 1e-8, size=20_000)
+    xi = np.random.default_rng(7).multivariate_normal(
+        np.zeros(6), np.diag([4, 1, 2, 3, 1, 5]) * 1e-8, size=20_000
+    )
     samples = se3.compose(a.matrix[0], se3.exp(np.concatenate([xi[:, 3:], xi[:, :3]], -1)))
     mc = montecarlo.SampleSet.of(samples, rm.AT3.group)
     agreement = mc.compare(one)
@@ -166,8 +158,12 @@ def test_compound_chain_dispatches_3d_chains():
 def test_merge_is_order_independent_and_psd(seed):
     a, b, c = random_at3s(seed, 3, scale=0.1)
     # three estimates of one relation: perturb a's mean slightly
-    b = rm.AT3.from_matrix(se3.plus(a.matrix, rng(seed).normal(scale=0.05, size=6)), b.cov)
-    c = rm.AT3.from_matrix(se3.plus(a.matrix, rng(seed + 1).normal(scale=0.05, size=6)), c.cov)
+    b = rm.AT3.from_matrix(
+        se3.plus(a.matrix, np.random.default_rng(seed).normal(scale=0.05, size=6)), b.cov
+    )
+    c = rm.AT3.from_matrix(
+        se3.plus(a.matrix, np.random.default_rng(seed + 1).normal(scale=0.05, size=6)), c.cov
+    )
     m1, m2 = rm.merge(a, b, c), rm.merge(c, a, b)
     np.testing.assert_allclose(m1.matrix, m2.matrix, atol=1e-12)
     np.testing.assert_allclose(m1.cov, m2.cov, atol=1e-12 * np.abs(m1.cov).max())
@@ -190,7 +186,7 @@ def test_merge_with_exact_directions():
 
 # ------------------------------------------------------------------ planar reduction
 def test_planar_ats_reduce_exactly_to_at():
-    g = rng(10)
+    g = np.random.default_rng(10)
     a = rm.AT(
         np.column_stack([g.normal(size=(30, 2)), g.uniform(-np.pi, np.pi, 30)]),
         random_covs(g, (30,)),
@@ -253,7 +249,7 @@ def test_ellipsoid_probability_by_sampling():
 
 # ------------------------------------------------------------------ Euler angles and §7's poles
 def test_euler_conversion_round_trips_with_covariance():
-    g = rng(14)
+    g = np.random.default_rng(14)
     xyz_rpy = np.column_stack(
         [
             g.normal(size=(10, 3)),

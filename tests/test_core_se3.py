@@ -10,8 +10,8 @@ import pytest
 import relmap as rm
 from relmap import _core, at3
 
-from .helpers import valid_cross_cov
-from .test_at3 import _close, _reference_compound, _reference_reverse, random_at3s, rng
+from .helpers import random_at3s, valid_cross_cov
+from .test_at3 import _close, _reference_compound, _reference_reverse
 
 
 @pytest.mark.parametrize("n", [1, 2, 15, 16, 17, 31, 32, 33, 100])
@@ -33,7 +33,7 @@ def test_strided_and_broadcast_views_are_read_in_place():
     _close(one @ sa, *_reference_compound(one, sa))
     # one cross-covariance for all 45 pairs (a stride-0 view), small enough for every pair:
     # ‖X‖₂ ≤ √(λmin(C_a) λmin(C_b)) keeps each joint covariance PSD
-    K = rng(53).normal(size=(6, 6))
+    K = np.random.default_rng(53).normal(size=(6, 6))
     floor = np.sqrt(np.linalg.eigvalsh(sa.cov)[:, 0] * np.linalg.eigvalsh(sb.cov)[:, 0]).min()
     X = np.broadcast_to(0.9 * floor * K / np.linalg.norm(K, 2), (45, 6, 6))
     _close(rm.compound(sa, sb, cross_cov=X), *_reference_compound(sa, sb, X))

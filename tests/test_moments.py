@@ -20,6 +20,7 @@ from relmap.lie import se2
 from relmap.propagate import EUCLIDEAN, SE2, unscented
 from tests.helpers import (
     assert_poses_close,
+    random_ats,
     random_covs,
     random_poses,
     valid_cross_cov,
@@ -226,8 +227,8 @@ def test_chain_is_sequential_exact_compounding_of_prefix_and_link_moments_batche
 # ------------------------------------------------------------------------- AT surface
 def test_compound_dispatches_on_moments():
     rng = np.random.default_rng(17)
-    a = rm.AT(random_poses(rng, (4,)), random_covs(rng, (4,), scale=0.3))
-    b = rm.AT(random_poses(rng, (4,)), random_covs(rng, (4,), scale=0.3))
+    a = random_ats(rng, (4,), scale=0.3)
+    b = random_ats(rng, (4,), scale=0.3)
     X = valid_cross_cov(a.cov, b.cov, 18)
     exact = rm.compound(a, b, cross_cov=X, moments="exact")
     ref = mo.compound_moments(a.mean, a.cov, b.mean, b.cov, cross_cov=X)
@@ -255,7 +256,7 @@ def test_compound_dispatches_on_moments():
 
 def test_compound_chain_dispatches_on_moments():
     rng = np.random.default_rng(19)
-    steps = rm.AT(random_poses(rng, (2, 6), 1.0), random_covs(rng, (2, 6), scale=0.2))
+    steps = random_ats(rng, (2, 6), scale=0.2, pose_scale=1.0)
     exact = rm.compound_chain(steps, moments="exact")  # default axis -1
     ref = mo.chain_moments(steps.mean, steps.cov, axis=-1)
     np.testing.assert_array_equal(exact.cov, ref.cov)
@@ -272,7 +273,7 @@ def test_compound_chain_dispatches_on_moments():
 
 def test_unscented_schemes_reduce_to_first_order_for_tiny_uncertainty():
     rng = np.random.default_rng(23)
-    steps = rm.AT(random_poses(rng, (6,), 1.0), random_covs(rng, (6,), scale=1e-5))
+    steps = random_ats(rng, (6,), scale=1e-5, pose_scale=1.0)
     first = rm.compound_chain(steps, axis=0)
     for scheme in ("sequential", "joint"):
         m, C = mo.unscented_chain(steps.mean, steps.cov, axis=0, scheme=scheme)

@@ -9,6 +9,7 @@ import relmap as rm
 from relmap import montecarlo, plot
 from relmap.errors import ParameterError, ShapeError
 from relmap.lie import se2
+from tests.helpers import fig3_bridge
 
 
 def _pixels(fig) -> np.ndarray:
@@ -17,16 +18,7 @@ def _pixels(fig) -> np.ndarray:
 
 
 def bridge() -> rm.RelationalMap:
-    g = rm.RelationalMap()
-    sig = [0.05, 0.05, np.radians(1)]
-    for name, s, t, mean in (
-        ("A", "w", "t", [1.0, 1.0, 0.2]),
-        ("B", "w", "v", [2.0, 0.0, -0.1]),
-        ("C", "t", "v", [1.2, -0.8, -0.3]),
-        ("D", "t", "u", [1.1, 0.9, 0.1]),
-        ("E", "u", "v", [0.3, -1.9, -0.4]),
-    ):
-        g.add(s, t, rm.AT.from_sigmas(mean, sig), name=name)
+    g = fig3_bridge()
     g.add("z1", "z2", rm.AT([1.0, 0.0, 0.0]), name="elsewhere")  # not connected to w
     return g
 

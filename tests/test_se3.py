@@ -15,19 +15,15 @@ from relmap.lie import se3, so3
 from relmap.propagate import SE3, numerical_jacobian
 
 
-def rng(seed: int) -> np.random.Generator:
-    return np.random.default_rng(seed)
-
-
 def random_poses(seed: int, n: int, scale: float = 2.0) -> np.ndarray:
     """Random poses (n, 4, 4): uniform rotations, translations ~ N(0, scale²)."""
     R = Rotation.random(n, random_state=seed).as_matrix()
-    return se3.from_parts(rng(seed).normal(scale=scale, size=(n, 3)), R)
+    return se3.from_parts(np.random.default_rng(seed).normal(scale=scale, size=(n, 3)), R)
 
 
 def near_pi_poses(seed: int, n: int) -> np.ndarray:
     """Rotations within 1e-3 rad of angle π (where Log's closed form breaks down)."""
-    g = rng(seed)
+    g = np.random.default_rng(seed)
     axes = g.normal(size=(n, 3))
     axes /= np.linalg.norm(axes, axis=-1, keepdims=True)
     angles = np.pi - g.uniform(0, 1e-3, n)
@@ -35,7 +31,7 @@ def near_pi_poses(seed: int, n: int) -> np.ndarray:
 
 
 def near_identity_poses(seed: int, n: int) -> np.ndarray:
-    g = rng(seed)
+    g = np.random.default_rng(seed)
     return se3.exp(g.normal(scale=1e-7, size=(n, 6)))
 
 
@@ -49,14 +45,14 @@ POSE_SETS = {
 # ------------------------------------------------------------------------- SO(3)
 @pytest.mark.parametrize("scale", [1e-12, 1e-6, 1e-3, 0.5, 2.0])
 def test_so3_exp_matches_scipy_at_every_scale(scale):
-    phi = rng(4).normal(size=(50, 3))
+    phi = np.random.default_rng(4).normal(size=(50, 3))
     phi *= scale / np.linalg.norm(phi, axis=-1, keepdims=True)
     np.testing.assert_allclose(so3.exp(phi), Rotation.from_rotvec(phi).as_matrix(), atol=1e-15)
 
 
 @pytest.mark.parametrize("angle", [0.0, 1e-10, 1e-5, 1e-4, 0.3, 3.0, np.pi - 1e-6, np.pi - 1e-9])
 def test_so3_log_inverts_exp(angle):
-    axes = rng(5).normal(size=(30, 3))
+    axes = np.random.default_rng(5).normal(size=(30, 3))
     axes /= np.linalg.norm(axes, axis=-1, keepdims=True)
     phi = axes * angle
     back = so3.log(so3.exp(phi))
@@ -97,7 +93,7 @@ def test_non_unit_quaternion_is_refused_with_its_index():
 
 
 def test_euler_matches_scipy_fixed_axes_xyz():
-    rpy = rng(7).uniform(-1.5, 1.5, size=(100, 3))
+    rpy = np.random.default_rng(7).uniform(-1.5, 1.5, size=(100, 3))
     R = Rotation.from_euler("xyz", rpy).as_matrix()  # extrinsic x, y, z: Rz Ry Rx
     np.testing.assert_allclose(so3.from_euler(rpy), R, atol=1e-15)
     np.testing.assert_allclose(so3.to_euler(R), rpy, atol=1e-12)
@@ -112,7 +108,7 @@ def test_euler_pole_is_reported_not_guessed():
 
 @pytest.mark.parametrize("angle", [1e-9, 1e-5, 0.7, 3.0])
 def test_left_jacobian_against_numeric(angle):
-    axes = rng(8).normal(size=(10, 3))
+    axes = np.random.default_rng(8).normal(size=(10, 3))
     phi = axes / np.linalg.norm(axes, axis=-1, keepdims=True) * angle
     R0 = so3.exp(phi)
 
@@ -204,7 +200,7 @@ def test_compose_and_jacobians_match_gtsam():
 
 
 def test_exp_log_match_gtsam_and_round_trip():
-    xi = rng(13).normal(size=(30, 6))
+    xi = np.random.default_rng(13).normal(size=(30, 6))
     T = se3.exp(xi)
     for i in range(30):  # GTSAM's twist is (ω, v): rotation first
         np.testing.assert_allclose(
@@ -214,12 +210,12 @@ def test_exp_log_match_gtsam_and_round_trip():
     assert principal.sum() > 15
     np.testing.assert_allclose(se3.log(T)[principal], xi[principal], atol=1e-11)
     np.testing.assert_allclose(se3.exp(se3.log(T)), T, atol=1e-12)
-    small = rng(14).normal(scale=1e-9, size=(5, 6))
+    small = np.random.default_rng(14).normal(scale=1e-9, size=(5, 6))
     np.testing.assert_allclose(se3.log(se3.exp(small)), small, atol=1e-22, rtol=1e-12)
 
 
 def test_adjoint_moves_a_twist_across_the_pose():
-    T, xi = random_poses(15, 10), rng(15).normal(scale=0.3, size=(10, 6))
+    T, xi = random_poses(15, 10), np.random.default_rng(15).normal(scale=0.3, size=(10, 6))
     np.testing.assert_allclose(
         se3.compose(T, se3.exp(xi)),
         se3.compose(se3.exp(np.einsum("nij,nj->ni", se3.adjoint(T), xi)), T),
@@ -230,13 +226,13 @@ def test_adjoint_moves_a_twist_across_the_pose():
 def test_plus_minus_round_trip():
     a, b = random_poses(16, 30), random_poses(17, 30)
     np.testing.assert_allclose(se3.plus(a, se3.minus(b, a)), b, atol=1e-12)
-    d = rng(18).normal(scale=0.5, size=(30, 6))
+    d = np.random.default_rng(18).normal(scale=0.5, size=(30, 6))
     np.testing.assert_allclose(se3.minus(se3.plus(a, d), a), d, atol=1e-12)
 
 
 def test_body_to_chart_is_first_order_body_perturbation():
     T = random_poses(19, 5)
-    xi = 1e-7 * rng(19).normal(size=(5, 6))
+    xi = 1e-7 * np.random.default_rng(19).normal(size=(5, 6))
     perturbed = np.stack([gtsam.Pose3(T[i]).retract(xi[i]).matrix() for i in range(5)])
     np.testing.assert_allclose(
         se3.minus(perturbed, T), np.einsum("nij,nj->ni", se3.body_to_chart(T), xi), atol=1e-13
@@ -271,7 +267,7 @@ def test_group_laws(xi):
 @pytest.mark.parametrize("angle", [0.0, 1e-8, 1e-3, 1e-2 - 1e-12, 1e-2 + 1e-12, 0.5, 3.0])
 def test_se3_left_jacobian_inverse_against_numeric(angle):
     """∂Log(Exp(ε) T)/∂ε = 𝒥⁻¹(Log T), on both sides of the series threshold of Q."""
-    xi = rng(23).normal(size=(10, 6))
+    xi = np.random.default_rng(23).normal(size=(10, 6))
     norms = np.linalg.norm(xi[:, 3:], axis=-1, keepdims=True)
     xi[:, 3:] *= angle / norms
     T = se3.exp(xi)
@@ -285,7 +281,7 @@ def test_se3_left_jacobian_inverse_against_numeric(angle):
 
 
 def test_q_series_and_closed_form_meet_at_the_threshold():
-    xi = rng(24).normal(size=(5, 6))
+    xi = np.random.default_rng(24).normal(size=(5, 6))
     xi[:, 3:] /= np.linalg.norm(xi[:, 3:], axis=-1, keepdims=True)
     below, above = xi.copy(), xi.copy()
     below[:, 3:] *= 1e-2 * (1 - 1e-9)

@@ -12,6 +12,7 @@ from relmap.cli import main
 from relmap.errors import ParameterError
 from relmap.io import save_map
 from relmap.validate import validate_query
+from tests.helpers import fig3_bridge
 
 TINY = 1e-5  # rad: angular errors this small make every operation linear to ~1e-10
 
@@ -25,17 +26,8 @@ def chain_map() -> rm.RelationalMap:
 
 
 def bridge_map(angular: float) -> rm.RelationalMap:
-    g = rm.RelationalMap()
-    sig = [0.05, 0.05, angular]
-    for name, s, t, mean in (
-        ("A", "w", "t", [1.0, 1.0, 0.2]),
-        ("B", "w", "v", [2.0, 0.0, -0.1]),
-        ("C", "t", "v", [1.2, -0.8, -0.3]),
-        ("D", "t", "u", [1.1, 0.9, 0.1]),
-        ("E", "u", "v", [0.3, -1.9, -0.4]),
-    ):
-        g.add(s, t, rm.AT.from_sigmas(mean, sig), name=name)
-    return g
+    """The shipped Fig. 3 bridge with heading σ ``angular`` (rad)."""
+    return fig3_bridge((0.05, 0.05, angular))
 
 
 def _agrees(v, k=4.0):
