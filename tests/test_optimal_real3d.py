@@ -23,8 +23,9 @@ import pytest
 
 import relmap as rm
 from relmap.cli import main
+from relmap.gaussian import congruence
 from relmap.io import read_graph, solve_graph
-from relmap.io.posegraph import _g2o3_chart, _sandwich
+from relmap.io.posegraph import _g2o3_chart
 from relmap.lie import se3, so3
 
 # ----------------------------------------------------------------------------- GTSAM helpers
@@ -225,7 +226,7 @@ def _square_root_corrected(graph):
     B = D @ np.asarray(graph.information) @ D
     K = _g2o3_chart(np.asarray(graph.measurements.rotation))
     K[:, 3:, 3:] /= 2
-    cov = _sandwich(K, np.linalg.inv(B @ B))
+    cov = congruence(K, np.linalg.inv(B @ B))
     return graph._replace(measurements=rm.AT3.from_matrix(graph.measurements.matrix, cov))
 
 

@@ -36,6 +36,7 @@ from relmap.uncertain import (
     chain_axis,
     check_result,
     checked_cross_cov,
+    common_batch,
     same_kind,
 )
 
@@ -359,10 +360,7 @@ def merge(
     kind = same_kind(ats)
     if len(ats) == 1:
         return ats[0]
-    try:
-        np.broadcast_shapes(*(x.batch_shape for x in ats))
-    except ValueError:
-        raise broadcast_error("merge", *(x.batch_shape for x in ats)) from None
+    common_batch("merge", ats)
     return kind._merge(ats, atol)  # type: ignore[return-value]
 
 
@@ -380,7 +378,7 @@ def _merge_correlated(
     b = group.dof
     if cross_cov is not None and joint_cov is not None:
         raise ParameterError("give cross_cov (two ATs) or joint_cov (any number), not both")
-    shape = np.broadcast_shapes(*(a.batch_shape for a in ats))
+    shape = common_batch("merge", ats)
     if cross_cov is not None:
         if k != 2:
             raise ShapeError(f"cross_cov is for two ATs; got {k} (give joint_cov instead)")

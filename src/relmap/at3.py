@@ -25,20 +25,14 @@ from typing import Literal, overload
 
 import numpy as np
 
-from relmap import _core, gaussian
+from relmap import _core, gaussian, uncertain
 from relmap._layout import components_outermost
 from relmap.errors import ArgumentTypeError, ParameterError, ShapeError
 from relmap.gaussian import DEFAULT_RTOL
 from relmap.lie import SE2, SE3, se3, so3
 from relmap.lie.so3 import ROTATION_ATOL
 from relmap.typing import ArrayLike, FloatArray
-from relmap.uncertain import (
-    UncertainPose,
-    broadcast_error,
-    chain_axis,
-    check_result,
-    checked_cross_cov,
-)
+from relmap.uncertain import UncertainPose, chain_axis, check_result, checked_cross_cov
 
 __all__ = ["AT3", "compound3", "compound_chain3", "ellipsoid", "merge3", "reverse3"]
 
@@ -301,7 +295,7 @@ class AT3(UncertainPose):
                 batch = np.broadcast_shapes(batch, cross_cov.shape[:-2])
         except ValueError:
             shapes = [self.batch_shape, other.batch_shape]
-            raise broadcast_error(
+            raise uncertain.broadcast_error(
                 "compound", *shapes, *([] if cross_cov is None else [cross_cov.shape[:-2]])
             ) from None
         out = _compound_batched(self, other, cross_cov, batch)
@@ -457,10 +451,7 @@ def merge3(*ats: AT3, atol: float = 1e-9, max_iterations: int = 50) -> AT3:
     atol = gaussian.check_tolerance(atol, "atol")
     if len(ats) == 1:
         return ats[0]
-    try:
-        np.broadcast_shapes(*(x.batch_shape for x in ats))
-    except ValueError:
-        raise broadcast_error("merge", *(x.batch_shape for x in ats)) from None
+    uncertain.common_batch("merge", ats)
     return _merge_at_common_pose(ats, atol, max_iterations)
 
 

@@ -285,6 +285,14 @@ def batch_shape_of(shape: object) -> tuple[int, ...]:
     return out
 
 
+def common_batch(what: str, ats: Sequence[UncertainPose]) -> tuple[int, ...]:
+    """The broadcast batch shape of ``ats`` (or :func:`broadcast_error`'s ShapeError)."""
+    try:
+        return np.broadcast_shapes(*(x.batch_shape for x in ats))
+    except ValueError:
+        raise broadcast_error(what, *(x.batch_shape for x in ats)) from None
+
+
 def broadcast_error(what: str, *shapes: tuple[int, ...]) -> ShapeError:
     """The :class:`ShapeError` of batch shapes that do not broadcast."""
     shown = " and ".join(str(s) for s in shapes)
