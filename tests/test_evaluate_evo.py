@@ -153,7 +153,9 @@ def _random_trajectory(rng, n, t0=100.0):  # type: ignore[no-untyped-def]
     return stamps, xyz, q
 
 
-@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize(
+    "seed", [0, *(pytest.param(s, marks=pytest.mark.slow) for s in range(1, 6))]
+)  # one seed in the quick subset, all six in the whole suite
 def test_random_trajectories_equal_evo(seed):  # type: ignore[no-untyped-def]
     """Association with tolerance, offset and repeated stamps; alignment; APE; RPE."""
     rng = np.random.default_rng(seed)

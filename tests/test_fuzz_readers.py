@@ -16,7 +16,9 @@ TEXT_READERS = [
     ("TORO 2-D", read_graph, fuzzing.TORO_2D, ".graph"),
     ("g2o 3-D", read_graph, fuzzing.G2O_3D, ".g2o"),
     ("TORO 3-D", read_graph, fuzzing.TORO_3D, ".graph"),
-    ("map YAML", load_map, fuzzing.MAP_YAML, ".yaml"),
+    pytest.param(  # YAML's parser is the slowest: in the whole suite, not the quick subset
+        "map YAML", load_map, fuzzing.MAP_YAML, ".yaml", marks=pytest.mark.slow, id="map YAML"
+    ),
     ("map JSON", load_map, fuzzing.MAP_JSON, ".json"),
     ("load_map of a g2o", load_map, fuzzing.G2O_2D, ".g2o"),
 ]
@@ -27,7 +29,9 @@ def _report(outcome: fuzzing.Outcome) -> str:
 
 
 @pytest.mark.parametrize(
-    ("name", "reader", "base", "suffix"), TEXT_READERS, ids=[r[0] for r in TEXT_READERS]
+    ("name", "reader", "base", "suffix"),
+    TEXT_READERS,
+    ids=[getattr(r, "id", None) or r[0] for r in TEXT_READERS],
 )
 def test_text_readers_never_raise_an_unexpected_type(name, reader, base, suffix):
     reader(_write_once(base, suffix))  # the base input itself is valid

@@ -141,6 +141,7 @@ def garage(data_dir):
         ("garage", 1e-6, 2e-4, 5e-6, 2e-3),
     ],
 )
+@pytest.mark.real_data  # reads data through request.getfixturevalue, unseen by collection
 def test_same_optimum_as_gtsam_native(
     request, which, objective_tol, translation_tol, rotation_tol, cov_tol
 ):
