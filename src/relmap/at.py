@@ -12,6 +12,11 @@ exactly the convention of Smith & Cheeseman (1986). Every AT may carry leading b
 
 ATs are immutable values: operations return new ATs. User input is validated once, in
 :class:`AT`'s constructor; results of relmap's own operations skip the check.
+
+The four functions take an :class:`~relmap.AT3` as well: what AT and AT3 share (storage,
+stacking, indexing, sampling, the ellipse, the argument checks) is their base
+:class:`relmap.uncertain.UncertainPose`, and each function calls the kind's own operation
+(SE(2) here, on the fused 3×3 entries of :mod:`relmap._sym3`; SE(3) in :mod:`relmap.at3`).
 """
 
 from __future__ import annotations
