@@ -130,7 +130,12 @@ import numpy as np
 from relmap import moments as _moments
 from relmap.at import AT, compound, merge, reverse
 from relmap.at3 import AT3
-from relmap.errors import IrreducibleNetworkError, NumericalError, ParameterError
+from relmap.errors import (
+    IrreducibleNetworkError,
+    NotPositiveSemidefiniteError,
+    NumericalError,
+    ParameterError,
+)
 from relmap.lie import Group
 from relmap.typing import FloatArray
 
@@ -197,7 +202,9 @@ class _Edge(NamedTuple):
     at: AT | AT3
     expr: object
     order: float  # for a stable, readable order of merge operands
-    groups: frozenset[str]  # dependent groups whose ATs this AT contains
+    # first order, δ(this AT, u → v) = Σ D δ(member) + independent errors, over the members of
+    # dependent groups (add_joint ATs, the consistent Delta-Y's Y and Z) this AT contains
+    links: tuple[tuple[str, FloatArray], ...]
     # moments="exact": the Gaussian operands this AT compounds, u → v, each (AT, reversed?);
     # None: the AT itself is the one operand
     factors: tuple[tuple[AT, bool], ...] | None = None
@@ -268,6 +275,8 @@ class _Reducer:
         self.moments = moments
         self.delta_y_rule = delta_y
         self.cross = cross
+        self.star_members: set[str] = set()  # the consistent Delta-Y's correlated Y and Z
+        self.partner: dict[str, str] = {}  # Y of a star → its Z, and Z → Y
         self.definitions = definitions
         self.ids = count(1_000_000)
         self.stars = count(1)
@@ -331,54 +340,79 @@ class _Reducer:
         return changed
 
     def merge_group(self, st: _State, ks: list[int]) -> int:
-        """Merge the parallel ATs ``ks`` into one (oriented first → second by rank); its id."""
+        """Merge the parallel ATs ``ks`` into one (oriented first → second by rank); its id.
+        Dependent ATs merge with their joint covariance (§4.2)."""
         e0 = st.edges[ks[0]]
         a, b = self.first(st, e0.u, e0.v)
         ks = sorted(ks, key=lambda k: st.edges[k].order)
+        # a star's correlation is kept only while no information is lost with it: when its Y
+        # and Z are merged with each other (or compounded); merged apart, it is dropped
+        inside = {n for k in ks for n, _ in st.edges[k].links}
+        outside = {n for k in st.edges if k not in ks for n, _ in st.edges[k].links}
+        self.decorrelate(st, {n for n in inside if self.partner.get(n) in outside})
         parts = [self.oriented(st, k, a) for k in ks]
-        edges = [st.edges[k] for k in ks]
-        order = min(e.order for e in edges)
-        if any(e.groups for e in edges) and self._dependent_leaves(edges):
-            groups = frozenset().union(*(e.groups for e in edges))
-            at = merge(*(p[0] for p in parts), joint_cov=self._joint(edges, a))
-        else:
-            groups = self._independent(edges, "merged")
-            at = merge(*(p[0] for p in parts))
+        links = [self.links(st, k, a) for k in ks]
+        order = min(st.edges[k].order for k in ks)
+        ats = [p[0] for p in parts]
+        joint, dependent = self._joint(ats, links)
+        try:
+            at = merge(*ats, joint_cov=joint) if dependent else merge(*ats)
+        except NotPositiveSemidefiniteError:
+            if not self.decorrelate(st, {n for li in links for n, _ in li}):
+                raise
+            return self.merge_group(st, ks)
+        out: tuple[tuple[str, FloatArray], ...] = ()
+        if any(links):
+            W = _merge_weights(joint, ats[0].group.dof, len(ats))
+            out = _combine(*(_transform(Wi, Li) for Wi, Li in zip(W, links, strict=True)))
         for k in ks:
             st.drop(k)
         new = next(self.ids)
-        st.add(new, _Edge(a, b, at, _Merge(tuple(p[1] for p in parts)), order, groups))
+        st.add(new, _Edge(a, b, at, _Merge(tuple(p[1] for p in parts)), order, out))
         return new
 
-    def _dependent_leaves(self, edges: Sequence[_Edge]) -> bool:
-        """Whether every AT with a dependent group is a given AT (§4.2: its cross-covariances
-        with the others are known)."""
-        return all(isinstance(e.expr, _Leaf) for e in edges if e.groups)
+    def links(self, st: _State, k: int, a: Frame) -> tuple[tuple[str, FloatArray], ...]:
+        """The links of AT k pointing away from frame a (through Eq. 7's Jacobian)."""
+        e = st.edges[k]
+        if e.u == a or not e.links:
+            return e.links
+        return _transform(e.at.group.inverse(e.at.mean, jacobians=True)[1], e.links)
 
-    def _joint(self, edges: Sequence[_Edge], a: Frame) -> np.ndarray:
-        """Joint covariance of the ATs (each oriented away from frame a): their own covariances
-        on the diagonal, the given cross-covariances (through Eq. 7's Jacobian where an AT is
-        reversed) between ATs of one dependent group, zero elsewhere."""
-        group = edges[0].at.group
-        b, k = group.dof, len(edges)
-        shape = np.broadcast_shapes(*(e.at.batch_shape for e in edges))
-        eye = np.eye(b)
-        J = [eye if e.u == a else group.inverse(e.at.mean, jacobians=True)[1] for e in edges]
-        joint = np.zeros((*shape, b * k, b * k))
-        for i, ei in enumerate(edges):
-            Ci = ei.at.cov if ei.u == a else reverse(ei.at).cov
-            joint[..., b * i : b * i + b, b * i : b * i + b] = Ci
-            for j in range(i + 1, k):
-                ej = edges[j]
-                pair = frozenset((*_leaves(ei.expr), *_leaves(ej.expr)))
-                if not (ei.groups & ej.groups) or pair not in self.cross:
+    def cross_cov(
+        self, li: tuple[tuple[str, FloatArray], ...], lj: tuple[tuple[str, FloatArray], ...]
+    ) -> FloatArray | None:
+        """E[δi δjᵀ] of two ATs with links ``li``, ``lj``; None if they are independent."""
+        out = None
+        for m, Dm in li:
+            for n, Dn in lj:
+                known = self.cross.get(frozenset((m, n)))
+                if known is None:
                     continue
-                name_a, _, X = self.cross[pair]
-                X = X if ei.expr.name == name_a else np.swapaxes(X, -1, -2)  # type: ignore[attr-defined]
-                Xij = J[i] @ X @ np.swapaxes(J[j], -1, -2)
-                joint[..., b * i : b * i + b, b * j : b * j + b] = Xij
-                joint[..., b * j : b * j + b, b * i : b * i + b] = np.swapaxes(Xij, -1, -2)
-        return joint
+                first, _, X = known
+                X = X if first == m else np.swapaxes(X, -1, -2)
+                term = Dm @ X @ np.swapaxes(Dn, -1, -2)
+                out = term if out is None else out + term
+        return out
+
+    def _joint(
+        self, ats: Sequence[AT | AT3], links: Sequence[tuple[tuple[str, FloatArray], ...]]
+    ) -> tuple[FloatArray, bool]:
+        """Joint covariance of the ATs (own covariances on the diagonal, the cross-covariances
+        of their links elsewhere), and whether any of them are dependent."""
+        b, k = ats[0].group.dof, len(ats)
+        shape = np.broadcast_shapes(*(x.batch_shape for x in ats))
+        joint = np.zeros((*shape, b * k, b * k))
+        dependent = False
+        for i, x in enumerate(ats):
+            joint[..., b * i : b * i + b, b * i : b * i + b] = x.cov
+            for j in range(i + 1, k):
+                X = self.cross_cov(links[i], links[j])
+                if X is None:
+                    continue
+                dependent = True
+                joint[..., b * i : b * i + b, b * j : b * j + b] = X
+                joint[..., b * j : b * j + b, b * i : b * i + b] = np.swapaxes(X, -1, -2)
+        return joint, dependent
 
     def can_compound(self, st: _State, m: Frame) -> bool:
         """Whether frame m is an unmarked frame with exactly two ATs to two other frames."""
@@ -388,7 +422,8 @@ class _Reducer:
         return st.other(k1, m) != st.other(k2, m)
 
     def compound_at(self, st: _State, m: Frame) -> int:
-        """Compound the two ATs through frame m (step 2); the new AT's id."""
+        """Compound the two ATs through frame m (step 2); the new AT's id. A dependent pair
+        compounds with its cross-covariance (§3.2)."""
         k1, k2 = sorted(st.incident[m], key=lambda k: st.edges[k].order)
         a, b = st.other(k1, m), st.other(k2, m)
         if st.rank[a] > st.rank[b]:
@@ -396,58 +431,52 @@ class _Reducer:
         ea, eb = st.edges[k1], st.edges[k2]
         e1 = ea.expr if ea.u == m else _rev(ea.expr)  # m → a
         e2 = eb.expr if eb.u == m else _rev(eb.expr)  # m → b
+        l1, l2 = self.links(st, k1, a), self.links(st, k2, m)  # a → m, m → b
+        cross = self.cross_cov(l1, l2) if l1 and l2 else None
         factors = None
-        if self.moments == "first_order":
-            first, second = self.oriented(st, k1, m)[0], self.oriented(st, k2, m)[0]
-            if ea.groups & eb.groups:  # a dependent pair: with its cross-covariance
-                at = self._compound(ea, eb, reverse(first), second, m)
-            else:
-                at = compound(reverse(first), second)
-        elif ea.groups & eb.groups:
+        if cross is not None:
             before, second = self.oriented(st, k1, a)[0], self.oriented(st, k2, m)[0]
-            at = self._compound(ea, eb, before, second, m)
+            try:
+                at = compound(before, second, cross_cov=cross, moments=self.moments)  # type: ignore[arg-type]
+            except NotPositiveSemidefiniteError:
+                if not self.decorrelate(st, {n for n, _ in (*l1, *l2)}):
+                    raise
+                return self.compound_at(st, m)
+        elif self.moments == "first_order":
+            first, second = self.oriented(st, k1, m)[0], self.oriented(st, k2, m)[0]
+            at = compound(reverse(first), second)
         elif self.moments == "exact":
             factors = (*self.factors(st, k1, a), *self.factors(st, k2, m))
             at = self.chain(factors)
         else:
             at = self.series(st, [(k1, a), (k2, m)])
+        links: tuple[tuple[str, FloatArray], ...] = ()
+        if l1 or l2:  # first order: δ(x ⊕ y) = J₁ δx + J₂ δy
+            x, y = self.oriented(st, k1, a)[0], self.oriented(st, k2, m)[0]
+            _, J1, J2 = x.group.compose(x.mean, y.mean, jacobians=True)
+            links = _combine(_transform(J1, l1), _transform(J2, l2))
         order = min(ea.order, eb.order)
         st.drop(k1)
         st.drop(k2)
-        groups = ea.groups | eb.groups
         new = next(self.ids)
-        st.add(new, _Edge(a, b, at, _comp(_rev(e1), e2), order, groups, factors))
+        st.add(new, _Edge(a, b, at, _comp(_rev(e1), e2), order, links, factors))
         return new
 
-    def _compound(
-        self, ea: _Edge, eb: _Edge, first: AT | AT3, second: AT | AT3, m: Frame
-    ) -> AT | AT3:
-        """first ⊕ second; for two given ATs of one dependent group, with their cross-covariance."""
-        pair = frozenset((*_leaves(ea.expr), *_leaves(eb.expr)))
-        if not (isinstance(ea.expr, _Leaf) and isinstance(eb.expr, _Leaf) and pair in self.cross):
-            self._independent([ea, eb], "compounded")
-        name_a, _, cov_ab = self.cross[pair]  # Cov(A, B) of the two ATs as given
-        X = cov_ab if ea.expr.name == name_a else cov_ab.T  # type: ignore[attr-defined]
-        # Each operand is the given AT or its reversal; the cross-covariance follows Eq. 7's R.
-        group = first.group
-        eye = np.eye(group.dof)
-        J_first = eye if ea.v == m else group.inverse(ea.at.mean, jacobians=True)[1]
-        J_second = eye if eb.u == m else group.inverse(eb.at.mean, jacobians=True)[1]
-        cross_cov = J_first @ X @ np.swapaxes(J_second, -1, -2)
-        return compound(first, second, cross_cov=cross_cov, moments=self.moments)  # type: ignore[arg-type]
-
-    def _independent(self, edges: Sequence[_Edge], what: str) -> frozenset[str]:
-        """The union of the ATs' dependent groups; raise if two of them share a group."""
-        union: frozenset[str] = frozenset()
-        for e in edges:
-            shared = union & e.groups
-            if shared:
-                raise IrreducibleNetworkError(
-                    f"the paper's reduction assumes independent ATs, but ATs of the dependent "
-                    f"group {sorted(shared)[0]!r} would be {what} here; use method='optimal'"
-                )
-            union |= e.groups
-        return union
+    def decorrelate(self, st: _State, among: set[str]) -> bool:
+        """Drop the carried correlation of the consistent Delta-Y stars whose Y or Z is
+        ``among`` these: each becomes three independent ATs, exact only where the triangle's S
+        commute. Done where the correlation would otherwise be lost or cannot be carried (a
+        triangle or star-mesh with them, a merge that parts Y from Z, an intermediate joint
+        covariance the approximations made indefinite). False if there was none."""
+        drop = self.star_members & among
+        drop |= {self.partner[n] for n in drop}
+        changed = False
+        for k, e in list(st.edges.items()):
+            kept = tuple((n, D) for n, D in e.links if n not in drop)
+            if len(kept) != len(e.links):
+                st.edges[k] = e._replace(links=kept)
+                changed = True
+        return changed
 
     # ------------------------------------------------------------------- Delta-Y
     def triangles(self, st: _State) -> list[tuple[Frame, Frame, Frame]]:
@@ -472,7 +501,13 @@ class _Reducer:
         w, t, v = tri  # ordered by rank: w nearest the source
         edge_between = {frozenset((st.edges[k].u, st.edges[k].v)): k for k in st.edges}
         kA, kB, kC = (edge_between[frozenset(p)] for p in ((w, t), (w, v), (t, v)))
-        groups = self._independent([st.edges[k] for k in (kA, kB, kC)], "transformed by Delta-Y")
+        self.decorrelate(st, {n for k in (kA, kB, kC) for n, _ in st.edges[k].links})
+        given = sorted({n for k in (kA, kB, kC) for n, _ in st.edges[k].links})
+        if given:
+            raise IrreducibleNetworkError(
+                f"the paper's reduction assumes independent ATs, but {given[0]!r}, an AT of a "
+                "dependent group, would be transformed by Delta-Y here; use method='optimal'"
+            )
         A, eA = self.oriented(st, kA, w)
         B, eB = self.oriented(st, kB, w)
         C, eC = self.oriented(st, kC, t)
@@ -496,7 +531,7 @@ class _Reducer:
                 0.5 * (A1.cov - B1.cov + KCK),
             )
         else:
-            covs = _consistent_star(group, A.cov, B.cov, C.cov, A1.mean, B1.mean)
+            covs, cross_zy = _consistent_star(group, A.cov, B.cov, C.cov, A1.mean, B1.mean)
         covs = tuple(0.5 * (X + np.swapaxes(X, -1, -2)) for X in covs)
         n = next(self.stars)
         o = ("Δ-Y", n)
@@ -511,6 +546,15 @@ class _Reducer:
         self.definitions[names[0]] = f"Y{rule} of {triangle}: {w!r}→{o_name}, identity mean"
         self.definitions[names[1]] = f"Y of {triangle}: {o_name}→{v!r}, mean of B' = B ⊗ (A ⊕ C)"
         self.definitions[names[2]] = f"Y of {triangle}: {o_name}→{t!r}, mean of A' = A ⊗ (B ⊕ Cᴿ)"
+        star_links: list[tuple[tuple[str, FloatArray], ...]] = [(), (), ()]
+        if self.delta_y_rule == "consistent":
+            self.cross[frozenset(names[1:])] = (names[2], names[1], cross_zy)
+            self.star_members.update(names[1:])
+            self.partner.update({names[1]: names[2], names[2]: names[1]})
+            eye = np.eye(group.dof)
+            star_links[1:] = [((names[1], eye),), ((names[2], eye),)]
+            self.definitions[names[1]] += f", correlated with {names[2]}"
+            self.definitions[names[2]] += f", correlated with {names[1]}"
         order = min(st.edges[k].order for k in (kA, kB, kC))
         for k in (kA, kB, kC):
             st.drop(k)
@@ -519,7 +563,14 @@ class _Reducer:
         for i, ((u, x), mean, cov) in enumerate(zip(ends, means, covs, strict=True)):
             st.add(
                 next(self.ids),
-                _Edge(u, x, kind._trusted(mean, cov), _Leaf(names[i]), order + i * 1e-3, groups),
+                _Edge(
+                    u,
+                    x,
+                    kind._trusted(mean, cov),
+                    _Leaf(names[i]),
+                    order + i * 1e-3,
+                    star_links[i],
+                ),
             )
 
     def stars_to_mesh(self, st: _State) -> bool:
@@ -532,7 +583,8 @@ class _Reducer:
             if o in (self.s, self.t) or not 3 <= len(ks) <= MESH_MAX_DEGREE:
                 continue
             others = {st.other(k, o) for k in ks}
-            if len(others) == len(ks) and not any(st.edges[k].groups for k in ks):
+            given = {n for k in ks for n, _ in st.edges[k].links} - self.star_members
+            if len(others) == len(ks) and not given:
                 candidates.append((len(ks), st.rank[o], o))
         for _, _, o in sorted(candidates, key=lambda c: (c[0], c[1])):
             legs = sorted(st.incident[o], key=lambda k: st.rank[st.other(k, o)])
@@ -548,6 +600,7 @@ class _Reducer:
                 for (_, e), f in zip(oriented, ends, strict=True)
             )
             what = "Y→Δ" if len(legs) == 3 else "star-mesh"
+            self.decorrelate(st, {n for k in legs for n, _ in st.edges[k].links})
             for k in legs:
                 st.drop(k)
             kind = type(oriented[0][0])
@@ -564,7 +617,7 @@ class _Reducer:
                         kind._trusted(mean, cov),
                         _Leaf(name),
                         order + i * 1e-3,
-                        frozenset(),
+                        (),
                     ),
                 )
             return True
@@ -659,24 +712,87 @@ def _consistent_star(
     CC: FloatArray,
     pt: FloatArray,
     pv: FloatArray,
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Covariances of the star X (w→o), Y (o→v), Z (o→t) that reproduces, to first order, the
-    triangle A (w→t), B (w→v), C (t→v) seen from its corners (module docstring).
+) -> tuple[tuple[FloatArray, FloatArray, FloatArray], FloatArray]:
+    """Covariances of the star X (w→o), Y (o→v), Z (o→t), and E[δZ δYᵀ], that reproduce, to
+    first order, the triangle A (w→t), B (w→v), C (t→v) seen from its corners (module
+    docstring).
 
     ``pt``, ``pv``: the corners t and v in w's frame (the star's o sits at w)."""
+    from relmap.gaussian import generalized_inverse
+
     Tt, Tv = _chart_of_origin(group, pt), _chart_of_origin(group, pv)
     Jv = group.between(pt, pv, jacobians=True)[2]  # ∂ between(t, v) / ∂v
     SA = _congruence(np.linalg.inv(Tt), CA)
     SB = _congruence(np.linalg.inv(Tv), CB)
     SC = _congruence(np.linalg.inv(Jv @ Tv), CC)
-    from relmap.gaussian import generalized_inverse
-
     G, _ = generalized_inverse(SA + SB + SC)
-    SX = SA @ G @ SB
-    SX = 0.5 * (SX + np.swapaxes(SX, -1, -2))
+    Ptv = SA @ G @ SB
     Ptt = SA - SA @ G @ SA
     Pvv = SB - SB @ G @ SB
-    return SX, _congruence(Tv, Pvv - SX), _congruence(Tt, Ptt - SX)
+    GAB, _ = generalized_inverse(SA + SB)
+    R = SA @ GAB @ SB  # S_A ∥ S_B, the most X can carry
+    R = 0.5 * (R + np.swapaxes(R, -1, -2))
+    SX = _between_zero_and(0.5 * (Ptv + np.swapaxes(Ptv, -1, -2)), R)
+    covs = (SX, _congruence(Tv, Pvv - SX), _congruence(Tt, Ptt - SX))
+    return covs, Tt @ (Ptv - SX) @ np.swapaxes(Tv, -1, -2)
+
+
+def _between_zero_and(M: FloatArray, R: FloatArray, rtol: float = 1e-9) -> FloatArray:
+    """M (symmetric) if ``0 ⪯ M ⪯ R`` (within ``rtol``), else the matrix of that interval
+    nearest to it in R's metric: M's eigenvalues relative to R clipped to [0, 1]. Where R is
+    singular the result vanishes along R's null space."""
+    lam, U = np.linalg.eigh(R)
+    scale = np.abs(lam).max(axis=-1, keepdims=True)
+    keep = lam > rtol * np.where(scale > 0, scale, 1.0)
+    root = U * np.where(keep, np.sqrt(np.where(keep, lam, 1.0)), 0.0)[..., None, :]  # R^½
+    iroot = U * np.where(keep, 1.0 / np.sqrt(np.where(keep, lam, 1.0)), 0.0)[..., None, :]
+    W = np.swapaxes(iroot, -1, -2) @ M @ iroot  # M relative to R, on R's range
+    mu, V = np.linalg.eigh(0.5 * (W + np.swapaxes(W, -1, -2)))
+    inside = root @ W @ np.swapaxes(root, -1, -2)  # M's part on R's range
+    size = np.abs(M).max(axis=(-2, -1)) + np.abs(R).max(axis=(-2, -1))
+    ok = (
+        (mu.min(axis=-1) >= -rtol)
+        & (mu.max(axis=-1) <= 1 + rtol)
+        & (np.abs(M - inside).max(axis=(-2, -1)) <= rtol * size)
+    )
+    clipped = root @ ((V * np.clip(mu, 0.0, 1.0)[..., None, :]) @ np.swapaxes(V, -1, -2))
+    clipped = clipped @ np.swapaxes(root, -1, -2)
+    out = np.where(ok[..., None, None], M, 0.5 * (clipped + np.swapaxes(clipped, -1, -2)))
+    return out
+
+
+def _transform(
+    M: FloatArray, links: tuple[tuple[str, FloatArray], ...]
+) -> tuple[tuple[str, FloatArray], ...]:
+    """Links of ``M δ`` for an AT δ with ``links``."""
+    return tuple((n, M @ D) for n, D in links)
+
+
+def _combine(*parts: tuple[tuple[str, FloatArray], ...]) -> tuple[tuple[str, FloatArray], ...]:
+    """Links of a sum of ATs' errors (each member appears in one working AT; summed if not)."""
+    out: dict[str, FloatArray] = {}
+    for links in parts:
+        for n, D in links:
+            out[n] = out[n] + D if n in out else D
+    return tuple(out.items())
+
+
+def _merge_weights(joint: FloatArray, b: int, k: int) -> list[FloatArray]:
+    """First-order weights W_i of the best linear unbiased merge of k ATs with ``joint``
+    covariance, ``δx̂ = Σ W_i δ_i`` (:func:`relmap.merge`: x̂ = z₁ - Cov(e₁, d) Cov(d)⁺ d,
+    ``d_j = z_j ⊟ z₁``)."""
+    from relmap.gaussian import generalized_inverse
+
+    eye = np.eye(b)
+    D = np.zeros((b * (k - 1), b * k))
+    for j in range(1, k):
+        D[b * (j - 1) : b * j, :b] = -eye
+        D[b * (j - 1) : b * j, b * j : b * j + b] = eye
+    S = D @ joint @ D.T
+    G, _ = generalized_inverse(0.5 * (S + np.swapaxes(S, -1, -2)))
+    K = joint[..., :b, :] @ D.T @ G
+    Ks = [K[..., :, b * (j - 1) : b * j] for j in range(1, k)]
+    return [eye + sum(Ks, np.zeros_like(Ks[0])), *(-Kj for Kj in Ks)]
 
 
 def _consistent_mesh(
@@ -823,7 +939,9 @@ def reduce_network(
     rank = _hop_rank(edges, s, t)
     st = _State(
         {
-            i: _Edge(u, v, at, _Leaf(name), float(i), frozenset(group_of.get(name, ())))
+            i: _Edge(
+                u, v, at, _Leaf(name), float(i), ((name, np.eye(dof)),) if name in group_of else ()
+            )
             for i, (name, u, v, at) in enumerate(edges)
         },
         rank,
