@@ -29,23 +29,41 @@ resistor-network transforms with matrices:
 - **Delta-Y (default, ``delta_y="consistent"``).** Triangle A (w→t), B (w→v), C (t→v), star
   X (w→o), Y (o→v), Z (o→t), o at w. Seen from w, the triangle gives (ξ_t, ξ_v) the joint
   covariance ``P_tt = S_A - S_A Σ⁻¹ S_A``, ``P_vv = S_B - S_B Σ⁻¹ S_B``,
-  ``P_tv = S_A Σ⁻¹ S_B`` (Σ = S_A + S_B + S_C, a generalized inverse when singular); the
-  star gives ``[[S_X + S_Z, S_X], [S_X, S_X + S_Y]]``. Hence ``S_X = sym(P_tv)``,
-  ``S_Z = P_tt - S_X``, ``S_Y = P_vv - S_X``, then ``C_X = S_X``,
-  ``C_Y = T(p_v) S_Y T(p_v)ᵀ``, ``C_Z = T(p_t) S_Z T(p_t)ᵀ`` with the corners' means
-  ``p_t = A ⊗ (B ⊕ Cᴿ)``, ``p_v = B ⊗ (A ⊕ C)`` (the paper's A', B'). The star reproduces
-  the triangle's corner covariance (21 numbers) in all but the antisymmetric part of
-  ``P_tv`` (3 numbers): a star of three independent ATs has 18. That part vanishes when
-  the S commute — the linear isotropic case (the resistor bridge), and, measured, isotropic
-  positions with heading error — where Delta-Y is exact to first order; otherwise it is
-  the only error. Measured on the bridge (demo report, ``relmap demo``): with the
-  fig3.json errors (σx = σy = 5 cm) at σθ = 0.5°-10° the w→u covariance equals the
-  optimal estimate's to rounding (the paper's formulas: 3%-80% off) and w→u equals the
-  reversed u→w; with σy = 1 cm it is 0.2%-3.9% off the optimal estimate (paper: 5%-15%) and
-  0.2%-7.6% off the reversed u→w. As an estimator re-run on sampled maps it agrees with its
-  prediction within 1.3% at σθ ≤ 5° (isotropic), but at σy = 1 cm, 5° its spread is 19%
-  larger than predicted (the optimal estimator: 4 ± 3%): its merge weights, computed at the
-  sampled means from approximate star covariances, are not the best ones there.
+  ``P_tv = S_A Σ⁻¹ S_B`` (Σ = S_A + S_B + S_C, a generalized inverse when singular): 21
+  numbers. The star gives ``[[S_X + S_Z, S_X + K], [S_X + Kᵀ, S_X + S_Y]]`` with
+  K = E[ξ_z ξ_yᵀ] the cross-covariance of Z and Y. Three independent ATs (K = 0) have only
+  18: P_tv is not symmetric unless the S commute (the linear isotropic case, the resistor
+  bridge, and isotropic positions with heading error), and such a star was 0.2-3.9% off the
+  optimal estimate on the anisotropic bridge. So Y and Z are a dependent pair:
+  ``S_X = sym(P_tv)`` kept within ``0 ⪯ S_X ⪯ S_A ∥ S_B = S_A (S_A + S_B)⁻¹ S_B``
+  (eigenvalues relative to ``S_A ∥ S_B`` clipped to [0, 1], which is exactly the condition
+  for X and the joint of Y and Z to be covariances), ``S_Z = P_tt - S_X``,
+  ``S_Y = P_vv - S_X``, ``K = P_tv - S_X``; then ``C_X = S_X``,
+  ``C_Y = T(p_v) S_Y T(p_v)ᵀ``, ``C_Z = T(p_t) S_Z T(p_t)ᵀ``, ``E[δZ δYᵀ] = T(p_t) K
+  T(p_v)ᵀ``, with the corners' means ``p_t = A ⊗ (B ⊕ Cᴿ)``, ``p_v = B ⊗ (A ⊕ C)`` (the
+  paper's A', B'). The star reproduces the triangle's corner covariance exactly, to first
+  order. Where the S commute, K = 0 and the star is the independent one.
+
+  **Carrying K** (and the cross-covariances of ATs added with
+  :meth:`~relmap.RelationalMap.add_joint`): every AT of the working network keeps *links*,
+  the first-order maps D_m from the errors of the dependent ATs m it contains to its own
+  (δ = Σ D_m δ_m + independent errors). Reversal and compounding map them by their
+  Jacobians (Eq. 7, Eq. 4's J₁, J₂), a merge by its weights; the cross-covariance of two ATs
+  is ``Σ D_m E[δ_m δ_nᵀ] D_nᵀ``, and a dependent pair compounds with it (§3.2), dependent
+  parallel ATs merge with their joint covariance (§4.2). Compounding through a frame loses
+  nothing; a merge of an AT holding Y with one not holding Z, while Z lives on elsewhere,
+  would lose the information in their difference, so there (and when a triangle or star-mesh
+  step takes Y or Z) the star's K is dropped first: that star becomes the independent one.
+  On the bridge Y and Z meet in one merge, so the reduction is the optimal estimate to first
+  order. Measured (``benchmarks/study_delta_y.py``, ``docs/delta_y.md``): at σθ = 0.5°-10°,
+  σy 5 cm or 1 cm, the w→u covariance equals the optimal estimate's to rounding and w→u
+  equals the reversed u→w (the paper's formulas: 3%-80% off). On 300 random small maps with
+  loop-consistent means (anisotropic, rotated, σθ up to 10°) 75% match the optimal estimate
+  to 1e-9 and the 90th percentile is 2.1% (the independent star: 61%, 4.0%). Limits: it is
+  first order; as an estimator re-run on sampled maps, linearized once at the sampled
+  means, it spreads as predicted up to 3° at σy = 1 cm (2.9% ± 1.1%), but 16% more at 5°
+  (Gauss-Newton, relinearizing: about 4%); and in networks where Y and Z part, that star is
+  the independent approximation.
 - **Delta-Y as printed (``delta_y="paper"``)**: ``A' = A ⊗ (B ⊕ Cᴿ)``,
   ``B' = B ⊗ (A ⊕ C)``, ``C' = C ⊗ (Aᴿ ⊕ B)``, X: w→o identity mean, Y: o→v mean B',
   Z: o→t mean A', ``C_X = ½(C_A' + C_B' - K C_C' Kᵀ)``, ``C_Y = ½(-C_A' + C_B' + K C_C'
@@ -62,8 +80,10 @@ resistor-network transforms with matrices:
   exact; a mesh AT that would not be positive definite, or legs that know different
   directions exactly, make the step unavailable.
 
-The star's (and mesh's) covariances may be indefinite: they are intermediate quantities,
-never validated. **The result is**: its covariance is symmetric PSD (eigenvalues below zero
+The paper's star's (and the mesh's) covariances may be indefinite: they are intermediate
+quantities, never validated (the consistent star is a covariance; should an intermediate joint
+covariance of a dependent pair still come out indefinite, the step drops that star's K).
+**The result is**: its covariance is symmetric PSD (eigenvalues below zero
 only by rounding clipped), or :class:`IrreducibleNetworkError` names the approximate steps
 that made it indefinite — never an exit status 0 with an impossible answer.
 
@@ -76,9 +96,10 @@ refused at once, pointing to ``method='optimal'``, on networks with more than
 remain: it would discard most of the information (every real pose graph of the shared data
 but ring.g2o is refused within about a second; ring.g2o is answered).
 
-Dependent ATs (:meth:`RelationalMap.add_joint`): a dependent pair of given ATs compounds with
-its cross-covariance (§3.2), parallel dependent given ATs merge with their joint covariance
-(§4.2, :func:`relmap.merge` with ``joint_cov``); anything else involving them raises.
+Dependent ATs (:meth:`RelationalMap.add_joint`) are carried by their links (above): a
+dependent pair compounds with its cross-covariance (§3.2), dependent parallel ATs merge with
+their joint covariance (§4.2, :func:`relmap.merge` with ``joint_cov``), also after other
+steps; Delta-Y on a triangle with one of them raises, and star-mesh does not take them.
 
 The reduction runs on batched ATs as well (all ATs with one batch shape), which Monte Carlo
 validation uses; best deletion needs single ATs. It runs unchanged on 3-D ATs (:class:`AT3`).
@@ -897,9 +918,9 @@ def reduce_network(
     by default the trace of the result's position covariance, m²; greedy, one AT at a time,
     and refused at once, pointing to ``method='optimal'``, when more than
     :data:`DROP_MAX_LOOPS` independent loops are left). ``groups`` lists dependent
-    ATs as ``(names, joint covariance)``; a dependent pair can be compounded (with its
-    cross-covariance, §3.2), parallel dependent ATs merged (with their joint covariance,
-    §4.2), anything else involving them raises. ``moments`` is
+    ATs as ``(names, joint covariance)``; ATs containing them compound with their
+    cross-covariance (§3.2) and merge with their joint covariance (§4.2); Delta-Y on a
+    triangle with one of them raises (module docstring). ``moments`` is
     ``"first_order"`` (Eqs. 1-7), ``"exact"`` or ``"unscented"`` (SE(2) only; module
     docstring: what they mean where merging follows compounding). ``delta_y`` is
     ``"consistent"`` (default: the first-order-consistent star) or ``"paper"`` (the paper's
