@@ -369,8 +369,10 @@ class _Reducer:
         # a star's correlation is kept only while no information is lost with it: when its Y
         # and Z are merged with each other (or compounded); merged apart, it is dropped
         inside = {n for k in ks for n, _ in st.edges[k].links}
-        outside = {n for k in st.edges if k not in ks for n, _ in st.edges[k].links}
-        self.decorrelate(st, {n for n in inside if self.partner.get(n) in outside})
+        apart = {n for n in inside if n in self.partner and self.partner[n] not in inside}
+        if apart:
+            outside = {n for k in st.edges if k not in ks for n, _ in st.edges[k].links}
+            self.decorrelate(st, {n for n in apart if self.partner[n] in outside})
         parts = [self.oriented(st, k, a) for k in ks]
         links = [self.links(st, k, a) for k in ks]
         order = min(st.edges[k].order for k in ks)
@@ -490,6 +492,8 @@ class _Reducer:
         triangle or star-mesh with them, a merge that parts Y from Z, an intermediate joint
         covariance the approximations made indefinite). False if there was none."""
         drop = self.star_members & among
+        if not drop:
+            return False
         drop |= {self.partner[n] for n in drop}
         changed = False
         for k, e in list(st.edges.items()):
