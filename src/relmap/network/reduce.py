@@ -248,6 +248,9 @@ class _State:
         self.rank = rank
         self.incident: dict[Frame, set[int]] = {}
         self.touched: list[Frame] = []  # frames whose ATs changed, for the series worklist
+        self.dirty: set[Frame] = set()  # ... and for the Delta-Y and star-mesh candidates:
+        self.triangle_at: dict[Frame, tuple[tuple[int, list[tuple[float, ...]]], tuple]] = {}
+        self.mesh_at: dict[Frame, tuple[int, tuple[float, ...]]] = {}
         for k, e in edges.items():
             self._link(k, e)
 
@@ -255,6 +258,7 @@ class _State:
         self.incident.setdefault(e.u, set()).add(k)
         self.incident.setdefault(e.v, set()).add(k)
         self.touched += (e.u, e.v)
+        self.dirty.update((e.u, e.v))
 
     def add(self, k: int, e: _Edge) -> None:
         self.edges[k] = e
@@ -267,6 +271,7 @@ class _State:
             if not self.incident[f]:
                 del self.incident[f]
         self.touched += (e.u, e.v)
+        self.dirty.update((e.u, e.v))
         return e
 
     def between(self, a: Frame, b: Frame) -> list[int]:
@@ -298,6 +303,7 @@ class _Reducer:
         self.cross = cross
         self.star_members: set[str] = set()  # the consistent Delta-Y's correlated Y and Z
         self.partner: dict[str, str] = {}  # Y of a star → its Z, and Z → Y
+        self.no_mesh: set[tuple[Frame, frozenset[int]]] = set()  # stars found singular
         self.definitions = definitions
         self.ids = count(1_000_000)
         self.stars = count(1)
@@ -349,16 +355,15 @@ class _Reducer:
         return (a, b) if st.rank[a] <= st.rank[b] else (b, a)
 
     # ---------------------------------------------------------------- the steps
-    def merge_parallel(self, st: _State) -> bool:
-        pairs: dict[frozenset[Frame], list[int]] = {}
-        for k, e in st.edges.items():
-            pairs.setdefault(frozenset((e.u, e.v)), []).append(k)
-        changed = False
-        for ks in pairs.values():
-            if len(ks) >= 2:
-                self.merge_group(st, ks)
-                changed = True
-        return changed
+    def merge_parallel(self, st: _State, frames: Sequence[Frame]) -> None:
+        """Merge every group of parallel ATs at ``frames`` (in the order of their ids)."""
+        pairs: dict[frozenset[Frame], set[int]] = {}
+        for f in frames:
+            for k in st.incident.get(f, ()):
+                e = st.edges[k]
+                pairs.setdefault(frozenset((e.u, e.v)), set()).add(k)
+        for ks in sorted((sorted(ks) for ks in pairs.values() if len(ks) >= 2), key=min):
+            self.merge_group(st, ks)
 
     def merge_group(self, st: _State, ks: list[int]) -> int:
         """Merge the parallel ATs ``ks`` into one (oriented first → second by rank); its id.
@@ -504,23 +509,58 @@ class _Reducer:
         return changed
 
     # ------------------------------------------------------------------- Delta-Y
-    def triangles(self, st: _State) -> list[tuple[Frame, Frame, Frame]]:
-        adj: dict[Frame, set[Frame]] = {
-            f: {st.other(k, f) for k in ks} for f, ks in st.incident.items()
-        }
-        found = set()
-        for a in adj:
-            for b in adj[a]:
-                for c in adj[a] & adj[b]:
-                    if len({a, b, c}) == 3:
-                        found.add(tuple(sorted((a, b, c), key=lambda f: st.rank[f])))
-        marked = {self.s, self.t}
-        return sorted(found, key=lambda tri: (-len(marked & set(tri)), [st.rank[f] for f in tri]))
+    def refresh(self, st: _State) -> None:
+        """Bring the Delta-Y and star-mesh candidates up to date with the frames whose ATs
+        changed (a triangle through c also changes with the ATs of c's neighbours)."""
+        changed, st.dirty = st.dirty, set()
+        near = {st.other(k, f) for f in changed for k in st.incident.get(f, ())}
+        for c in changed | near:
+            entry = self.triangle_through(st, c)
+            if entry is None:
+                st.triangle_at.pop(c, None)
+            else:
+                st.triangle_at[c] = entry
+        for o in changed:
+            ks = st.incident.get(o, ())
+            st.mesh_at.pop(o, None)
+            if o in (self.s, self.t) or not 3 <= len(ks) <= MESH_MAX_DEGREE:
+                continue
+            others = {st.other(k, o) for k in ks}
+            given = {n for k in ks for n, _ in st.edges[k].links} - self.star_members
+            if len(others) == len(ks) and not given:
+                st.mesh_at[o] = (len(ks), st.rank[o])
 
-    def helps(self, st: _State, tri: tuple[Frame, Frame, Frame]) -> bool:
-        """Whether Delta-Y on ``tri`` lets series-parallel steps go on: a corner that is not
-        marked and has three ATs keeps two (its triangle ATs become one star AT)."""
-        return any(f not in (self.s, self.t) and len(st.incident[f]) == 3 for f in tri)
+    def triangle_through(
+        self, st: _State, c: Frame
+    ) -> tuple[tuple[int, list[tuple[float, ...]]], tuple[Frame, Frame, Frame]] | None:
+        """The first (by :meth:`helping_triangle`'s order) triangle with unmarked corner c of
+        three ATs, and its sort key; None if c is marked, has not three ATs, or no two of its
+        neighbours are linked."""
+        marked = {self.s, self.t}
+        ks = st.incident.get(c, ())
+        if c in marked or len(ks) != 3:
+            return None
+        best = None
+        near = sorted({st.other(k, c) for k in ks} - {c}, key=lambda f: st.rank[f])
+        for i, a in enumerate(near):
+            for b in near[i + 1 :]:
+                if not st.between(a, b):
+                    continue
+                tri = tuple(sorted((a, b, c), key=lambda f: st.rank[f]))
+                key = (-len(marked & set(tri)), [st.rank[f] for f in tri])
+                if best is None or key < best[0]:
+                    best = (key, tri)
+        return best  # type: ignore[return-value]
+
+    def helping_triangle(self, st: _State) -> tuple[Frame, Frame, Frame] | None:
+        """The triangle for Delta-Y, corners ordered by rank: one that lets series-parallel
+        steps go on (a corner that is not marked and has three ATs keeps two: its triangle ATs
+        become one star AT), the most marked corners first, then by the corners' ranks; None
+        if there is none."""
+        self.refresh(st)
+        if not st.triangle_at:
+            return None
+        return min(st.triangle_at.values(), key=lambda entry: entry[0])[1]
 
     def delta_y(self, st: _State, tri: tuple[Frame, Frame, Frame]) -> None:
         w, t, v = tri  # ordered by rank: w nearest the source
@@ -603,20 +643,17 @@ class _Reducer:
         other frames (3 ≤ d ≤ :data:`MESH_MAX_DEGREE`; the fewest first) by ATs between every
         two of them (:func:`_consistent_mesh`); False if there is no such frame (or none whose
         star can be inverted)."""
-        candidates = []
-        for o, ks in st.incident.items():
-            if o in (self.s, self.t) or not 3 <= len(ks) <= MESH_MAX_DEGREE:
-                continue
-            others = {st.other(k, o) for k in ks}
-            given = {n for k in ks for n, _ in st.edges[k].links} - self.star_members
-            if len(others) == len(ks) and not given:
-                candidates.append((len(ks), st.rank[o], o))
-        for _, _, o in sorted(candidates, key=lambda c: (c[0], c[1])):
+        self.refresh(st)
+        for o in sorted(st.mesh_at, key=st.mesh_at.__getitem__):
             legs = sorted(st.incident[o], key=lambda k: st.rank[st.other(k, o)])
+            tried = (o, frozenset(legs))  # AT ids are never reused: the same ATs
+            if tried in self.no_mesh:
+                continue
             oriented = [self.oriented(st, k, o) for k in legs]
             ends = [st.other(k, o) for k in legs]
             mesh = _consistent_mesh(oriented[0][0].group, [at for at, _ in oriented])
             if mesh is None:
+                self.no_mesh.add(tried)
                 continue
             n = next(self.meshes)
             order = min(st.edges[k].order for k in legs)
@@ -653,13 +690,16 @@ class _Reducer:
         """Prune, merge parallel ATs and compound serial ones until none is left (steps 2-3).
 
         A worklist: the frame with the lowest rank that can be compounded next, as a heap of
-        the frames whose ATs changed; O((frames + ATs) log frames)."""
-        for k in [k for k, e in st.edges.items() if e.u == e.v]:
+        the frames whose ATs changed (since the last call: ``st.touched``); O((frames + ATs)
+        log frames) the first time, then in the size of what changed."""
+        # only frames whose ATs changed since the last call can have anything to do
+        frames = list(dict.fromkeys(f for f in st.touched if f in st.incident))
+        for k in {k for f in frames for k in st.incident[f] if st.edges[k].u == st.edges[k].v}:
             st.drop(k)
-        self.merge_parallel(st)
+        self.merge_parallel(st, frames)
         heap: list[tuple[tuple[float, ...], int, Frame]] = []
         tick = count()
-        st.touched = list(st.incident)
+        st.touched = frames + st.touched
         while True:
             touched, st.touched = st.touched, []
             self.prune_from(st, touched)
@@ -704,7 +744,7 @@ class _Reducer:
         while not self.done(st):
             if self.progress:
                 self.progress(total - len(st.edges), total)
-            tri = next((tri for tri in self.triangles(st) if self.helps(st, tri)), None)
+            tri = self.helping_triangle(st)
             if tri is not None:
                 self.delta_y(st, tri)
             elif not self.stars_to_mesh(st):
