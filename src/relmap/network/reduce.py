@@ -248,6 +248,7 @@ class _State:
         self.rank = rank
         self.incident: dict[Frame, set[int]] = {}
         self.touched: list[Frame] = []  # frames whose ATs changed, for the series worklist
+        self.linked: set[int] = set()  # the ATs with links
         self.dirty: set[Frame] = set()  # ... and for the Delta-Y and star-mesh candidates:
         self.triangle_at: dict[Frame, tuple[tuple[int, list[tuple[float, ...]]], tuple]] = {}
         self.mesh_at: dict[Frame, tuple[int, tuple[float, ...]]] = {}
@@ -259,6 +260,8 @@ class _State:
         self.incident.setdefault(e.v, set()).add(k)
         self.touched += (e.u, e.v)
         self.dirty.update((e.u, e.v))
+        if e.links:
+            self.linked.add(k)
 
     def add(self, k: int, e: _Edge) -> None:
         self.edges[k] = e
@@ -266,6 +269,7 @@ class _State:
 
     def drop(self, k: int) -> _Edge:
         e = self.edges.pop(k)
+        self.linked.discard(k)
         for f in (e.u, e.v):
             self.incident[f].discard(k)
             if not self.incident[f]:
@@ -376,7 +380,7 @@ class _Reducer:
         inside = {n for k in ks for n, _ in st.edges[k].links}
         apart = {n for n in inside if n in self.partner and self.partner[n] not in inside}
         if apart:
-            outside = {n for k in st.edges if k not in ks for n, _ in st.edges[k].links}
+            outside = {n for k in st.linked if k not in ks for n, _ in st.edges[k].links}
             self.decorrelate(st, {n for n in apart if self.partner[n] in outside})
         parts = [self.oriented(st, k, a) for k in ks]
         links = [self.links(st, k, a) for k in ks]
@@ -501,11 +505,14 @@ class _Reducer:
             return False
         drop |= {self.partner[n] for n in drop}
         changed = False
-        for k, e in list(st.edges.items()):
+        for k in list(st.linked):
+            e = st.edges[k]
             kept = tuple((n, D) for n, D in e.links if n not in drop)
             if len(kept) != len(e.links):
                 st.edges[k] = e._replace(links=kept)
                 changed = True
+                if not kept:
+                    st.linked.discard(k)
         return changed
 
     # ------------------------------------------------------------------- Delta-Y
@@ -564,8 +571,7 @@ class _Reducer:
 
     def delta_y(self, st: _State, tri: tuple[Frame, Frame, Frame]) -> None:
         w, t, v = tri  # ordered by rank: w nearest the source
-        edge_between = {frozenset((st.edges[k].u, st.edges[k].v)): k for k in st.edges}
-        kA, kB, kC = (edge_between[frozenset(p)] for p in ((w, t), (w, v), (t, v)))
+        kA, kB, kC = (st.between(*p)[-1] for p in ((w, t), (w, v), (t, v)))
         self.decorrelate(st, {n for k in (kA, kB, kC) for n, _ in st.edges[k].links})
         given = sorted({n for k in (kA, kB, kC) for n, _ in st.edges[k].links})
         if given:
@@ -600,7 +606,7 @@ class _Reducer:
         covs = tuple(0.5 * (X + np.swapaxes(X, -1, -2)) for X in covs)
         n = next(self.stars)
         o = ("Δ-Y", n)
-        st.rank[o] = (*st.rank[w], 0.5)
+        st.rank[o] = (*st.rank[w], 0.5, n)  # after w, before what follows it; unique
         names = [f"X{_sub(n)}", f"Y{_sub(n)}", f"Z{_sub(n)}"]
         triangle = (
             f"the Δ of {_short(_render(eA))} ({w!r}→{t!r}), {_short(_render(eB))} ({w!r}→{v!r}), "
@@ -644,7 +650,10 @@ class _Reducer:
         two of them (:func:`_consistent_mesh`); False if there is no such frame (or none whose
         star can be inverted)."""
         self.refresh(st)
-        for o in sorted(st.mesh_at, key=st.mesh_at.__getitem__):
+        heap = [(key, i, o) for i, (o, key) in enumerate(st.mesh_at.items())]
+        heapq.heapify(heap)  # the fewest ATs first, then by rank
+        while heap:
+            o = heapq.heappop(heap)[2]
             legs = sorted(st.incident[o], key=lambda k: st.rank[st.other(k, o)])
             tried = (o, frozenset(legs))  # AT ids are never reused: the same ATs
             if tried in self.no_mesh:
