@@ -638,3 +638,51 @@ def test_cli_summarizes_long_expressions(tmp_path, capsys):
     assert max(len(line) for line in text.splitlines()) < 400 and "--verbose" in text
     assert main(["query", str(path), "frame0", "frame120", "--verbose"]) == 0
     assert "e119" in capsys.readouterr().out
+
+
+# ----------------------------------------------------- 4. drop / raise on the real 2-D graphs
+GRAPHS_2D = (
+    "ring.g2o",
+    "intel.g2o",
+    "MIT.g2o",
+    "CSAIL_P_toro.graph",
+    "FR079_P_toro.graph",
+    "manhattanOlson3500.g2o",
+    "city10000.g2o",
+)
+
+
+@pytest.mark.real_data
+@pytest.mark.slow
+@pytest.mark.parametrize("name", GRAPHS_2D)
+def test_best_deletion_on_every_real_2d_graph_answers_or_refuses_honestly(data_dir, name):
+    """ring.g2o is answered (a covariance, no smaller than the optimal estimate's, which uses
+    every AT); every other graph is refused, saying why and pointing to method='optimal'."""
+    from relmap.io import load_map
+
+    g = load_map(data_dir / "posegraph2d" / name)
+    s, t = g.frames[0], g.frames[-1]
+    if name != "ring.g2o":
+        with pytest.raises(errors.IrreducibleNetworkError, match="method='optimal'") as info:
+            g.query(s, t, method="reduce", on_irreducible="drop")
+        assert "independent loops" in str(info.value)
+        return
+    est = g.query(s, t, method="reduce", on_irreducible="drop")
+    assert est.dropped
+    C = est.at.cov
+    assert np.linalg.eigvalsh(C).min() >= -1e-12 * np.abs(C).max()
+    opt = g.query(s, t, method="optimal").at.cov
+    assert np.trace(C[:2, :2]) >= np.trace(opt[:2, :2])
+
+
+@pytest.mark.real_data
+@pytest.mark.slow
+def test_irreducible_intel_is_refused_naming_what_is_left(data_dir):
+    """--on-irreducible raise on intel: the honest error (the reduction gets stuck on a dense
+    core of more than MESH_MAX_DEGREE ATs a frame), after 2.6 s of CPU (was 95 s, loaded)."""
+    from relmap.io import load_map
+
+    g = load_map(data_dir / "posegraph2d" / "intel.g2o")
+    with pytest.raises(errors.IrreducibleNetworkError, match="use method='optimal'") as info:
+        g.query(0, 1727, method="reduce", on_irreducible="raise")
+    assert "independent loops" in str(info.value) and len(str(info.value)) < 600
