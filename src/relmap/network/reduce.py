@@ -252,6 +252,10 @@ class _State:
         self.dirty: set[Frame] = set()  # ... and for the Delta-Y and star-mesh candidates:
         self.triangle_at: dict[Frame, tuple[tuple[int, list[tuple[float, ...]]], tuple]] = {}
         self.mesh_at: dict[Frame, tuple[int, tuple[float, ...]]] = {}
+        # both also as heaps (key, tick, frame), entries stale once the dict says otherwise
+        self.triangle_heap: list[tuple[object, int, Frame]] = []
+        self.mesh_heap: list[tuple[object, int, Frame]] = []
+        self.tick = count()
         for k, e in edges.items():
             self._link(k, e)
 
@@ -525,8 +529,9 @@ class _Reducer:
             entry = self.triangle_through(st, c)
             if entry is None:
                 st.triangle_at.pop(c, None)
-            else:
+            elif st.triangle_at.get(c) != entry:
                 st.triangle_at[c] = entry
+                heapq.heappush(st.triangle_heap, (entry[0], next(st.tick), c))
         for o in changed:
             ks = st.incident.get(o, ())
             st.mesh_at.pop(o, None)
@@ -536,6 +541,7 @@ class _Reducer:
             given = {n for k in ks for n, _ in st.edges[k].links} - self.star_members
             if len(others) == len(ks) and not given:
                 st.mesh_at[o] = (len(ks), st.rank[o])
+                heapq.heappush(st.mesh_heap, (st.mesh_at[o], next(st.tick), o))
 
     def triangle_through(
         self, st: _State, c: Frame
@@ -565,9 +571,14 @@ class _Reducer:
         become one star AT), the most marked corners first, then by the corners' ranks; None
         if there is none."""
         self.refresh(st)
-        if not st.triangle_at:
-            return None
-        return min(st.triangle_at.values(), key=lambda entry: entry[0])[1]
+        heap = st.triangle_heap
+        while heap:
+            key, _, c = heap[0]
+            entry = st.triangle_at.get(c)
+            if entry is not None and entry[0] == key:
+                return entry[1]
+            heapq.heappop(heap)  # stale
+        return None
 
     def delta_y(self, st: _State, tri: tuple[Frame, Frame, Frame]) -> None:
         w, t, v = tri  # ordered by rank: w nearest the source
@@ -650,10 +661,12 @@ class _Reducer:
         two of them (:func:`_consistent_mesh`); False if there is no such frame (or none whose
         star can be inverted)."""
         self.refresh(st)
-        heap = [(key, i, o) for i, (o, key) in enumerate(st.mesh_at.items())]
-        heapq.heapify(heap)  # the fewest ATs first, then by rank
+        heap = st.mesh_heap  # the fewest ATs first, then by rank
         while heap:
-            o = heapq.heappop(heap)[2]
+            key, _, o = heapq.heappop(heap)
+            if st.mesh_at.get(o) != key:
+                continue  # stale
+            # (a star found singular below stays off the heap until its ATs change)
             legs = sorted(st.incident[o], key=lambda k: st.rank[st.other(k, o)])
             tried = (o, frozenset(legs))  # AT ids are never reused: the same ATs
             if tried in self.no_mesh:
