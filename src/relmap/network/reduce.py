@@ -13,7 +13,9 @@ triangle to use, a star by a triangle (Y→Δ), or more generally an unmarked fr
 :data:`MESH_MAX_DEGREE` ATs by ATs between every two of its neighbours (star-mesh). Delta-Y is
 applied where it lets a series step follow (a corner with three ATs keeps two); Y→Δ and
 star-mesh (the fewest ATs first) each remove a frame; so ATs + frames decrease at every
-round, and the reduction ends.
+round, and the reduction ends. The candidates for every step are kept up to date through the
+frames whose ATs changed (heaps by rank), so a round costs about what it changes: on intel.g2o,
+which the steps cannot reduce, the refusal comes after 2.6 s of CPU (it took 95 s).
 
 **The first-order picture** (relmap's derivation; the paper has none). Express every frame f
 by a perturbation ξ_f of a common frame (the triangle's or star's first corner w): the chart
