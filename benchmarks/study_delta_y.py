@@ -6,11 +6,14 @@
    formulas against the optimal estimate, w→u against the reversed u→w, and each reduction
    re-run on sampled ATs against its own prediction (Monte Carlo). Relative Frobenius errors
    of the 3×3 covariance.
-2. ``--maps N`` random small maps (8-12 ATs over 5-8 frames, a spanning tree plus loops,
+2. ``--solves N``: the optimal estimator (Gauss-Newton) re-run on N sampled bridges at
+   σy = 1 cm, σθ = 5° against its own prediction, for comparison with the reduction's row.
+3. ``--maps N`` random small maps (8-12 ATs over 5-8 frames, a spanning tree plus loops,
    anisotropic rotated position errors, σθ up to 10°, means made loop-consistent): the
    reduction (first frame to last) against the optimal estimate.
 
-Run: ``python benchmarks/study_delta_y.py [--samples 20000] [--seed 0] [--maps 300]``.
+Run: ``python benchmarks/study_delta_y.py [--samples 20000] [--seed 0] [--solves 2000]
+[--maps 300]``.
 """
 
 from __future__ import annotations
@@ -20,7 +23,8 @@ import argparse
 import numpy as np
 
 import relmap as rm
-from relmap.demo import DELTA_Y_HEADER, delta_y_rows, delta_y_study
+from relmap import montecarlo
+from relmap.demo import DELTA_Y_HEADER, _shipped, delta_y_rows, delta_y_study
 from relmap.errors import IrreducibleNetworkError
 from relmap.lie import se2
 
@@ -67,10 +71,43 @@ def random_maps(n: int, seed: int) -> None:
     )
 
 
+def optimal_spread(n: int, seed: int, sigma_y: float = 0.01, sigma_deg: float = 5.0) -> None:
+    """Gauss-Newton on n sampled bridges (loop-consistent means) against its prediction."""
+    sig = np.array([0.05, sigma_y, np.radians(sigma_deg)])
+    g = rm.RelationalMap()
+    for r in _shipped("fig3.json"):
+        g.add(r.src, r.dst, rm.AT.from_sigmas(r.at.mean, sig), name=r.name)
+    sol = g.solve("w")
+    h = rm.RelationalMap()
+    for e in g.edges():
+        h.add(
+            e.src,
+            e.dst,
+            rm.AT(se2.between(sol.pose(e.src), sol.pose(e.dst)), e.at.cov),
+            name=e.name,
+        )
+    truth = se2.between(sol.pose("w"), sol.pose("u"))
+    rng = np.random.default_rng(seed)
+    draws = {e.name: e.at.sample(n, rng) for e in h.edges()}
+    est = []
+    for i in range(n):
+        k = rm.RelationalMap()
+        for e in h.edges():
+            k.add(e.src, e.dst, rm.AT(draws[e.name][i], e.at.cov), name=e.name)
+        est.append(k.query("w", "u", method="optimal").at.mean)
+    pred = h.query("w", "u", method="optimal").at
+    rep = montecarlo.SampleSet.of(np.array(est)).compare(rm.AT(truth, pred.cov))
+    print(
+        f"\noptimal estimator on {n} sampled bridges (σy {sigma_y:g} m, σθ {sigma_deg:g}°) vs its "
+        f"prediction: {rep.cov_rel_error:.1%} ± {rep.cov_rel_standard_error:.1%}"
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--samples", type=int, default=20_000)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--solves", type=int, default=2000)
     parser.add_argument("--maps", type=int, default=300)
     args = parser.parse_args()
     rows = delta_y_rows(delta_y_study(args.seed, args.samples))
@@ -78,6 +115,8 @@ def main() -> None:
     print("|" + "---|" * len(DELTA_Y_HEADER))
     for row in rows:
         print("| " + " | ".join(row) + " |")
+    if args.solves:
+        optimal_spread(args.solves, args.seed)
     if args.maps:
         random_maps(args.maps, args.seed + 1)
 

@@ -64,7 +64,7 @@ resistor-network transforms with matrices:
   to 1e-9 and the 90th percentile is 2.1% (the independent star: 61%, 4.0%). Limits: it is
   first order; as an estimator re-run on sampled maps, linearized once at the sampled
   means, it spreads as predicted up to 3° at σy = 1 cm (2.9% ± 1.1%), but 16% more at 5°
-  (Gauss-Newton, relinearizing: about 4%); and in networks where Y and Z part, that star is
+  (Gauss-Newton, relinearizing: 1.2% ± 3.6%); and in networks where Y and Z part, that star is
   the independent approximation.
 - **Delta-Y as printed (``delta_y="paper"``)**: ``A' = A ⊗ (B ⊕ Cᴿ)``,
   ``B' = B ⊗ (A ⊕ C)``, ``C' = C ⊗ (Aᴿ ⊕ B)``, X: w→o identity mean, Y: o→v mean B',
