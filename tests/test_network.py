@@ -163,12 +163,15 @@ def test_linear_isotropic_reduce_delta_y_and_optimal_agree(seed):
         assert o.iterations <= 2  # linear: one step reaches the optimum
 
 
-def test_linear_anisotropic_series_parallel_is_exact_but_delta_y_is_not():
+def test_linear_anisotropic_series_parallel_and_delta_y_are_exact():
+    """Anisotropic positions: the consistent Delta-Y's star carries the correlation of Y and
+    Z, so it is exact (the paper's formulas are not)."""
     g, _ = fig3(np.random.default_rng(11), angular=False, isotropic=False)
-    r, o = g.query("t", "v", method="reduce"), g.query("t", "v", method="optimal")
-    np.testing.assert_allclose(r.at.cov, o.at.cov, atol=1e-12 * np.abs(o.at.cov).max())
-    r, o = g.query("w", "u", method="reduce"), g.query("w", "u", method="optimal")
-    assert rel(r.at.cov, o.at.cov) > 1e-3  # the documented limitation of Delta-Y
+    for s, t in (("t", "v"), ("w", "u"), ("u", "w")):
+        r, o = g.query(s, t, method="reduce"), g.query(s, t, method="optimal")
+        np.testing.assert_allclose(r.at.cov, o.at.cov, atol=1e-12 * np.abs(o.at.cov).max())
+    p, o = g.query("w", "u", method="reduce", delta_y="paper"), g.query("w", "u", method="optimal")
+    assert rel(p.at.cov, o.at.cov) > 1e-3
 
 
 def _reduction_spread(g, truth, s, t, n, rng, **kw):

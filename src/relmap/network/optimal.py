@@ -517,9 +517,9 @@ def optimize(
     no new factorization, at most 8, while they shrink) until the step is negligible,
     ``max|δ| ≤ xtol·(1 + max|t|)`` (t the poses' translations, m; δ in m and rad) or stops
     lowering the objective. One further Gauss-Newton step then moves the poses by less than
-    about 1e-12 relatively. The covariances come from the factorization at the last
-    Gauss-Newton iterate (no factorization is added for the polish), which differs from the
-    one at the polished poses by O(polish) — measured 9e-8 relatively on the bridge.
+    about 1e-12 relatively. If the polish moved the poses, the normal matrix is factorized
+    once more at the polished poses, so the covariances are those at the returned poses (the
+    last Gauss-Newton iterate's differed by O(polish): 9e-8 relatively on the bridge).
     ``Solution.converged`` is False when ``max_iterations`` ended the loop instead. An
     objective that overflows raises :class:`relmap.errors.NumericalError`.
 
@@ -584,8 +584,8 @@ def optimize(
             predicted += lam * float(np.einsum("i,i,i->", delta, diag, delta))
         if lam == 0.0 and (predicted <= rtol * max(cost, 1e-300) or stalled):
             # Converged in the objective. Polish the poses to rounding with the factorization
-            # at hand (chord steps: no new factorization); the covariances come from this
-            # factorization (the normal matrix at the last Gauss-Newton iterate).
+            # at hand (chord steps: no new factorization); if they moved the poses, the
+            # normal matrix is factorized once more at the polished poses, for covariances.
             size = float(np.abs(delta).max(initial=0.0))
             for _ in range(_POLISH_STEPS):
                 if size <= xtol * scale:
@@ -594,7 +594,8 @@ def optimize(
                 if not trial[0] <= cost * (1.0 + 1e-13) + 1e-300:
                     break
                 state = step(state, delta)
-                cost, poses, _, grad = trial
+                cost, poses, data, grad = trial
+                undamped_at_current = False
                 delta = -factor.solve(grad)
                 smaller = float(np.abs(delta).max(initial=0.0))
                 if smaller > 0.5 * size:

@@ -13,7 +13,9 @@ triangle to use, a star by a triangle (Y→Δ), or more generally an unmarked fr
 :data:`MESH_MAX_DEGREE` ATs by ATs between every two of its neighbours (star-mesh). Delta-Y is
 applied where it lets a series step follow (a corner with three ATs keeps two); Y→Δ and
 star-mesh (the fewest ATs first) each remove a frame; so ATs + frames decrease at every
-round, and the reduction ends.
+round, and the reduction ends. The candidates for every step are kept up to date through the
+frames whose ATs changed (heaps by rank), so a round costs about what it changes: on intel.g2o,
+which the steps cannot reduce, the refusal comes after 2.6 s of CPU (it took 95 s).
 
 **The first-order picture** (relmap's derivation; the paper has none). Express every frame f
 by a perturbation ξ_f of a common frame (the triangle's or star's first corner w): the chart
@@ -29,23 +31,41 @@ resistor-network transforms with matrices:
 - **Delta-Y (default, ``delta_y="consistent"``).** Triangle A (w→t), B (w→v), C (t→v), star
   X (w→o), Y (o→v), Z (o→t), o at w. Seen from w, the triangle gives (ξ_t, ξ_v) the joint
   covariance ``P_tt = S_A - S_A Σ⁻¹ S_A``, ``P_vv = S_B - S_B Σ⁻¹ S_B``,
-  ``P_tv = S_A Σ⁻¹ S_B`` (Σ = S_A + S_B + S_C, a generalized inverse when singular); the
-  star gives ``[[S_X + S_Z, S_X], [S_X, S_X + S_Y]]``. Hence ``S_X = sym(P_tv)``,
-  ``S_Z = P_tt - S_X``, ``S_Y = P_vv - S_X``, then ``C_X = S_X``,
-  ``C_Y = T(p_v) S_Y T(p_v)ᵀ``, ``C_Z = T(p_t) S_Z T(p_t)ᵀ`` with the corners' means
-  ``p_t = A ⊗ (B ⊕ Cᴿ)``, ``p_v = B ⊗ (A ⊕ C)`` (the paper's A', B'). The star reproduces
-  the triangle's corner covariance (21 numbers) in all but the antisymmetric part of
-  ``P_tv`` (3 numbers): a star of three independent ATs has 18. That part vanishes when
-  the S commute — the linear isotropic case (the resistor bridge), and, measured, isotropic
-  positions with heading error — where Delta-Y is exact to first order; otherwise it is
-  the only error. Measured on the bridge (demo report, ``relmap demo``): with the
-  fig3.json errors (σx = σy = 5 cm) at σθ = 0.5°-10° the w→u covariance equals the
-  optimal estimate's to rounding (the paper's formulas: 3%-80% off) and w→u equals the
-  reversed u→w; with σy = 1 cm it is 0.2%-3.9% off the optimal estimate (paper: 5%-15%) and
-  0.2%-7.6% off the reversed u→w. As an estimator re-run on sampled maps it agrees with its
-  prediction within 1.3% at σθ ≤ 5° (isotropic), but at σy = 1 cm, 5° its spread is 19%
-  larger than predicted (the optimal estimator: 4 ± 3%): its merge weights, computed at the
-  sampled means from approximate star covariances, are not the best ones there.
+  ``P_tv = S_A Σ⁻¹ S_B`` (Σ = S_A + S_B + S_C, a generalized inverse when singular): 21
+  numbers. The star gives ``[[S_X + S_Z, S_X + K], [S_X + Kᵀ, S_X + S_Y]]`` with
+  K = E[ξ_z ξ_yᵀ] the cross-covariance of Z and Y. Three independent ATs (K = 0) have only
+  18: P_tv is not symmetric unless the S commute (the linear isotropic case, the resistor
+  bridge, and isotropic positions with heading error), and such a star was 0.2-3.9% off the
+  optimal estimate on the anisotropic bridge. So Y and Z are a dependent pair:
+  ``S_X = sym(P_tv)`` kept within ``0 ⪯ S_X ⪯ S_A ∥ S_B = S_A (S_A + S_B)⁻¹ S_B``
+  (eigenvalues relative to ``S_A ∥ S_B`` clipped to [0, 1], which is exactly the condition
+  for X and the joint of Y and Z to be covariances), ``S_Z = P_tt - S_X``,
+  ``S_Y = P_vv - S_X``, ``K = P_tv - S_X``; then ``C_X = S_X``,
+  ``C_Y = T(p_v) S_Y T(p_v)ᵀ``, ``C_Z = T(p_t) S_Z T(p_t)ᵀ``, ``E[δZ δYᵀ] = T(p_t) K
+  T(p_v)ᵀ``, with the corners' means ``p_t = A ⊗ (B ⊕ Cᴿ)``, ``p_v = B ⊗ (A ⊕ C)`` (the
+  paper's A', B'). The star reproduces the triangle's corner covariance exactly, to first
+  order. Where the S commute, K = 0 and the star is the independent one.
+
+  **Carrying K** (and the cross-covariances of ATs added with
+  :meth:`~relmap.RelationalMap.add_joint`): every AT of the working network keeps *links*,
+  the first-order maps D_m from the errors of the dependent ATs m it contains to its own
+  (δ = Σ D_m δ_m + independent errors). Reversal and compounding map them by their
+  Jacobians (Eq. 7, Eq. 4's J₁, J₂), a merge by its weights; the cross-covariance of two ATs
+  is ``Σ D_m E[δ_m δ_nᵀ] D_nᵀ``, and a dependent pair compounds with it (§3.2), dependent
+  parallel ATs merge with their joint covariance (§4.2). Compounding through a frame loses
+  nothing; a merge of an AT holding Y with one not holding Z, while Z lives on elsewhere,
+  would lose the information in their difference, so there (and when a triangle or star-mesh
+  step takes Y or Z) the star's K is dropped first: that star becomes the independent one.
+  On the bridge Y and Z meet in one merge, so the reduction is the optimal estimate to first
+  order. Measured (``benchmarks/study_delta_y.py``, ``docs/delta_y.md``): at σθ = 0.5°-10°,
+  σy 5 cm or 1 cm, the w→u covariance equals the optimal estimate's to rounding and w→u
+  equals the reversed u→w (the paper's formulas: 3%-80% off). On 300 random small maps with
+  loop-consistent means (anisotropic, rotated, σθ up to 10°) 75% match the optimal estimate
+  to 1e-9 and the 90th percentile is 2.1% (the independent star: 61%, 4.0%). Limits: it is
+  first order; as an estimator re-run on sampled maps, linearized once at the sampled
+  means, it spreads as predicted up to 3° at σy = 1 cm (2.9% ± 1.1%), but 16% more at 5°
+  (Gauss-Newton, relinearizing: 1.2% ± 3.6%); and in networks where Y and Z part, that star is
+  the independent approximation.
 - **Delta-Y as printed (``delta_y="paper"``)**: ``A' = A ⊗ (B ⊕ Cᴿ)``,
   ``B' = B ⊗ (A ⊕ C)``, ``C' = C ⊗ (Aᴿ ⊕ B)``, X: w→o identity mean, Y: o→v mean B',
   Z: o→t mean A', ``C_X = ½(C_A' + C_B' - K C_C' Kᵀ)``, ``C_Y = ½(-C_A' + C_B' + K C_C'
@@ -62,8 +82,10 @@ resistor-network transforms with matrices:
   exact; a mesh AT that would not be positive definite, or legs that know different
   directions exactly, make the step unavailable.
 
-The star's (and mesh's) covariances may be indefinite: they are intermediate quantities,
-never validated. **The result is**: its covariance is symmetric PSD (eigenvalues below zero
+The paper's star's (and the mesh's) covariances may be indefinite: they are intermediate
+quantities, never validated (the consistent star is a covariance; should an intermediate joint
+covariance of a dependent pair still come out indefinite, the step drops that star's K).
+**The result is**: its covariance is symmetric PSD (eigenvalues below zero
 only by rounding clipped), or :class:`IrreducibleNetworkError` names the approximate steps
 that made it indefinite — never an exit status 0 with an impossible answer.
 
@@ -76,9 +98,10 @@ refused at once, pointing to ``method='optimal'``, on networks with more than
 remain: it would discard most of the information (every real pose graph of the shared data
 but ring.g2o is refused within about a second; ring.g2o is answered).
 
-Dependent ATs (:meth:`RelationalMap.add_joint`): a dependent pair of given ATs compounds with
-its cross-covariance (§3.2), parallel dependent given ATs merge with their joint covariance
-(§4.2, :func:`relmap.merge` with ``joint_cov``); anything else involving them raises.
+Dependent ATs (:meth:`RelationalMap.add_joint`) are carried by their links (above): a
+dependent pair compounds with its cross-covariance (§3.2), dependent parallel ATs merge with
+their joint covariance (§4.2, :func:`relmap.merge` with ``joint_cov``), also after other
+steps; Delta-Y on a triangle with one of them raises, and star-mesh does not take them.
 
 The reduction runs on batched ATs as well (all ATs with one batch shape), which Monte Carlo
 validation uses; best deletion needs single ATs. It runs unchanged on 3-D ATs (:class:`AT3`).
@@ -130,7 +153,12 @@ import numpy as np
 from relmap import moments as _moments
 from relmap.at import AT, compound, merge, reverse
 from relmap.at3 import AT3
-from relmap.errors import IrreducibleNetworkError, NumericalError, ParameterError
+from relmap.errors import (
+    IrreducibleNetworkError,
+    NotPositiveSemidefiniteError,
+    NumericalError,
+    ParameterError,
+)
 from relmap.lie import Group
 from relmap.typing import FloatArray
 
@@ -197,7 +225,9 @@ class _Edge(NamedTuple):
     at: AT | AT3
     expr: object
     order: float  # for a stable, readable order of merge operands
-    groups: frozenset[str]  # dependent groups whose ATs this AT contains
+    # first order, δ(this AT, u → v) = Σ D δ(member) + independent errors, over the members of
+    # dependent groups (add_joint ATs, the consistent Delta-Y's Y and Z) this AT contains
+    links: tuple[tuple[str, FloatArray], ...]
     # moments="exact": the Gaussian operands this AT compounds, u → v, each (AT, reversed?);
     # None: the AT itself is the one operand
     factors: tuple[tuple[AT, bool], ...] | None = None
@@ -220,6 +250,14 @@ class _State:
         self.rank = rank
         self.incident: dict[Frame, set[int]] = {}
         self.touched: list[Frame] = []  # frames whose ATs changed, for the series worklist
+        self.linked: set[int] = set()  # the ATs with links
+        self.dirty: set[Frame] = set()  # ... and for the Delta-Y and star-mesh candidates:
+        self.triangle_at: dict[Frame, tuple[tuple[int, list[tuple[float, ...]]], tuple]] = {}
+        self.mesh_at: dict[Frame, tuple[int, tuple[float, ...]]] = {}
+        # both also as heaps (key, tick, frame), entries stale once the dict says otherwise
+        self.triangle_heap: list[tuple[object, int, Frame]] = []
+        self.mesh_heap: list[tuple[object, int, Frame]] = []
+        self.tick = count()
         for k, e in edges.items():
             self._link(k, e)
 
@@ -227,6 +265,9 @@ class _State:
         self.incident.setdefault(e.u, set()).add(k)
         self.incident.setdefault(e.v, set()).add(k)
         self.touched += (e.u, e.v)
+        self.dirty.update((e.u, e.v))
+        if e.links:
+            self.linked.add(k)
 
     def add(self, k: int, e: _Edge) -> None:
         self.edges[k] = e
@@ -234,11 +275,13 @@ class _State:
 
     def drop(self, k: int) -> _Edge:
         e = self.edges.pop(k)
+        self.linked.discard(k)
         for f in (e.u, e.v):
             self.incident[f].discard(k)
             if not self.incident[f]:
                 del self.incident[f]
         self.touched += (e.u, e.v)
+        self.dirty.update((e.u, e.v))
         return e
 
     def between(self, a: Frame, b: Frame) -> list[int]:
@@ -268,6 +311,9 @@ class _Reducer:
         self.moments = moments
         self.delta_y_rule = delta_y
         self.cross = cross
+        self.star_members: set[str] = set()  # the consistent Delta-Y's correlated Y and Z
+        self.partner: dict[str, str] = {}  # Y of a star → its Z, and Z → Y
+        self.no_mesh: set[tuple[Frame, frozenset[int]]] = set()  # stars found singular
         self.definitions = definitions
         self.ids = count(1_000_000)
         self.stars = count(1)
@@ -319,66 +365,92 @@ class _Reducer:
         return (a, b) if st.rank[a] <= st.rank[b] else (b, a)
 
     # ---------------------------------------------------------------- the steps
-    def merge_parallel(self, st: _State) -> bool:
-        pairs: dict[frozenset[Frame], list[int]] = {}
-        for k, e in st.edges.items():
-            pairs.setdefault(frozenset((e.u, e.v)), []).append(k)
-        changed = False
-        for ks in pairs.values():
-            if len(ks) >= 2:
-                self.merge_group(st, ks)
-                changed = True
-        return changed
+    def merge_parallel(self, st: _State, frames: Sequence[Frame]) -> None:
+        """Merge every group of parallel ATs at ``frames`` (in the order of their ids)."""
+        pairs: dict[frozenset[Frame], set[int]] = {}
+        for f in frames:
+            for k in st.incident.get(f, ()):
+                e = st.edges[k]
+                pairs.setdefault(frozenset((e.u, e.v)), set()).add(k)
+        for ks in sorted((sorted(ks) for ks in pairs.values() if len(ks) >= 2), key=min):
+            self.merge_group(st, ks)
 
     def merge_group(self, st: _State, ks: list[int]) -> int:
-        """Merge the parallel ATs ``ks`` into one (oriented first → second by rank); its id."""
+        """Merge the parallel ATs ``ks`` into one (oriented first → second by rank); its id.
+        Dependent ATs merge with their joint covariance (§4.2)."""
         e0 = st.edges[ks[0]]
         a, b = self.first(st, e0.u, e0.v)
         ks = sorted(ks, key=lambda k: st.edges[k].order)
+        # a star's correlation is kept only while no information is lost with it: when its Y
+        # and Z are merged with each other (or compounded); merged apart, it is dropped
+        inside = {n for k in ks for n, _ in st.edges[k].links}
+        apart = {n for n in inside if n in self.partner and self.partner[n] not in inside}
+        if apart:
+            outside = {n for k in st.linked if k not in ks for n, _ in st.edges[k].links}
+            self.decorrelate(st, {n for n in apart if self.partner[n] in outside})
         parts = [self.oriented(st, k, a) for k in ks]
-        edges = [st.edges[k] for k in ks]
-        order = min(e.order for e in edges)
-        if any(e.groups for e in edges) and self._dependent_leaves(edges):
-            groups = frozenset().union(*(e.groups for e in edges))
-            at = merge(*(p[0] for p in parts), joint_cov=self._joint(edges, a))
-        else:
-            groups = self._independent(edges, "merged")
-            at = merge(*(p[0] for p in parts))
+        links = [self.links(st, k, a) for k in ks]
+        order = min(st.edges[k].order for k in ks)
+        ats = [p[0] for p in parts]
+        joint, dependent = self._joint(ats, links)
+        try:
+            at = merge(*ats, joint_cov=joint) if dependent else merge(*ats)
+        except NotPositiveSemidefiniteError:
+            if not self.decorrelate(st, {n for li in links for n, _ in li}):
+                raise
+            return self.merge_group(st, ks)
+        out: tuple[tuple[str, FloatArray], ...] = ()
+        if any(links):
+            W = _merge_weights(joint, ats[0].group.dof, len(ats))
+            out = _combine(*(_transform(Wi, Li) for Wi, Li in zip(W, links, strict=True)))
         for k in ks:
             st.drop(k)
         new = next(self.ids)
-        st.add(new, _Edge(a, b, at, _Merge(tuple(p[1] for p in parts)), order, groups))
+        st.add(new, _Edge(a, b, at, _Merge(tuple(p[1] for p in parts)), order, out))
         return new
 
-    def _dependent_leaves(self, edges: Sequence[_Edge]) -> bool:
-        """Whether every AT with a dependent group is a given AT (§4.2: its cross-covariances
-        with the others are known)."""
-        return all(isinstance(e.expr, _Leaf) for e in edges if e.groups)
+    def links(self, st: _State, k: int, a: Frame) -> tuple[tuple[str, FloatArray], ...]:
+        """The links of AT k pointing away from frame a (through Eq. 7's Jacobian)."""
+        e = st.edges[k]
+        if e.u == a or not e.links:
+            return e.links
+        return _transform(e.at.group.inverse(e.at.mean, jacobians=True)[1], e.links)
 
-    def _joint(self, edges: Sequence[_Edge], a: Frame) -> np.ndarray:
-        """Joint covariance of the ATs (each oriented away from frame a): their own covariances
-        on the diagonal, the given cross-covariances (through Eq. 7's Jacobian where an AT is
-        reversed) between ATs of one dependent group, zero elsewhere."""
-        group = edges[0].at.group
-        b, k = group.dof, len(edges)
-        shape = np.broadcast_shapes(*(e.at.batch_shape for e in edges))
-        eye = np.eye(b)
-        J = [eye if e.u == a else group.inverse(e.at.mean, jacobians=True)[1] for e in edges]
-        joint = np.zeros((*shape, b * k, b * k))
-        for i, ei in enumerate(edges):
-            Ci = ei.at.cov if ei.u == a else reverse(ei.at).cov
-            joint[..., b * i : b * i + b, b * i : b * i + b] = Ci
-            for j in range(i + 1, k):
-                ej = edges[j]
-                pair = frozenset((*_leaves(ei.expr), *_leaves(ej.expr)))
-                if not (ei.groups & ej.groups) or pair not in self.cross:
+    def cross_cov(
+        self, li: tuple[tuple[str, FloatArray], ...], lj: tuple[tuple[str, FloatArray], ...]
+    ) -> FloatArray | None:
+        """E[δi δjᵀ] of two ATs with links ``li``, ``lj``; None if they are independent."""
+        out = None
+        for m, Dm in li:
+            for n, Dn in lj:
+                known = self.cross.get(frozenset((m, n)))
+                if known is None:
                     continue
-                name_a, _, X = self.cross[pair]
-                X = X if ei.expr.name == name_a else np.swapaxes(X, -1, -2)  # type: ignore[attr-defined]
-                Xij = J[i] @ X @ np.swapaxes(J[j], -1, -2)
-                joint[..., b * i : b * i + b, b * j : b * j + b] = Xij
-                joint[..., b * j : b * j + b, b * i : b * i + b] = np.swapaxes(Xij, -1, -2)
-        return joint
+                first, _, X = known
+                X = X if first == m else np.swapaxes(X, -1, -2)
+                term = Dm @ X @ np.swapaxes(Dn, -1, -2)
+                out = term if out is None else out + term
+        return out
+
+    def _joint(
+        self, ats: Sequence[AT | AT3], links: Sequence[tuple[tuple[str, FloatArray], ...]]
+    ) -> tuple[FloatArray, bool]:
+        """Joint covariance of the ATs (own covariances on the diagonal, the cross-covariances
+        of their links elsewhere), and whether any of them are dependent."""
+        b, k = ats[0].group.dof, len(ats)
+        shape = np.broadcast_shapes(*(x.batch_shape for x in ats))
+        joint = np.zeros((*shape, b * k, b * k))
+        dependent = False
+        for i, x in enumerate(ats):
+            joint[..., b * i : b * i + b, b * i : b * i + b] = x.cov
+            for j in range(i + 1, k):
+                X = self.cross_cov(links[i], links[j])
+                if X is None:
+                    continue
+                dependent = True
+                joint[..., b * i : b * i + b, b * j : b * j + b] = X
+                joint[..., b * j : b * j + b, b * i : b * i + b] = np.swapaxes(X, -1, -2)
+        return joint, dependent
 
     def can_compound(self, st: _State, m: Frame) -> bool:
         """Whether frame m is an unmarked frame with exactly two ATs to two other frames."""
@@ -388,7 +460,8 @@ class _Reducer:
         return st.other(k1, m) != st.other(k2, m)
 
     def compound_at(self, st: _State, m: Frame) -> int:
-        """Compound the two ATs through frame m (step 2); the new AT's id."""
+        """Compound the two ATs through frame m (step 2); the new AT's id. A dependent pair
+        compounds with its cross-covariance (§3.2)."""
         k1, k2 = sorted(st.incident[m], key=lambda k: st.edges[k].order)
         a, b = st.other(k1, m), st.other(k2, m)
         if st.rank[a] > st.rank[b]:
@@ -396,83 +469,129 @@ class _Reducer:
         ea, eb = st.edges[k1], st.edges[k2]
         e1 = ea.expr if ea.u == m else _rev(ea.expr)  # m → a
         e2 = eb.expr if eb.u == m else _rev(eb.expr)  # m → b
+        l1, l2 = self.links(st, k1, a), self.links(st, k2, m)  # a → m, m → b
+        cross = self.cross_cov(l1, l2) if l1 and l2 else None
         factors = None
-        if self.moments == "first_order":
-            first, second = self.oriented(st, k1, m)[0], self.oriented(st, k2, m)[0]
-            if ea.groups & eb.groups:  # a dependent pair: with its cross-covariance
-                at = self._compound(ea, eb, reverse(first), second, m)
-            else:
-                at = compound(reverse(first), second)
-        elif ea.groups & eb.groups:
+        if cross is not None:
             before, second = self.oriented(st, k1, a)[0], self.oriented(st, k2, m)[0]
-            at = self._compound(ea, eb, before, second, m)
+            try:
+                at = compound(before, second, cross_cov=cross, moments=self.moments)  # type: ignore[arg-type]
+            except NotPositiveSemidefiniteError:
+                if not self.decorrelate(st, {n for n, _ in (*l1, *l2)}):
+                    raise
+                return self.compound_at(st, m)
+        elif self.moments == "first_order":
+            first, second = self.oriented(st, k1, m)[0], self.oriented(st, k2, m)[0]
+            at = compound(reverse(first), second)
         elif self.moments == "exact":
             factors = (*self.factors(st, k1, a), *self.factors(st, k2, m))
             at = self.chain(factors)
         else:
             at = self.series(st, [(k1, a), (k2, m)])
+        links: tuple[tuple[str, FloatArray], ...] = ()
+        if l1 or l2:  # first order: δ(x ⊕ y) = J₁ δx + J₂ δy
+            x, y = self.oriented(st, k1, a)[0], self.oriented(st, k2, m)[0]
+            _, J1, J2 = x.group.compose(x.mean, y.mean, jacobians=True)
+            links = _combine(_transform(J1, l1), _transform(J2, l2))
         order = min(ea.order, eb.order)
         st.drop(k1)
         st.drop(k2)
-        groups = ea.groups | eb.groups
         new = next(self.ids)
-        st.add(new, _Edge(a, b, at, _comp(_rev(e1), e2), order, groups, factors))
+        st.add(new, _Edge(a, b, at, _comp(_rev(e1), e2), order, links, factors))
         return new
 
-    def _compound(
-        self, ea: _Edge, eb: _Edge, first: AT | AT3, second: AT | AT3, m: Frame
-    ) -> AT | AT3:
-        """first ⊕ second; for two given ATs of one dependent group, with their cross-covariance."""
-        pair = frozenset((*_leaves(ea.expr), *_leaves(eb.expr)))
-        if not (isinstance(ea.expr, _Leaf) and isinstance(eb.expr, _Leaf) and pair in self.cross):
-            self._independent([ea, eb], "compounded")
-        name_a, _, cov_ab = self.cross[pair]  # Cov(A, B) of the two ATs as given
-        X = cov_ab if ea.expr.name == name_a else cov_ab.T  # type: ignore[attr-defined]
-        # Each operand is the given AT or its reversal; the cross-covariance follows Eq. 7's R.
-        group = first.group
-        eye = np.eye(group.dof)
-        J_first = eye if ea.v == m else group.inverse(ea.at.mean, jacobians=True)[1]
-        J_second = eye if eb.u == m else group.inverse(eb.at.mean, jacobians=True)[1]
-        cross_cov = J_first @ X @ np.swapaxes(J_second, -1, -2)
-        return compound(first, second, cross_cov=cross_cov, moments=self.moments)  # type: ignore[arg-type]
-
-    def _independent(self, edges: Sequence[_Edge], what: str) -> frozenset[str]:
-        """The union of the ATs' dependent groups; raise if two of them share a group."""
-        union: frozenset[str] = frozenset()
-        for e in edges:
-            shared = union & e.groups
-            if shared:
-                raise IrreducibleNetworkError(
-                    f"the paper's reduction assumes independent ATs, but ATs of the dependent "
-                    f"group {sorted(shared)[0]!r} would be {what} here; use method='optimal'"
-                )
-            union |= e.groups
-        return union
+    def decorrelate(self, st: _State, among: set[str]) -> bool:
+        """Drop the carried correlation of the consistent Delta-Y stars whose Y or Z is
+        ``among`` these: each becomes three independent ATs, exact only where the triangle's S
+        commute. Done where the correlation would otherwise be lost or cannot be carried (a
+        triangle or star-mesh with them, a merge that parts Y from Z, an intermediate joint
+        covariance the approximations made indefinite). False if there was none."""
+        drop = self.star_members & among
+        if not drop:
+            return False
+        drop |= {self.partner[n] for n in drop}
+        changed = False
+        for k in list(st.linked):
+            e = st.edges[k]
+            kept = tuple((n, D) for n, D in e.links if n not in drop)
+            if len(kept) != len(e.links):
+                st.edges[k] = e._replace(links=kept)
+                changed = True
+                if not kept:
+                    st.linked.discard(k)
+        return changed
 
     # ------------------------------------------------------------------- Delta-Y
-    def triangles(self, st: _State) -> list[tuple[Frame, Frame, Frame]]:
-        adj: dict[Frame, set[Frame]] = {
-            f: {st.other(k, f) for k in ks} for f, ks in st.incident.items()
-        }
-        found = set()
-        for a in adj:
-            for b in adj[a]:
-                for c in adj[a] & adj[b]:
-                    if len({a, b, c}) == 3:
-                        found.add(tuple(sorted((a, b, c), key=lambda f: st.rank[f])))
-        marked = {self.s, self.t}
-        return sorted(found, key=lambda tri: (-len(marked & set(tri)), [st.rank[f] for f in tri]))
+    def refresh(self, st: _State) -> None:
+        """Bring the Delta-Y and star-mesh candidates up to date with the frames whose ATs
+        changed (a triangle through c also changes with the ATs of c's neighbours)."""
+        changed, st.dirty = st.dirty, set()
+        near = {st.other(k, f) for f in changed for k in st.incident.get(f, ())}
+        for c in changed | near:
+            entry = self.triangle_through(st, c)
+            if entry is None:
+                st.triangle_at.pop(c, None)
+            elif st.triangle_at.get(c) != entry:
+                st.triangle_at[c] = entry
+                heapq.heappush(st.triangle_heap, (entry[0], next(st.tick), c))
+        for o in changed:
+            ks = st.incident.get(o, ())
+            st.mesh_at.pop(o, None)
+            if o in (self.s, self.t) or not 3 <= len(ks) <= MESH_MAX_DEGREE:
+                continue
+            others = {st.other(k, o) for k in ks}
+            given = {n for k in ks for n, _ in st.edges[k].links} - self.star_members
+            if len(others) == len(ks) and not given:
+                st.mesh_at[o] = (len(ks), st.rank[o])
+                heapq.heappush(st.mesh_heap, (st.mesh_at[o], next(st.tick), o))
 
-    def helps(self, st: _State, tri: tuple[Frame, Frame, Frame]) -> bool:
-        """Whether Delta-Y on ``tri`` lets series-parallel steps go on: a corner that is not
-        marked and has three ATs keeps two (its triangle ATs become one star AT)."""
-        return any(f not in (self.s, self.t) and len(st.incident[f]) == 3 for f in tri)
+    def triangle_through(
+        self, st: _State, c: Frame
+    ) -> tuple[tuple[int, list[tuple[float, ...]]], tuple[Frame, Frame, Frame]] | None:
+        """The first (by :meth:`helping_triangle`'s order) triangle with unmarked corner c of
+        three ATs, and its sort key; None if c is marked, has not three ATs, or no two of its
+        neighbours are linked."""
+        marked = {self.s, self.t}
+        ks = st.incident.get(c, ())
+        if c in marked or len(ks) != 3:
+            return None
+        best = None
+        near = sorted({st.other(k, c) for k in ks} - {c}, key=lambda f: st.rank[f])
+        for i, a in enumerate(near):
+            for b in near[i + 1 :]:
+                if not st.between(a, b):
+                    continue
+                tri = tuple(sorted((a, b, c), key=lambda f: st.rank[f]))
+                key = (-len(marked & set(tri)), [st.rank[f] for f in tri])
+                if best is None or key < best[0]:
+                    best = (key, tri)
+        return best  # type: ignore[return-value]
+
+    def helping_triangle(self, st: _State) -> tuple[Frame, Frame, Frame] | None:
+        """The triangle for Delta-Y, corners ordered by rank: one that lets series-parallel
+        steps go on (a corner that is not marked and has three ATs keeps two: its triangle ATs
+        become one star AT), the most marked corners first, then by the corners' ranks; None
+        if there is none."""
+        self.refresh(st)
+        heap = st.triangle_heap
+        while heap:
+            key, _, c = heap[0]
+            entry = st.triangle_at.get(c)
+            if entry is not None and entry[0] == key:
+                return entry[1]
+            heapq.heappop(heap)  # stale
+        return None
 
     def delta_y(self, st: _State, tri: tuple[Frame, Frame, Frame]) -> None:
         w, t, v = tri  # ordered by rank: w nearest the source
-        edge_between = {frozenset((st.edges[k].u, st.edges[k].v)): k for k in st.edges}
-        kA, kB, kC = (edge_between[frozenset(p)] for p in ((w, t), (w, v), (t, v)))
-        groups = self._independent([st.edges[k] for k in (kA, kB, kC)], "transformed by Delta-Y")
+        kA, kB, kC = (st.between(*p)[-1] for p in ((w, t), (w, v), (t, v)))
+        self.decorrelate(st, {n for k in (kA, kB, kC) for n, _ in st.edges[k].links})
+        given = sorted({n for k in (kA, kB, kC) for n, _ in st.edges[k].links})
+        if given:
+            raise IrreducibleNetworkError(
+                f"the paper's reduction assumes independent ATs, but {given[0]!r}, an AT of a "
+                "dependent group, would be transformed by Delta-Y here; use method='optimal'"
+            )
         A, eA = self.oriented(st, kA, w)
         B, eB = self.oriented(st, kB, w)
         C, eC = self.oriented(st, kC, t)
@@ -496,11 +615,11 @@ class _Reducer:
                 0.5 * (A1.cov - B1.cov + KCK),
             )
         else:
-            covs = _consistent_star(group, A.cov, B.cov, C.cov, A1.mean, B1.mean)
+            covs, cross_zy = _consistent_star(group, A.cov, B.cov, C.cov, A1.mean, B1.mean)
         covs = tuple(0.5 * (X + np.swapaxes(X, -1, -2)) for X in covs)
         n = next(self.stars)
         o = ("Δ-Y", n)
-        st.rank[o] = (*st.rank[w], 0.5)
+        st.rank[o] = (*st.rank[w], 0.5, n)  # after w, before what follows it; unique
         names = [f"X{_sub(n)}", f"Y{_sub(n)}", f"Z{_sub(n)}"]
         triangle = (
             f"the Δ of {_short(_render(eA))} ({w!r}→{t!r}), {_short(_render(eB))} ({w!r}→{v!r}), "
@@ -511,6 +630,15 @@ class _Reducer:
         self.definitions[names[0]] = f"Y{rule} of {triangle}: {w!r}→{o_name}, identity mean"
         self.definitions[names[1]] = f"Y of {triangle}: {o_name}→{v!r}, mean of B' = B ⊗ (A ⊕ C)"
         self.definitions[names[2]] = f"Y of {triangle}: {o_name}→{t!r}, mean of A' = A ⊗ (B ⊕ Cᴿ)"
+        star_links: list[tuple[tuple[str, FloatArray], ...]] = [(), (), ()]
+        if self.delta_y_rule == "consistent":
+            self.cross[frozenset(names[1:])] = (names[2], names[1], cross_zy)
+            self.star_members.update(names[1:])
+            self.partner.update({names[1]: names[2], names[2]: names[1]})
+            eye = np.eye(group.dof)
+            star_links[1:] = [((names[1], eye),), ((names[2], eye),)]
+            self.definitions[names[1]] += f", correlated with {names[2]}"
+            self.definitions[names[2]] += f", correlated with {names[1]}"
         order = min(st.edges[k].order for k in (kA, kB, kC))
         for k in (kA, kB, kC):
             st.drop(k)
@@ -519,7 +647,14 @@ class _Reducer:
         for i, ((u, x), mean, cov) in enumerate(zip(ends, means, covs, strict=True)):
             st.add(
                 next(self.ids),
-                _Edge(u, x, kind._trusted(mean, cov), _Leaf(names[i]), order + i * 1e-3, groups),
+                _Edge(
+                    u,
+                    x,
+                    kind._trusted(mean, cov),
+                    _Leaf(names[i]),
+                    order + i * 1e-3,
+                    star_links[i],
+                ),
             )
 
     def stars_to_mesh(self, st: _State) -> bool:
@@ -527,19 +662,22 @@ class _Reducer:
         other frames (3 ≤ d ≤ :data:`MESH_MAX_DEGREE`; the fewest first) by ATs between every
         two of them (:func:`_consistent_mesh`); False if there is no such frame (or none whose
         star can be inverted)."""
-        candidates = []
-        for o, ks in st.incident.items():
-            if o in (self.s, self.t) or not 3 <= len(ks) <= MESH_MAX_DEGREE:
-                continue
-            others = {st.other(k, o) for k in ks}
-            if len(others) == len(ks) and not any(st.edges[k].groups for k in ks):
-                candidates.append((len(ks), st.rank[o], o))
-        for _, _, o in sorted(candidates, key=lambda c: (c[0], c[1])):
+        self.refresh(st)
+        heap = st.mesh_heap  # the fewest ATs first, then by rank
+        while heap:
+            key, _, o = heapq.heappop(heap)
+            if st.mesh_at.get(o) != key:
+                continue  # stale
+            # (a star found singular below stays off the heap until its ATs change)
             legs = sorted(st.incident[o], key=lambda k: st.rank[st.other(k, o)])
+            tried = (o, frozenset(legs))  # AT ids are never reused: the same ATs
+            if tried in self.no_mesh:
+                continue
             oriented = [self.oriented(st, k, o) for k in legs]
             ends = [st.other(k, o) for k in legs]
             mesh = _consistent_mesh(oriented[0][0].group, [at for at, _ in oriented])
             if mesh is None:
+                self.no_mesh.add(tried)
                 continue
             n = next(self.meshes)
             order = min(st.edges[k].order for k in legs)
@@ -548,6 +686,7 @@ class _Reducer:
                 for (_, e), f in zip(oriented, ends, strict=True)
             )
             what = "Y→Δ" if len(legs) == 3 else "star-mesh"
+            self.decorrelate(st, {n for k in legs for n, _ in st.edges[k].links})
             for k in legs:
                 st.drop(k)
             kind = type(oriented[0][0])
@@ -564,7 +703,7 @@ class _Reducer:
                         kind._trusted(mean, cov),
                         _Leaf(name),
                         order + i * 1e-3,
-                        frozenset(),
+                        (),
                     ),
                 )
             return True
@@ -575,13 +714,16 @@ class _Reducer:
         """Prune, merge parallel ATs and compound serial ones until none is left (steps 2-3).
 
         A worklist: the frame with the lowest rank that can be compounded next, as a heap of
-        the frames whose ATs changed; O((frames + ATs) log frames)."""
-        for k in [k for k, e in st.edges.items() if e.u == e.v]:
+        the frames whose ATs changed (since the last call: ``st.touched``); O((frames + ATs)
+        log frames) the first time, then in the size of what changed."""
+        # only frames whose ATs changed since the last call can have anything to do
+        frames = list(dict.fromkeys(f for f in st.touched if f in st.incident))
+        for k in {k for f in frames for k in st.incident[f] if st.edges[k].u == st.edges[k].v}:
             st.drop(k)
-        self.merge_parallel(st)
+        self.merge_parallel(st, frames)
         heap: list[tuple[tuple[float, ...], int, Frame]] = []
         tick = count()
-        st.touched = list(st.incident)
+        st.touched = frames + st.touched
         while True:
             touched, st.touched = st.touched, []
             self.prune_from(st, touched)
@@ -626,7 +768,7 @@ class _Reducer:
         while not self.done(st):
             if self.progress:
                 self.progress(total - len(st.edges), total)
-            tri = next((tri for tri in self.triangles(st) if self.helps(st, tri)), None)
+            tri = self.helping_triangle(st)
             if tri is not None:
                 self.delta_y(st, tri)
             elif not self.stars_to_mesh(st):
@@ -659,24 +801,87 @@ def _consistent_star(
     CC: FloatArray,
     pt: FloatArray,
     pv: FloatArray,
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Covariances of the star X (w→o), Y (o→v), Z (o→t) that reproduces, to first order, the
-    triangle A (w→t), B (w→v), C (t→v) seen from its corners (module docstring).
+) -> tuple[tuple[FloatArray, FloatArray, FloatArray], FloatArray]:
+    """Covariances of the star X (w→o), Y (o→v), Z (o→t), and E[δZ δYᵀ], that reproduce, to
+    first order, the triangle A (w→t), B (w→v), C (t→v) seen from its corners (module
+    docstring).
 
     ``pt``, ``pv``: the corners t and v in w's frame (the star's o sits at w)."""
+    from relmap.gaussian import generalized_inverse
+
     Tt, Tv = _chart_of_origin(group, pt), _chart_of_origin(group, pv)
     Jv = group.between(pt, pv, jacobians=True)[2]  # ∂ between(t, v) / ∂v
     SA = _congruence(np.linalg.inv(Tt), CA)
     SB = _congruence(np.linalg.inv(Tv), CB)
     SC = _congruence(np.linalg.inv(Jv @ Tv), CC)
-    from relmap.gaussian import generalized_inverse
-
     G, _ = generalized_inverse(SA + SB + SC)
-    SX = SA @ G @ SB
-    SX = 0.5 * (SX + np.swapaxes(SX, -1, -2))
+    Ptv = SA @ G @ SB
     Ptt = SA - SA @ G @ SA
     Pvv = SB - SB @ G @ SB
-    return SX, _congruence(Tv, Pvv - SX), _congruence(Tt, Ptt - SX)
+    GAB, _ = generalized_inverse(SA + SB)
+    R = SA @ GAB @ SB  # S_A ∥ S_B, the most X can carry
+    R = 0.5 * (R + np.swapaxes(R, -1, -2))
+    SX = _between_zero_and(0.5 * (Ptv + np.swapaxes(Ptv, -1, -2)), R)
+    covs = (SX, _congruence(Tv, Pvv - SX), _congruence(Tt, Ptt - SX))
+    return covs, Tt @ (Ptv - SX) @ np.swapaxes(Tv, -1, -2)
+
+
+def _between_zero_and(M: FloatArray, R: FloatArray, rtol: float = 1e-9) -> FloatArray:
+    """M (symmetric) if ``0 ⪯ M ⪯ R`` (within ``rtol``), else the matrix of that interval
+    nearest to it in R's metric: M's eigenvalues relative to R clipped to [0, 1]. Where R is
+    singular the result vanishes along R's null space."""
+    lam, U = np.linalg.eigh(R)
+    scale = np.abs(lam).max(axis=-1, keepdims=True)
+    keep = lam > rtol * np.where(scale > 0, scale, 1.0)
+    root = U * np.where(keep, np.sqrt(np.where(keep, lam, 1.0)), 0.0)[..., None, :]  # R^½
+    iroot = U * np.where(keep, 1.0 / np.sqrt(np.where(keep, lam, 1.0)), 0.0)[..., None, :]
+    W = np.swapaxes(iroot, -1, -2) @ M @ iroot  # M relative to R, on R's range
+    mu, V = np.linalg.eigh(0.5 * (W + np.swapaxes(W, -1, -2)))
+    inside = root @ W @ np.swapaxes(root, -1, -2)  # M's part on R's range
+    size = np.abs(M).max(axis=(-2, -1)) + np.abs(R).max(axis=(-2, -1))
+    ok = (
+        (mu.min(axis=-1) >= -rtol)
+        & (mu.max(axis=-1) <= 1 + rtol)
+        & (np.abs(M - inside).max(axis=(-2, -1)) <= rtol * size)
+    )
+    clipped = root @ ((V * np.clip(mu, 0.0, 1.0)[..., None, :]) @ np.swapaxes(V, -1, -2))
+    clipped = clipped @ np.swapaxes(root, -1, -2)
+    out = np.where(ok[..., None, None], M, 0.5 * (clipped + np.swapaxes(clipped, -1, -2)))
+    return out
+
+
+def _transform(
+    M: FloatArray, links: tuple[tuple[str, FloatArray], ...]
+) -> tuple[tuple[str, FloatArray], ...]:
+    """Links of ``M δ`` for an AT δ with ``links``."""
+    return tuple((n, M @ D) for n, D in links)
+
+
+def _combine(*parts: tuple[tuple[str, FloatArray], ...]) -> tuple[tuple[str, FloatArray], ...]:
+    """Links of a sum of ATs' errors (each member appears in one working AT; summed if not)."""
+    out: dict[str, FloatArray] = {}
+    for links in parts:
+        for n, D in links:
+            out[n] = out[n] + D if n in out else D
+    return tuple(out.items())
+
+
+def _merge_weights(joint: FloatArray, b: int, k: int) -> list[FloatArray]:
+    """First-order weights W_i of the best linear unbiased merge of k ATs with ``joint``
+    covariance, ``δx̂ = Σ W_i δ_i`` (:func:`relmap.merge`: x̂ = z₁ - Cov(e₁, d) Cov(d)⁺ d,
+    ``d_j = z_j ⊟ z₁``)."""
+    from relmap.gaussian import generalized_inverse
+
+    eye = np.eye(b)
+    D = np.zeros((b * (k - 1), b * k))
+    for j in range(1, k):
+        D[b * (j - 1) : b * j, :b] = -eye
+        D[b * (j - 1) : b * j, b * j : b * j + b] = eye
+    S = D @ joint @ D.T
+    G, _ = generalized_inverse(0.5 * (S + np.swapaxes(S, -1, -2)))
+    K = joint[..., :b, :] @ D.T @ G
+    Ks = [K[..., :, b * (j - 1) : b * j] for j in range(1, k)]
+    return [eye + sum(Ks, np.zeros_like(Ks[0])), *(-Kj for Kj in Ks)]
 
 
 def _consistent_mesh(
@@ -781,9 +986,9 @@ def reduce_network(
     by default the trace of the result's position covariance, m²; greedy, one AT at a time,
     and refused at once, pointing to ``method='optimal'``, when more than
     :data:`DROP_MAX_LOOPS` independent loops are left). ``groups`` lists dependent
-    ATs as ``(names, joint covariance)``; a dependent pair can be compounded (with its
-    cross-covariance, §3.2), parallel dependent ATs merged (with their joint covariance,
-    §4.2), anything else involving them raises. ``moments`` is
+    ATs as ``(names, joint covariance)``; ATs containing them compound with their
+    cross-covariance (§3.2) and merge with their joint covariance (§4.2); Delta-Y on a
+    triangle with one of them raises (module docstring). ``moments`` is
     ``"first_order"`` (Eqs. 1-7), ``"exact"`` or ``"unscented"`` (SE(2) only; module
     docstring: what they mean where merging follows compounding). ``delta_y`` is
     ``"consistent"`` (default: the first-order-consistent star) or ``"paper"`` (the paper's
@@ -823,7 +1028,9 @@ def reduce_network(
     rank = _hop_rank(edges, s, t)
     st = _State(
         {
-            i: _Edge(u, v, at, _Leaf(name), float(i), frozenset(group_of.get(name, ())))
+            i: _Edge(
+                u, v, at, _Leaf(name), float(i), ((name, np.eye(dof)),) if name in group_of else ()
+            )
             for i, (name, u, v, at) in enumerate(edges)
         },
         rank,
