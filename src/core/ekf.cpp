@@ -646,12 +646,14 @@ nb::dict totals_dict(const std::vector<Totals>& t) {
     const size_t B = t.size();
     auto loglik = new_array({B}), nis = new_array({B});
     auto dof = new_array<int64_t>({B}), updates = new_array<int64_t>({B});
+    auto overflow = new_array<int64_t>({B});
     auto counts = new_array<int64_t>({B, static_cast<size_t>(N_STATUS)});
     for (size_t b = 0; b < B; ++b) {
         loglik.data()[b] = t[b].loglik;
         nis.data()[b] = t[b].nis;
         dof.data()[b] = t[b].dof;
         updates.data()[b] = t[b].updates;
+        overflow.data()[b] = t[b].overflow;
         for (int s = 0; s < N_STATUS; ++s) counts.data()[b * N_STATUS + s] = t[b].counts[s];
     }
     nb::dict out;
@@ -659,6 +661,7 @@ nb::dict totals_dict(const std::vector<Totals>& t) {
     out["nis"] = nis;
     out["dof"] = dof;
     out["updates"] = updates;
+    out["overflow"] = overflow;
     out["counts"] = counts;
     return out;
 }
@@ -845,6 +848,12 @@ void register_ekf(nb::module_& m) {
                             if (keep == 1) store(e);
                         }
                         if (keep == 2) store(j);
+                        if (totals[b].overflow < 0) {
+                            bool finite = true;
+                            for (int k = 0; k < 3; ++k) finite = finite && std::isfinite(x[k]);
+                            for (int k = 0; k < 9; ++k) finite = finite && std::isfinite(P[k]);
+                            if (!finite) totals[b].overflow = static_cast<int64_t>(j);
+                        }
                     }
                     if (keep == 0) store(0);
                 }

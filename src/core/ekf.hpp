@@ -92,6 +92,7 @@ struct Totals {
     double nis = 0.0;      // Σ yᵀ S⁻¹ y
     int64_t dof = 0;       // Σ dim y
     int64_t updates = 0;   // time stamps with a correction
+    int64_t overflow = -1; // first time index with a non-finite state (-1: none)
     int64_t counts[N_STATUS] = {};
 };
 

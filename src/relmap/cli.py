@@ -7,7 +7,6 @@ import sys
 import warnings
 from collections.abc import Sequence
 
-from relmap import _numba
 from relmap.errors import RelmapError
 
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing at start-up
@@ -32,13 +31,12 @@ def _demo(args: argparse.Namespace) -> int:
         raise ParameterError(f"--data {args.data}: no landmarks/mrclam6 folder in it")
     bar = TerminalProgress("relmap demo")
     try:
-        with _numba.one_shot():  # the EKF runs once: numba's start-up would not pay
-            demo = run(
-                seed=args.seed,
-                samples=args.samples,
-                data=args.data,
-                progress=lambda text: bar.update(text, force=True),
-            )
+        demo = run(
+            seed=args.seed,
+            samples=args.samples,
+            data=args.data,
+            progress=lambda text: bar.update(text, force=True),
+        )
         index = write_report(demo, args.out, progress=lambda text: bar.update(text, force=True))
     finally:
         bar.close()
@@ -364,6 +362,11 @@ def _localize(args: argparse.Namespace) -> int:
     for out in (args.plot, args.out):
         if out and not Path(out).resolve().parent.is_dir():
             raise ParameterError(f"cannot write {out}: its folder does not exist")
+    if args.calibrate is not None:
+        how, number = args.calibrate
+        if how != "from-run" or not number.isdigit():
+            raise ParameterError(f"--calibrate takes 'from-run N'; got {how} {number}")
+        args.calibrate_from = int(number)
     bar = TerminalProgress(f"localizing {args.dataset}")
     bar.update("reading the logs, estimating the noise", force=True)
     try:
@@ -371,7 +374,8 @@ def _localize(args: argparse.Namespace) -> int:
             args.dataset,
             robot=args.robot,
             associate=args.associate,
-            progress=lambda k, n: bar.update(f"reading time {k}/{n}"),
+            calibrate_from=args.calibrate_from,
+            progress=lambda k, n: bar.update("running the filter" if k < n else "scoring"),
         )
     finally:
         bar.close()
@@ -380,14 +384,12 @@ def _localize(args: argparse.Namespace) -> int:
 
         write_localization(args.out, run)
     if args.plot:
-        from matplotlib.figure import Figure
+        from relmap.localize_plot import figure
+        from relmap.plot import save_png
 
-        from relmap.plot import localization, save_png
-
-        fig = Figure(figsize=(8, 7))
-        localization(fig.add_subplot(), run)
-        fig.tight_layout()
-        save_png(fig, args.plot)
+        save_png(figure(run), args.plot)
+    for warning in run.warnings:
+        print(f"relmap localize: warning: {warning}", file=sys.stderr)
     if args.json:
         print(json.dumps(run.summary()))
         return 0
@@ -408,7 +410,9 @@ def _localize(args: argparse.Namespace) -> int:
     r = run.readings
     print(
         f"  readings: {r['used']} used, {run.score.rejected} rejected"
+        + (f", {r['wrong']} paired with the wrong landmark" if r["wrong"] else "")
         + (f", {r['ignored']} ignored (not landmarks)" if r["ignored"] else "")
+        + f"; NIS/dof {run.anis:.2f} (1 if consistent)"
     )
     print(f"  {'':16s}{'RMSE position':>15s}{'RMSE heading':>15s}{'coverage_90':>13s}{'ANEES':>9s}")
     for name, s in (("EKF", run.score), ("dead reckoning", run.baseline)):
@@ -638,10 +642,18 @@ def build_parser() -> argparse.ArgumentParser:
     )
     loc.add_argument(
         "--associate",
-        choices=("signatures", "mahalanobis", "euclidean"),
+        choices=("signatures", "mahalanobis", "euclidean", "jcbb"),
         default="signatures",
-        help="pair readings with landmarks by barcode/beacon id (default), or by the nearest "
-        "landmark (Mahalanobis or Euclidean distance)",
+        help="pair readings with landmarks by barcode/beacon id (default), by the nearest "
+        "landmark (Mahalanobis or Euclidean distance), or by joint compatibility (JCBB)",
+    )
+    loc.add_argument(
+        "--calibrate",
+        nargs=2,
+        metavar=("from-run", "N"),
+        type=str,
+        help="MRCLAM: estimate the noise on robot N's run against its ground truth (default: "
+        "the next robot, N mod 5 + 1)",
     )
     loc.add_argument("--json", action="store_true", help="print one JSON object")
     loc.add_argument(
@@ -656,7 +668,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=_output_file,
         help="write the estimate with covariance (for relmap eval)",
     )
-    loc.set_defaults(run=_localize)
+    loc.set_defaults(run=_localize, calibrate_from=None)
 
     from relmap.cli_trajectory import add_parsers
 

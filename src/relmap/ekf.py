@@ -60,7 +60,7 @@ import numpy as np
 
 from relmap import _core, gaussian
 from relmap.at import AT
-from relmap.errors import NonFiniteError, ParameterError, ShapeError
+from relmap.errors import NonFiniteError, NumericalError, ParameterError, ShapeError
 from relmap.lie import se2
 from relmap.propagate import EUCLIDEAN, SE2, numerical_jacobian
 from relmap.robot.motion import DiffDrive, DistanceNoise, Integration, Noise, _pairs, _step_ats
@@ -701,6 +701,13 @@ def run(
         method, cost, use_sig, gate2, joint, _JCBB_NODES, {"summary": 0, "events": 1, "all": 2}[kp.value],
         readings,
     )  # fmt: skip
+    bad = r["overflow"]
+    if (bad >= 0).any():
+        f = int(np.flatnonzero(bad >= 0)[0])
+        raise NumericalError(
+            f"the filter overflowed the floating-point range at time {t[bad[f]]} (index "
+            f"{bad[f]}, filter {f}): inputs too large (odometry, readings or noise)"
+        )
     times = {Keep.ALL: t, Keep.EVENTS: np.concatenate([t[:1], t[r["event_index"]]]),
              Keep.SUMMARY: t[-1:]}[kp]  # fmt: skip
     Mo = M if readings else 0
