@@ -123,7 +123,7 @@ def test_step_by_step_equal_to_filterpy(associate):
             state, z, SENSOR, LANDMARKS, associate=associate, gate=0.9999, **kw
         )
         np.testing.assert_array_equal(up.landmark, ids)  # the true landmarks, every reading
-        assert (up.status == ekf.USED).all()
+        assert (up.status == ekf.Status.USED).all()
         state = up.state
         if len(ids):
             R = np.diag(np.tile([SENSOR.sigma_range**2, SENSOR.sigma_bearing**2], len(ids)))

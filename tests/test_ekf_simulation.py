@@ -105,11 +105,11 @@ def test_mahalanobis_association_in_moderate_clutter():
         state = ekf.predict(state, STEP, NOISE)
         up = ekf.correct_landmarks(state, z, SENSOR, landmarks, valid=valid)
         state = up.state
-        u = up.status == ekf.USED
+        u = up.status == ekf.Status.USED
         used += u.sum()
         right += (u & (up.landmark == ids)).sum()
         true_readings += (valid & (ids >= 0)).sum()
         true_used += (u & (ids >= 0)).sum()
-        assert not (valid & (up.status == ekf.ABSENT)).any()
+        assert not (valid & (up.status == ekf.Status.ABSENT)).any()
     assert right / used >= 0.99, right / used
     assert true_used / true_readings >= 0.95  # the gate (99%) rejects few true readings

@@ -330,6 +330,11 @@ def calibrate_mrclam(data: Mrclam, robot: int, *, window: float = ODOMETRY_WINDO
     by the MAD of its landmark readings' residuals (module docstring)."""
     log = _robot_log(data, robot)
     inside = _inside_truth(log.odometry_t, log.truth_t)
+    if inside.sum() < 2:
+        raise ParameterError(
+            f"cannot calibrate the odometry noise on robot {robot}: {int(inside.sum())} odometry "
+            "records inside its ground-truth span (at least 2 needed)"
+        )
     fit = fit_distance_noise(
         log.odometry_t[inside],
         log.odometry_v[inside],
