@@ -1,0 +1,317 @@
+"""Noise of a pose filter estimated from its own innovations, with no ground truth.
+
+The paper's §8 ("revise the error models … a form of autocalibration"). A run's raw streams (a
+:class:`Recording`: odometry velocities and readings with their time stamps) are filtered with
+:func:`relmap.ekf.run` under candidate noise parameters; the parameters are chosen by what the
+innovations ``y`` (reading minus prediction) and their covariances ``S`` say. Ground truth is
+never read. Three stages, each a standard tool of filter tuning:
+
+1. **Maximum likelihood** of the innovation sequence (Mehra 1970; Student-t readings with scale
+   ``S``, dof ``nu``, so a few wild readings do not inflate the σ of all). Every paired reading
+   counts, the gated ones too (:func:`loglik`): a filter that lost its way and gates most of
+   its readings must not look likely for having few terms. odometry ``k_s,
+   k_theta, k_theta_s`` (:class:`relmap.robot.DistanceNoise`), reading σ ``sigma_r, sigma_b``
+   and ``nu``. (Reading biases are not fitted: on MRCLAM their maximum-likelihood values
+   disagreed in sign with the ground-truth residuals and lowered coverage.) Searched by batched coordinate ascent: every candidate
+   move of every parameter is one filter of one batch of :func:`relmap.ekf.run` (the filters of
+   a batch are independent); the step halves when no move gains.
+2. **The clock.** The odometry's time stamps may be offset from the readings' (MRCLAM's
+   velocities are commands, executed about 0.2 s later). The offset ``delay`` is the
+   maximum-likelihood one over :data:`DELAYS` (the motion stamped ``s`` happened at
+   ``s + delay``); for range-only sensors a range scale (reading = scale × range; Plaza's
+   radios read about 7% long) likewise over :data:`SCALES`.
+3. **Whiteness.** The innovations of a consistent filter are white (Kailath 1968). A reading
+   whose error repeats in the next reading of the same landmark (MRCLAM: a correlation of
+   0.8-0.95 between consecutive range errors) is counted again and again and makes the filter
+   overconfident, which the likelihood of stage 1 cannot see. The lag-one correlation ``ρ`` of
+   consecutive normalized range innovations of one landmark (at most :data:`PAIR_GAP` s apart,
+   :func:`innovation_correlation`) is measured and the reading covariance multiplied by
+   ``(1 + ρ)/(1 - ρ)``, the variance factor of the mean of an AR(1) sequence; repeated
+   :data:`WHITENING_PASSES` times as ``ρ`` settles. White reading errors give ``ρ ≈ 0`` and keep
+   their σ.
+
+Every constant of the method is fixed here, once, for all runs (:data:`START`, :data:`DELAYS`,
+:data:`SCALES`, :data:`PAIR_GAP`, :data:`WHITENING_PASSES`, :data:`ITERATIONS`,
+:data:`TOLERANCE`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import NamedTuple
+
+import numpy as np
+
+from scipy.special import gammaln
+
+from relmap import ekf
+from relmap.at import AT
+from relmap.errors import ParameterError, ShapeError
+from relmap.typing import ArrayLike, FloatArray, IntArray
+
+__all__ = [
+    "DELAYS",
+    "ITERATIONS",
+    "NU_MIN",
+    "PAIR_GAP",
+    "SCALES",
+    "START",
+    "TOLERANCE",
+    "WHITENING_PASSES",
+    "Calibrated",
+    "Recording",
+    "calibrate",
+    "innovation_correlation",
+    "loglik",
+]
+
+#: Where the search starts (odometry m²/m, rad²/rad, rad²/m; σ m, rad; Student-t dof): noisy,
+#: so that the first filters are cautious and the search comes down to the data.
+START = ekf.NoiseParameters(0.05, 0.02, 0.005, 0.5, 0.05, nu=4.0)
+#: The smallest Student-t dof searched: below it the likelihood of a heavy-tailed reading
+#: model with a vanishing scale grows without bound.
+NU_MIN = 3.0
+#: Odometry clock offsets searched (s): the motion stamped ``s`` happened at ``s + delay``.
+DELAYS = tuple(round(0.05 * k, 2) for k in range(9))
+#: Range scales searched for range-only sensors (reading = scale × range).
+SCALES = tuple(round(0.9 + 0.01 * k, 2) for k in range(31))
+#: Consecutive readings of one landmark at most this far apart (s) form a whiteness pair.
+PAIR_GAP = 1.0
+#: Rounds of the whiteness stage.
+WHITENING_PASSES = 3
+#: At most this many rounds of coordinate ascent per likelihood fit; it stops earlier when the
+#: step falls below :data:`TOLERANCE` (a factor of 1.02).
+ITERATIONS = 40
+TOLERANCE = float(np.log(1.02))
+#: The log-scale step of the first round (×2 per move); it halves when no move gains.
+_STEP = float(np.log(2.0))
+
+Progress = Callable[[int, int], None]
+Runner = Callable[..., ekf.Trace]
+
+
+class Recording(NamedTuple):
+    """A run's raw streams, before a clock offset or a range scale is applied.
+
+    Odometry: ``odometry_t`` (n,) s, velocities ``v`` (m/s) and ``w`` (rad/s), each held until
+    the next record; readings at ``reading_t`` (M,) s: ``z`` (M, 2) range-bearing or (M,)
+    ranges; ``signature`` (M,) landmark labels or None; ``end`` the last filter time (s).
+    """
+
+    odometry_t: FloatArray
+    v: FloatArray
+    w: FloatArray
+    reading_t: FloatArray
+    z: FloatArray
+    signature: IntArray | None
+    end: float
+
+    def log(self, delay: float = 0.0, scale: float = 1.0) -> ekf.Log:
+        """The filter's :class:`relmap.ekf.Log`, odometry stamps moved by ``delay`` (s) and
+        ranges divided by ``scale``; odometry moved past ``end`` is dropped."""
+        z = np.array(self.z, dtype=np.float64)
+        if z.ndim == 1:
+            z = z / scale
+        else:
+            z[:, 0] /= scale
+        t = np.asarray(self.odometry_t, dtype=np.float64) + delay
+        return ekf.Log.from_velocities(
+            t, self.v, self.w, self.reading_t, z, self.signature, end=self.end
+        )
+
+
+class Calibrated(NamedTuple):
+    """What :func:`calibrate` found."""
+
+    #: The filter's noise, whitening included: pass it to :func:`relmap.ekf.run`.
+    parameters: ekf.NoiseParameters
+    #: Odometry clock offset (s): build the log with ``recording.log(delay, scale)``.
+    delay: float
+    #: Range scale (1 for range-bearing sensors).
+    scale: float
+    #: The reading σ factor of the whiteness stage (√ of the covariance factor).
+    inflation: float
+    #: Lag-one correlation of consecutive range innovations, before whitening and after.
+    correlation: tuple[float, float]
+    #: Log-likelihood of the innovations at the stage-1/2 parameters (before whitening).
+    loglik: float
+    #: The final filter's trace (readings kept: innovations, S, statuses).
+    trace: ekf.Trace
+
+    def as_dict(self) -> dict[str, object]:
+        """JSON-ready."""
+        c0, c1 = self.correlation
+        return {
+            **self.parameters.as_dict(),
+            "delay": self.delay,
+            "range_scale": self.scale,
+            "inflation": self.inflation,
+            "correlation_before": c0 if np.isfinite(c0) else None,
+            "correlation_after": c1 if np.isfinite(c1) else None,
+            "loglik": self.loglik,
+        }
+
+
+def innovation_correlation(trace: ekf.Trace, t: ArrayLike, *, gap: float = PAIR_GAP) -> float:
+    """Lag-one correlation of the normalized range innovations ``y_r/√S_rr`` of consecutive
+    used readings of one landmark at most ``gap`` s apart (one filter's trace; ``t`` (M,) the
+    readings' times). Normalized innovations are clipped to ±3 robust σ (1.4826·MAD), so a few
+    wild readings do not decide it. NaN with fewer than 10 pairs."""
+    y, S = np.asarray(trace.y), np.asarray(trace.S)
+    yr, sr = (y, S) if y.ndim == 1 else (y[:, 0], S[:, 0, 0])
+    idx = np.flatnonzero(np.asarray(trace.status) == ekf.Status.USED)
+    if len(idx) < 2:
+        return float("nan")
+    tt, lm = np.asarray(t, dtype=np.float64)[idx], np.asarray(trace.landmark)[idx]
+    u = yr[idx] / np.sqrt(sr[idx])
+    order = np.lexsort((tt, lm))  # by landmark, then time
+    same = (lm[order][1:] == lm[order][:-1]) & (np.diff(tt[order]) <= gap)
+    if same.sum() < 10:
+        return float("nan")
+    s = 1.4826 * np.median(np.abs(u - np.median(u)))
+    c = np.clip(u[order] / s, -3.0, 3.0)
+    a, b = c[:-1][same], c[1:][same]
+    a, b = a - a.mean(), b - b.mean()
+    return float((a * b).mean() / np.sqrt((a * a).mean() * (b * b).mean()))
+
+
+def loglik(trace: ekf.Trace, nu: ArrayLike) -> FloatArray:
+    """Log-likelihood (*batch) of every paired reading's innovation, used or gated: Student-t
+    with dof ``nu`` (*batch; inf: Gaussian) and scale ``S`` (the trace must keep its
+    readings)."""
+    y, S = np.asarray(trace.y), np.asarray(trace.S)
+    if y.ndim == S.ndim:  # range-only: (..., M) and (..., M)
+        y, S = y[..., None], S[..., None, None]
+    d = y.shape[-1]
+    status = np.asarray(trace.status)
+    paired = (status == ekf.Status.USED) | (status == ekf.Status.GATED)
+    y = np.where(paired[..., None], y, 0.0)
+    S = np.where(paired[..., None, None], S, np.eye(d))
+    sign, logdet = np.linalg.slogdet(S)
+    d2 = np.einsum("...i,...i->...", y, np.linalg.solve(S, y[..., None])[..., 0])
+    v = np.asarray(nu, dtype=np.float64)[..., None]
+    gauss = -0.5 * (d2 + d * np.log(2 * np.pi))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        vv = np.where(np.isinf(v), 1.0, v)
+        student = (gammaln((vv + d) / 2) - gammaln(vv / 2) - 0.5 * d * np.log(vv * np.pi)
+                   - 0.5 * (vv + d) * np.log1p(d2 / vv))  # fmt: skip
+    each = np.where(np.isinf(v), gauss, student) - 0.5 * logdet
+    ok = paired & (sign > 0) & np.isfinite(each)
+    return np.where(ok, each, 0.0).sum(axis=-1) - 1e3 * (paired & ~ok).sum(axis=-1)
+
+
+def _free(sensor: ekf.SensorKind) -> tuple[str, ...]:
+    free = ("k_s", "k_theta", "k_theta_s", "sigma_r", "nu")
+    return free + ("sigma_b",) if sensor is ekf.SensorKind.RANGE_BEARING else free
+
+
+def _moves(p: ekf.NoiseParameters, free: tuple[str, ...], step: float) -> ekf.NoiseParameters:
+    """A batch: ``p`` itself, then each free field times ``exp(∓step)``."""
+    base = {k: float(v) for k, v in p._asdict().items()}
+    cols = {k: [v] for k, v in base.items()}
+    for name in free:
+        for sign in (-1.0, 1.0):
+            for k, v in base.items():
+                cols[k].append(v * float(np.exp(sign * step)) if k == name else v)
+    return ekf.NoiseParameters(**{k: np.array(v) for k, v in cols.items()})
+
+
+def _fit(
+    log: ekf.Log, p: ekf.NoiseParameters, free: tuple[str, ...], run: Runner
+) -> tuple[ekf.NoiseParameters, float]:
+    """Batched coordinate ascent of the innovations' log-likelihood, from ``p``."""
+    step, best = _STEP, float(run(log, p).loglik)
+    for _ in range(ITERATIONS):
+        if step < TOLERANCE:
+            break
+        batch = _moves(p, free, step)
+        ll = np.asarray(run(log, batch).loglik, dtype=np.float64)
+        ll = np.where(np.isfinite(ll) & (np.asarray(batch.nu) >= NU_MIN), ll, -np.inf)
+        moved = ll[1:].reshape(len(free), 2)
+        # every field to its better move where that gains; keep the best of that and the best move
+        combined = p._asdict()
+        for j, name in enumerate(free):
+            if moved[j].max() > best:
+                combined[name] = float(np.asarray(getattr(batch, name))[1 + 2 * j + moved[j].argmax()])
+        both = ekf.NoiseParameters(**combined)
+        l_both = float(run(log, both).loglik)
+        i = int(ll.argmax())
+        if max(l_both, ll[i]) <= best + 1e-6:
+            step /= 2
+            continue
+        if l_both >= ll[i]:
+            p, best = both, l_both
+        else:
+            p, best = ekf.NoiseParameters(*(float(np.asarray(v)[i]) for v in batch)), float(ll[i])
+    return p, best
+
+
+def _clock(
+    recording: Recording, p: ekf.NoiseParameters, run: Runner, sensor: ekf.SensorKind
+) -> tuple[float, float]:
+    """The maximum-likelihood odometry delay over :data:`DELAYS` (and, for range-only sensors,
+    range scale over :data:`SCALES`) at the parameters ``p``."""
+    ll = [float(run(recording.log(d), p).loglik) for d in DELAYS]
+    delay = DELAYS[int(np.nanargmax(ll))]
+    scale = 1.0
+    if sensor is ekf.SensorKind.RANGE_ONLY:
+        ll = [float(run(recording.log(delay, s), p).loglik) for s in SCALES]
+        scale = SCALES[int(np.nanargmax(ll))]
+    return delay, scale
+
+
+def calibrate(
+    recording: Recording,
+    landmarks: ArrayLike,
+    *,
+    start: Callable[[float], AT],
+    sensor: ekf.SensorKind | str = ekf.SensorKind.RANGE_BEARING,
+    association: ekf.Association | str = ekf.Association.SIGNATURES,
+    landmark_signatures: ArrayLike | None = None,
+    gate: float = 0.99,
+    progress: Progress | None = None,
+) -> Calibrated:
+    """The noise of ``recording``'s filter from its own innovations (module docstring).
+
+    ``start(t0)`` gives the filter's start AT at the log's first time ``t0`` (which moves with
+    the clock offset). ``association``, ``gate`` and ``landmark_signatures`` as in
+    :func:`relmap.ekf.run`: the calibration filters with the association it is for.
+    """
+    kind = ekf.SensorKind(sensor)
+    lm = np.asarray(landmarks, dtype=np.float64)
+    if lm.ndim != 2 or lm.shape[1] != 2 or not len(lm):
+        raise ShapeError(f"landmarks must have shape (L, 2) with L ≥ 1; got {lm.shape}")
+    if not len(recording.reading_t):
+        raise ParameterError("cannot calibrate from innovations: the run has no readings")
+
+    def run(log: ekf.Log, p: ekf.NoiseParameters) -> ekf.Trace:
+        trace = ekf.run(
+            log, lm, p, start=start(float(log.t[0])), keep="summary", association=association,
+            landmark_signatures=landmark_signatures, gate=gate, sensor=kind,
+        )  # fmt: skip
+        return trace._replace(loglik=loglik(trace, p.nu))
+
+    free = _free(kind)
+    tick = progress or (lambda k, n: None)
+    tick(0, 4)
+    p, _ = _fit(recording.log(), START, free, run)
+    tick(1, 4)
+    delay, scale = _clock(recording, p, run, kind)
+    log = recording.log(delay, scale)
+    p, fitted = _fit(log, p, free, run)
+    tick(2, 4)
+    t = log.t[log.reading_index]
+    factor, rho0 = 1.0, float("nan")
+    for k in range(WHITENING_PASSES):
+        q = p._replace(sigma_r=p.sigma_r * factor, sigma_b=p.sigma_b * factor)
+        rho = innovation_correlation(run(log, q), t)
+        rho0 = rho if k == 0 else rho0
+        if not np.isfinite(rho):
+            break
+        r = min(max(rho, 0.0), 0.99)
+        factor = float(np.sqrt((1 + r) / (1 - r)))
+    tick(3, 4)
+    q = p._replace(sigma_r=p.sigma_r * factor, sigma_b=p.sigma_b * factor)
+    trace = run(log, q)
+    tick(4, 4)
+    return Calibrated(q, delay, scale, factor, (rho0, innovation_correlation(trace, t)), fitted, trace)
