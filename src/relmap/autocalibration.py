@@ -32,7 +32,7 @@ never read. Three stages, each a standard tool of filter tuning:
 
 Every constant of the method is fixed here, once, for all runs (:data:`START`, :data:`DELAYS`,
 :data:`SCALES`, :data:`PAIR_GAP`, :data:`WHITENING_PASSES`, :data:`ITERATIONS`,
-:data:`TOLERANCE`).
+:data:`TOLERANCE`, :data:`COARSE`).
 """
 
 from __future__ import annotations
@@ -50,6 +50,7 @@ from relmap.errors import ParameterError, ShapeError
 from relmap.typing import ArrayLike, FloatArray, IntArray
 
 __all__ = [
+    "COARSE",
     "DELAYS",
     "ITERATIONS",
     "NU_MIN",
@@ -83,6 +84,8 @@ WHITENING_PASSES = 3
 #: step falls below :data:`TOLERANCE` (a factor of 1.02).
 ITERATIONS = 40
 TOLERANCE = float(np.log(1.02))
+#: The first fit, before the clock is searched, stops at a coarser step (a factor of 1.1).
+COARSE = float(np.log(1.1))
 #: The log-scale step of the first round (×2 per move); it halves when no move gains.
 _STEP = float(np.log(2.0))
 
@@ -217,12 +220,13 @@ def _moves(p: ekf.NoiseParameters, free: tuple[str, ...], step: float) -> ekf.No
 
 
 def _fit(
-    log: ekf.Log, p: ekf.NoiseParameters, free: tuple[str, ...], run: Runner
+    log: ekf.Log, p: ekf.NoiseParameters, free: tuple[str, ...], run: Runner, tolerance: float
 ) -> tuple[ekf.NoiseParameters, float]:
-    """Batched coordinate ascent of the innovations' log-likelihood, from ``p``."""
+    """Batched coordinate ascent of the innovations' log-likelihood, from ``p``, until the
+    log-scale step is below ``tolerance``."""
     step, best = _STEP, float(run(log, p).loglik)
     for _ in range(ITERATIONS):
-        if step < TOLERANCE:
+        if step < tolerance:
             break
         batch = _moves(p, free, step)
         ll = np.asarray(run(log, batch).loglik, dtype=np.float64)
@@ -294,11 +298,11 @@ def calibrate(
     free = _free(kind)
     tick = progress or (lambda k, n: None)
     tick(0, 4)
-    p, _ = _fit(recording.log(), START, free, run)
+    p, _ = _fit(recording.log(), START, free, run, COARSE)
     tick(1, 4)
     delay, scale = _clock(recording, p, run, kind)
     log = recording.log(delay, scale)
-    p, fitted = _fit(log, p, free, run)
+    p, fitted = _fit(log, p, free, run, TOLERANCE)
     tick(2, 4)
     t = log.t[log.reading_index]
     factor, rho0 = 1.0, float("nan")
