@@ -254,8 +254,11 @@ def predict(
         if model.jacobians is not None:
             F, G = model.jacobians(x, uu)
         else:
-            F = numerical_jacobian(lambda xx: model.f(xx, uu), x, chart_in=chart, chart_out=chart)
-            G = numerical_jacobian(lambda v: model.f(x, v), uu, chart_out=chart)
+            # the helper perturbs along a new axis before the point's: the other input follows
+            F = numerical_jacobian(
+                lambda xx: model.f(xx, uu[..., None, :]), x, chart_in=chart, chart_out=chart
+            )
+            G = numerical_jacobian(lambda v: model.f(x[..., None, :], v), uu, chart_out=chart)
         Qu = np.asarray(model.noise(uu), dtype=np.float64)
         Q = G @ Qu @ np.swapaxes(G, -1, -2)
         return _like(state, x_new, _predict_covariance(P, np.asarray(F), Q))
