@@ -277,7 +277,9 @@ def main() -> None:
     pb = params(B)
 
     mrclam = None
-    folder = os.environ.get("RELMAP_DATA", str(Path(__file__).resolve().parents[2] / "shared" / "data"))
+    folder = os.environ.get(
+        "RELMAP_DATA", str(Path(__file__).resolve().parents[2] / "shared" / "data")
+    )
     if Path(folder, "landmarks", "mrclam6").is_dir():
         from relmap.io import read_mrclam
         from relmap.localize import calibrate_mrclam

@@ -152,9 +152,12 @@ def test_a_whole_log_through_ekf_run_equals_filterpy(associate):
     steps = simulate(rng, 60)
     index = np.concatenate([np.full(len(ids), k + 1) for k, (_, _, ids, _) in enumerate(steps)])
     log = ekf.Log(
-        np.arange(len(steps) + 1.0), np.array([u for u, _, _, _ in steps]), index.astype(np.int64),
-        np.concatenate([z for _, z, _, _ in steps]), np.concatenate([ids for _, _, ids, _ in steps]),
-    )  # fmt: skip
+        np.arange(len(steps) + 1.0),
+        np.array([u for u, _, _, _ in steps]),
+        index.astype(np.int64),
+        np.concatenate([z for _, z, _, _ in steps]),
+        np.concatenate([ids for _, _, ids, _ in steps]),
+    )
     p = ekf.NoiseParameters.of(NOISE, SENSOR)
     tr = ekf.run(log, LANDMARKS, p, start=start, association=associate, gate=0.9999)
     assert (tr.status == ekf.Status.USED).all()

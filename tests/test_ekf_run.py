@@ -95,8 +95,11 @@ def test_generic_steps_are_the_textbook_equations(analytic):
 def test_a_singular_innovation_covariance_is_a_0_over_0_not_nan():
     """No noise and no uncertainty: S = 0 is not positive definite; the state is unchanged."""
     belief = ekf.Belief(np.zeros((2, 2)), np.stack([np.zeros((2, 2)), np.eye(2)]))
-    sensor = ekf.Sensor(lambda x: x[..., :1], [[0.0]], lambda x: np.broadcast_to([[1.0, 0.0]],
-                                                                                 (*x.shape[:-1], 1, 2)))  # fmt: skip
+
+    def H(x):
+        return np.broadcast_to([[1.0, 0.0]], (*x.shape[:-1], 1, 2))
+
+    sensor = ekf.Sensor(lambda x: x[..., :1], [[0.0]], H)
     c = ekf.correct(belief, [[1.0], [1.0]], sensor)
     assert list(c.ok) == [False, True] and np.isnan(c.nis[0])
     np.testing.assert_array_equal(c.state.x[0], [0.0, 0.0])
@@ -108,7 +111,9 @@ def test_pose_correction_is_the_paper_merge_for_a_batch():
     rng = np.random.default_rng(2)
     A = rng.normal(size=(4, 3, 3)) * 0.1
     prior = rm.AT(rng.normal(size=(4, 3)), A @ np.swapaxes(A, -1, -2) + 1e-3 * np.eye(3))
-    reading = rm.AT(se2.plus(prior.mean, rng.normal(size=(4, 3)) * 0.05), np.diag([0.01, 0.02, 0.003]))
+    reading = rm.AT(
+        se2.plus(prior.mean, rng.normal(size=(4, 3)) * 0.05), np.diag([0.01, 0.02, 0.003])
+    )
     up = ekf.correct_pose(prior, reading, gate=None)
     merged = rm.merge(prior, reading)
     np.testing.assert_allclose(up.state.mean, merged.mean, atol=1e-12)
@@ -128,8 +133,8 @@ def test_odometry_prediction_uses_the_numeric_jacobians_of_the_midpoint_step():
         def f(x, uu):
             return se2.compose(x, increment(uu))
 
-        F = numerical_jacobian(lambda x: f(x, u), state.mean, chart_in=SE2, chart_out=SE2)
-        G = numerical_jacobian(lambda uu: f(state.mean, uu), u, chart_out=SE2)
+        F = numerical_jacobian(lambda x, u=u: f(x, u), state.mean, chart_in=SE2, chart_out=SE2)
+        G = numerical_jacobian(lambda uu, x=state.mean: f(x, uu), u, chart_out=SE2)
         P = F @ state.cov @ F.T + G @ NOISE.covariance(u) @ G.T
         np.testing.assert_allclose(new.mean, f(state.mean, u), atol=1e-13)
         np.testing.assert_allclose(new.cov, P, rtol=1e-6, atol=1e-10)
@@ -153,7 +158,7 @@ def test_biases_are_subtracted_and_the_mount_is_used():
     parameters every innovation is zero and the state does not move."""
     mounted = RangeBearingSensor(0.1, 0.02, mount=[0.3, -0.1, 0.2])
     state = rm.AT([1.0, 2.0, 0.4], np.diag([0.01, 0.01, 0.001]))
-    z = mounted.predict(state.mean, LANDMARKS) + [0.25, -0.03]
+    z = [*mounted.predict(state.mean, LANDMARKS), 0.25, -0.03]
     log = ekf.Log(np.array([0.0]), np.zeros((0, 2)), np.zeros(6, np.int64), z, np.arange(6))
     p = params_of(sensor=mounted, b_r=0.25, b_b=-0.03)
     tr = ekf.run(log, LANDMARKS, p, start=state)
@@ -271,11 +276,15 @@ def test_loglik_is_the_gaussian_or_student_t_density_of_the_stacked_innovation()
     S = Hs @ state.cov @ Hs.T + R
     gauss = ekf.run(log, LANDMARKS, params_of(), start=state, gate=0.999999)
     assert (gauss.status == ekf.Status.USED).all()
-    assert gauss.loglik == pytest.approx(stats.multivariate_normal(np.zeros(6), S).logpdf(y), rel=1e-10)
+    assert gauss.loglik == pytest.approx(
+        stats.multivariate_normal(np.zeros(6), S).logpdf(y), rel=1e-10
+    )
     assert gauss.nis == pytest.approx(y @ np.linalg.solve(S, y), rel=1e-10) and gauss.dof == 6
     nu = 3.5
     robust = ekf.run(log, LANDMARKS, params_of(nu=nu), start=state, gate=0.999999)
-    assert robust.loglik == pytest.approx(stats.multivariate_t(np.zeros(6), S, df=nu).logpdf(y), rel=1e-10)
+    assert robust.loglik == pytest.approx(
+        stats.multivariate_t(np.zeros(6), S, df=nu).logpdf(y), rel=1e-10
+    )
     # the update: each reading's R divided by its weight (ν + 2)/(ν + d²)
     d2 = gauss.mahalanobis2
     w = np.repeat((nu + 2) / (nu + d2), 2)
@@ -360,7 +369,9 @@ def test_a_0_over_0_reading_in_a_run_is_counted_alike_alone_and_in_a_batch():
 def test_bad_logs_and_parameters():
     start = rm.AT([0.0, 0.0, 0.0], np.diag([0.01, 0.01, 0.001]))
     p = params_of()
-    good = ekf.Log(np.arange(3.0), np.zeros((2, 2)), np.array([1]), np.array([[1.0, 0.1]]), np.array([0]))
+    good = ekf.Log(
+        np.arange(3.0), np.zeros((2, 2)), np.array([1]), np.array([[1.0, 0.1]]), np.array([0])
+    )
     with pytest.raises(ParameterError, match="empty"):
         ekf.run(good._replace(t=np.zeros(0)), LANDMARKS, p, start=start)
     with pytest.raises(ParameterError, match="strictly increasing"):

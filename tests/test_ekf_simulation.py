@@ -134,10 +134,15 @@ def test_anees_of_200_runs_of_ekf_run_within_its_chi2_interval():
         truth = [PRIOR.sample(1, rng)[0]]
         index, zs, ids = [], [], []
         for k in range(1, T + 1):
-            truth.append(se2.compose(truth[-1], increment(STEP + rng.multivariate_normal([0, 0], Su))))
+            truth.append(
+                se2.compose(truth[-1], increment(STEP + rng.multivariate_normal([0, 0], Su)))
+            )
             z = SENSOR.predict(truth[-1], landmarks)
             seen = np.flatnonzero(SENSOR.in_view(z))
-            zs.append(z[seen] + rng.normal(size=(len(seen), 2)) * [SENSOR.sigma_range, SENSOR.sigma_bearing])
+            zs.append(
+                z[seen]
+                + rng.normal(size=(len(seen), 2)) * [SENSOR.sigma_range, SENSOR.sigma_bearing]
+            )
             index += [k] * len(seen)
             ids.append(seen)
         log = ekf.Log(np.arange(T + 1.0), np.tile(STEP, (T, 1)), np.array(index, np.int64),

@@ -251,7 +251,9 @@ def _odometry_params(k_s: float, k_theta: float, k_theta_s: float) -> FloatArray
 
 
 @functools.lru_cache(maxsize=64)
-def _sensor_params(sigma_r: float, sigma_b: float, mount: tuple[float, ...], nu: float) -> FloatArray:
+def _sensor_params(
+    sigma_r: float, sigma_b: float, mount: tuple[float, ...], nu: float
+) -> FloatArray:
     """The core's parameter row (1, 11) of a sensor (read-only, cached)."""
     p = np.zeros((1, _N_PARAMS))
     p[0, 3:5] = (sigma_r, sigma_b)
@@ -346,7 +348,9 @@ def _correct_arrays(state, x, P, y, H, R) -> Correction:
     n, d = x.shape[-1], y.shape[-1]
     if not (np.isfinite(y).all() and np.isfinite(H).all() and np.isfinite(R).all()):
         raise NonFiniteError("the innovation, H and R must be finite")
-    batch = np.broadcast_shapes(x.shape[:-1], P.shape[:-2], y.shape[:-1], H.shape[:-2], R.shape[:-2])
+    batch = np.broadcast_shapes(
+        x.shape[:-1], P.shape[:-2], y.shape[:-1], H.shape[:-2], R.shape[:-2]
+    )
     xo, Po, S, nis, _, ok = _core.ekf_correct(
         _flat(x, batch, (n,)), _flat(P, batch, (n, n)), _flat(y, batch, (d,)),
         _flat(H, batch, (d, n)), _flat(R, batch, (d, d)),
@@ -486,7 +490,9 @@ def _gates(gate: float, d: int, k: int) -> tuple[float, FloatArray]:
     return float(gaussian.confidence_k2(gate, d)), joint
 
 
-def _map(landmarks: ArrayLike, landmark_signatures: ArrayLike | None) -> tuple[FloatArray, IntArray]:
+def _map(
+    landmarks: ArrayLike, landmark_signatures: ArrayLike | None
+) -> tuple[FloatArray, IntArray]:
     lm = np.ascontiguousarray(landmarks, dtype=np.float64)
     if lm.ndim != 2 or lm.shape[1] != 2:
         raise ShapeError(f"landmarks must have shape (L, 2); got {lm.shape}")
@@ -533,7 +539,9 @@ def correct_landmarks(
     if range_only:
         z = z[..., None]
     if z.ndim < 2 or z.shape[-1] != d:
-        raise ShapeError(f"readings must have shape (..., m{', 2' if d == 2 else ''}); got {z.shape}")
+        raise ShapeError(
+            f"readings must have shape (..., m{', 2' if d == 2 else ''}); got {z.shape}"
+        )
     m = z.shape[-2]
     lm, lsig = _map(landmarks, landmark_signatures)
     a, method, cost = _association(associate, pairing, signatures is not None)
@@ -743,10 +751,12 @@ def run(
         raise ShapeError(f"start must be one pose or a batch {batch}; got {start.batch_shape}")
     per_event = int(np.bincount(index).max()) if M and a is Association.JCBB else 0
     gate2, joint = _gates(gate, d, per_event)
+    x0 = _flat(start.mean, batch, (3,)).reshape(B, 3)
+    P0 = _flat(start.cov, batch, (3, 3)).reshape(B, 3, 3)
+    keep_code = {"summary": 0, "events": 1, "all": 2}[kp.value]
     r = _core.ekf_run(
-        _flat(start.mean, batch, (3,)).reshape(B, 3), _flat(start.cov, batch, (3, 3)).reshape(B, 3, 3),
-        motion, index, z, sig, lm, lsig, p, 1 if d == 1 else 0, _NOISE_MODELS[noise_model],
-        method, cost, use_sig, gate2, joint, _JCBB_NODES, {"summary": 0, "events": 1, "all": 2}[kp.value],
+        x0, P0, motion, index, z, sig, lm, lsig, p, 1 if d == 1 else 0,
+        _NOISE_MODELS[noise_model], method, cost, use_sig, gate2, joint, _JCBB_NODES, keep_code,
         readings,
     )  # fmt: skip
     bad = r["overflow"]
@@ -762,9 +772,11 @@ def run(
     y, S = r["y"].reshape(*batch, Mo, d), r["S"].reshape(*batch, Mo, d, d)
     if d == 1:
         y, S = y[..., 0], S[..., 0, 0]
+    T = len(times)
     return Trace(
-        times, r["mean"].reshape(*batch, len(times), 3), r["cov"].reshape(*batch, len(times), 3, 3),
+        times, r["mean"].reshape(*batch, T, 3), r["cov"].reshape(*batch, T, 3, 3),
         y, S, r["d2"].reshape(*batch, Mo), r["status"].reshape(*batch, Mo),
         r["landmark"].reshape(*batch, Mo), r["loglik"].reshape(batch), r["nis"].reshape(batch),
-        r["dof"].reshape(batch), r["updates"].reshape(batch), r["counts"].reshape(*batch, len(Status)),
+        r["dof"].reshape(batch), r["updates"].reshape(batch),
+        r["counts"].reshape(*batch, len(Status)),
     )  # fmt: skip
