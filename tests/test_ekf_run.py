@@ -158,7 +158,7 @@ def test_biases_are_subtracted_and_the_mount_is_used():
     parameters every innovation is zero and the state does not move."""
     mounted = RangeBearingSensor(0.1, 0.02, mount=[0.3, -0.1, 0.2])
     state = rm.AT([1.0, 2.0, 0.4], np.diag([0.01, 0.01, 0.001]))
-    z = [*mounted.predict(state.mean, LANDMARKS), 0.25, -0.03]
+    z = mounted.predict(state.mean, LANDMARKS) + np.array([0.25, -0.03])
     log = ekf.Log(np.array([0.0]), np.zeros((0, 2)), np.zeros(6, np.int64), z, np.arange(6))
     p = params_of(sensor=mounted, b_r=0.25, b_b=-0.03)
     tr = ekf.run(log, LANDMARKS, p, start=state)
