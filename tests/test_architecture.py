@@ -46,8 +46,14 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
     (
         "applications",
         (
-            "cli", "demo", "demo_report", "validate", "localize", "localize_plot",
-            "cli_trajectory", "__main__",
+            "cli",
+            "demo",
+            "demo_report",
+            "validate",
+            "localize",
+            "localize_plot",
+            "cli_trajectory",
+            "__main__",
         ),
     ),
 ]

@@ -181,8 +181,10 @@ def test_consistency_over_many_runs():
 
 def test_bad_input():
     z = readings(PRIOR.mean, [0])
-    with pytest.raises(ShapeError):
-        ekf.correct_landmarks(PRIOR, z, SENSOR, np.zeros((0, 2)))
+    # an empty map: every reading UNKNOWN (counted), the state unchanged
+    empty = ekf.correct_landmarks(PRIOR, z, SENSOR, np.zeros((0, 2)))
+    assert list(empty.status) == [ekf.Status.UNKNOWN]
+    np.testing.assert_array_equal(empty.state.mean, PRIOR.mean)
     with pytest.raises(ShapeError):
         ekf.correct_landmarks(PRIOR, z[0], SENSOR, LANDMARKS)
     with pytest.raises(ParameterError):

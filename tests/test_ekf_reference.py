@@ -45,7 +45,9 @@ def reference(state, readings, sensor, landmarks, *, associate="mahalanobis",
     if signatures is not None:
         allowed &= np.broadcast_to(signatures, (*batch, m))[..., :, None] == landmark_signatures
     cost = np.where(allowed, cost, np.inf)
-    status = np.where(~present, ekf.Status.ABSENT, np.where(~usable, ekf.Status.INVALID, ekf.Status.UNKNOWN))
+    status = np.where(
+        ~present, ekf.Status.ABSENT, np.where(~usable, ekf.Status.INVALID, ekf.Status.UNKNOWN)
+    )
     candidate = np.isfinite(cost).any(axis=-1) & usable
     gate2 = float(gaussian.confidence_k2(gate, 2))
     if pairing == "per_landmark":
@@ -59,7 +61,9 @@ def reference(state, readings, sensor, landmarks, *, associate="mahalanobis",
         used_r, gated_r = served.any(axis=-1), refused.any(axis=-1) & ~served.any(axis=-1)
         landmark = np.where(used_r, served.argmax(-1), np.where(gated_r, refused.argmax(-1), -1))
         status = np.where(
-            used_r, ekf.Status.USED, np.where(gated_r, ekf.Status.GATED, np.where(candidate, ekf.Status.LOST, status))
+            used_r,
+            ekf.Status.USED,
+            np.where(gated_r, ekf.Status.GATED, np.where(candidate, ekf.Status.LOST, status)),
         )
         zr = np.take_along_axis(z, best[..., None], axis=-2)
         new = _stacked(state, zr, h, H, R, use_l)
@@ -84,7 +88,9 @@ def reference(state, readings, sensor, landmarks, *, associate="mahalanobis",
     pair_d2 = np.take_along_axis(d2, np.maximum(landmark, 0)[..., None], axis=-1)[..., 0]
     used = paired & (pair_d2 <= gate2)
     status = np.where(
-        used, ekf.Status.USED, np.where(paired, ekf.Status.GATED, np.where(candidate, ekf.Status.LOST, status))
+        used,
+        ekf.Status.USED,
+        np.where(paired, ekf.Status.GATED, np.where(candidate, ekf.Status.LOST, status)),
     )
     nearest = np.where(np.isfinite(cost), d2, np.inf).min(axis=-1)
     lk = np.maximum(landmark, 0)

@@ -207,8 +207,8 @@ def test_log_from_velocities_merges_odometry_and_reading_times():
     np.testing.assert_array_equal(log.reading_index, [1, 2, 2, 4])
     np.testing.assert_array_equal(log.signature, [1, 2, 3, 4])
     np.testing.assert_array_equal(log.z[:, 0], [2, 3, 4, 5])
-    np.testing.assert_allclose(increments_from_velocities(log.t, v[[0, 0, 1, 2, 2]],
-                                                          w[[0, 0, 1, 2, 2]]), log.motion)  # fmt: skip
+    held = [0, 0, 1, 2, 2]  # the record in force at each time
+    np.testing.assert_allclose(increments_from_velocities(log.t, v[held], w[held]), log.motion)
 
 
 def test_filter_without_readings_is_dead_reckoning():
@@ -437,7 +437,9 @@ def test_euclidean_association_warns_when_it_goes_wrong(mrclam, signature_runs):
     """Eq. 22 on robot 3 (measured: RMSE 0.95 m, ANEES 556): the run says so."""
     from relmap.localize import localize_mrclam
 
-    run = localize_mrclam(mrclam, 3, associate="euclidean", calibration=signature_runs[3].calibration)
+    run = localize_mrclam(
+        mrclam, 3, associate="euclidean", calibration=signature_runs[3].calibration
+    )
     assert any("inconsistent" in w for w in run.warnings)
     assert run.summary()["warnings"] == run.warnings
     assert not [w for w in signature_runs[1].warnings if "dead reckoning" in w]

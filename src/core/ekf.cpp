@@ -387,14 +387,27 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
                       const int64_t* signature, const Map& map, const double* p,
                       const Options& opt, ReadingOut out, Totals& totals) {
     const int d = opt.sensor == RANGE_ONLY ? 1 : 2;
-    std::vector<int8_t> status(m);
-    std::vector<int32_t> landmark(m, -1);
-    std::vector<double> nearest(m, INF), zc(m * d);
-    std::vector<Predicted> pred(map.L);
-    std::vector<char> done(map.L, 0);
-    std::vector<Pair> pairs;
-    std::vector<int64_t> row_start(m + 1, 0);
-    std::vector<char> any_candidate(m, 0);
+    // scratch of this thread, reused between calls (no allocation per time stamp)
+    thread_local std::vector<int8_t> status;
+    thread_local std::vector<int32_t> landmark;
+    thread_local std::vector<double> nearest, zc, pair_d2;
+    thread_local std::vector<Predicted> pred;
+    thread_local std::vector<char> done;
+    thread_local std::vector<Pair> pairs;
+    thread_local std::vector<int64_t> row_start;
+    thread_local std::vector<const Pair*> chosen, update;
+    status.assign(m, 0);
+    landmark.assign(m, -1);
+    nearest.assign(m, INF);
+    zc.assign(m * d, 0.0);
+    pair_d2.assign(m, INF);
+    if (static_cast<int64_t>(pred.size()) < map.L) pred.resize(map.L);
+    done.assign(map.L, 0);
+    pairs.clear();
+    pairs.reserve(static_cast<size_t>(m) * std::max<int64_t>(map.L, 1));
+    row_start.assign(m + 1, 0);
+    chosen.assign(m, nullptr);
+    update.clear();
     for (int64_t i = 0; i < m; ++i) {
         const double* zi = z + i * d;
         bool usable = std::isfinite(zi[0]) && zi[0] > 0.0;
@@ -411,14 +424,11 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
             lo = range.first - map.sig_sorted.begin();
             hi = range.second - map.sig_sorted.begin();
         }
-        // candidates in increasing landmark row (the reference's order for ties)
-        std::vector<int64_t> cand;
-        for (int64_t k = lo; k < hi; ++k)
-            cand.push_back(opt.signatures ? map.sig_landmark[k] : k);
-        if (opt.signatures) std::sort(cand.begin(), cand.end());
-        if (cand.empty()) continue;
-        any_candidate[i] = 1;
-        for (int64_t l : cand) {
+        // candidates in increasing landmark row (the reference's order for ties; the map
+        // keeps each signature's landmarks in increasing row)
+        if (lo == hi) continue;
+        for (int64_t k = lo; k < hi; ++k) {
+            const int64_t l = opt.signatures ? map.sig_landmark[k] : k;
             if (!done[l]) {
                 predict_landmark(x, P, map.xy + 2 * l, p, opt, d, pred[l]);
                 done[l] = 1;
@@ -438,19 +448,19 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
         if (static_cast<int64_t>(pairs.size()) == row_start[i]) status[i] = DEGENERATE;
     }
     row_start[m] = static_cast<int64_t>(pairs.size());
-    std::vector<double> pair_d2(m, INF);
-    std::vector<const Pair*> chosen(m, nullptr);  // each reading's pair (used or gated)
-    std::vector<const Pair*> update;              // the pairs of the stacked update
+    // chosen: each reading's pair (used or gated); update: the pairs of the stacked update
     auto usable_with_pairs = [&](int64_t i) {
         return status[i] == UNKNOWN && row_start[i + 1] > row_start[i];
     };
     if (opt.method == GREEDY) {
         // Greedy one-to-one, cheapest pair first (ties: lower reading, then lower landmark).
         // When no two readings share their cheapest landmark, that is each reading's cheapest.
-        std::vector<const Pair*> best(m, nullptr);
+        thread_local std::vector<const Pair*> best;
+        thread_local std::vector<int64_t> owner;
+        best.assign(m, nullptr);
         for (const Pair& q : pairs)
             if (!best[q.i] || q.cost < best[q.i]->cost) best[q.i] = &q;
-        std::vector<int64_t> owner(map.L, -1);
+        owner.assign(map.L, -1);
         bool clash = false;
         for (int64_t i = 0; i < m && !clash; ++i)
             if (best[i]) {
@@ -460,21 +470,32 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
         if (!clash) {
             for (int64_t i = 0; i < m; ++i) chosen[i] = best[i];
         } else {
-            std::vector<const Pair*> order;
-            order.reserve(pairs.size());
-            for (const Pair& q : pairs)
-                if (std::isfinite(q.cost)) order.push_back(&q);
-            std::sort(order.begin(), order.end(), [](const Pair* a, const Pair* b) {
+            // The greedy run over the pairs sorted by (cost, reading, landmark). With the
+            // Mahalanobis cost the pairs inside the gate come first, so they are paired first
+            // on their own; then the pairs outside, of the readings and landmarks left.
+            thread_local std::vector<const Pair*> order;
+            thread_local std::vector<char> taken;
+            taken.assign(map.L, 0);
+            auto by_cost = [](const Pair* a, const Pair* b) {
                 if (a->cost != b->cost) return a->cost < b->cost;
                 if (a->i != b->i) return a->i < b->i;
                 return a->l < b->l;
-            });
-            std::vector<char> taken(map.L, 0);
-            for (const Pair* q : order)
-                if (!chosen[q->i] && !taken[q->l]) {
-                    chosen[q->i] = q;
-                    taken[q->l] = 1;
+            };
+            const bool split = opt.cost == MAHALANOBIS;
+            for (int pass = 0; pass < (split ? 2 : 1); ++pass) {
+                order.clear();
+                for (const Pair& q : pairs) {
+                    if (!std::isfinite(q.cost) || chosen[q.i] || taken[q.l]) continue;
+                    if (split && (pass == 0) != (q.d2 <= opt.gate2)) continue;
+                    order.push_back(&q);
                 }
+                std::sort(order.begin(), order.end(), by_cost);
+                for (const Pair* q : order)
+                    if (!chosen[q->i] && !taken[q->l]) {
+                        chosen[q->i] = q;
+                        taken[q->l] = 1;
+                    }
+            }
         }
         for (int64_t i = 0; i < m; ++i) {
             if (!usable_with_pairs(i)) continue;
@@ -747,30 +768,33 @@ void register_ekf(nb::module_& m) {
                 throw nb::value_error("present and signature must be (B, m)");
             check_params(params, B);
             const Map map = make_map(landmarks, landmark_sig);
-            auto xo = new_array({B, 3}), Po = new_array({B, 3, 3});
-            auto yo = new_array({B, mm, d}), So = new_array({B, mm, d, d}), d2 = new_array({B, mm});
-            auto st = new_array<int8_t>({B, mm});
-            auto lmo = new_array<int32_t>({B, mm});
-            std::copy(x.data(), x.data() + B * 3, xo.data());
-            std::copy(P.data(), P.data() + B * 9, Po.data());
-            std::vector<Totals> totals(B);
+            // two packed outputs (one NumPy array each costs more than the arithmetic here):
+            // floats per filter x (3), P (9), y (m d), S (m d d), d² (m), loglik, nis;
+            // integers per filter status (m), landmark (m), dof
+            const size_t F = 12 + mm * (d + d * d + 1) + 2, I = 2 * mm + 1;
+            auto fo = new_array({B, F});
+            auto io = new_array<int64_t>({B, I});
             for (size_t b = 0; b < B; ++b) {
-                ReadingOut out{yo.data() + b * mm * d, So.data() + b * mm * d * d,
-                               d2.data() + b * mm, st.data() + b * mm, lmo.data() + b * mm};
-                correct_readings(xo.data() + 3 * b, Po.data() + 9 * b, static_cast<int64_t>(mm),
-                                 z.data() + b * mm * d, present.data() + b * mm,
-                                 signature.data() + b * mm, map, params.data() + b * N_PARAMS,
-                                 opt, out, totals[b]);
+                double* f = fo.data() + b * F;
+                int64_t* iv = io.data() + b * I;
+                std::copy(x.data() + 3 * b, x.data() + 3 * b + 3, f);
+                std::copy(P.data() + 9 * b, P.data() + 9 * b + 9, f + 3);
+                thread_local std::vector<int8_t> st;
+                thread_local std::vector<int32_t> lmo;
+                st.assign(mm, 0);
+                lmo.assign(mm, -1);
+                ReadingOut out{f + 12, f + 12 + mm * d, f + 12 + mm * (d + d * d), st.data(),
+                               lmo.data()};
+                Totals totals;
+                correct_readings(f, f + 3, static_cast<int64_t>(mm), z.data() + b * mm * d,
+                                 present.data() + b * mm, signature.data() + b * mm, map,
+                                 params.data() + b * N_PARAMS, opt, out, totals);
+                f[F - 2] = totals.loglik;
+                f[F - 1] = totals.nis;
+                for (size_t i = 0; i < mm; ++i) iv[i] = st[i], iv[mm + i] = lmo[i];
+                iv[2 * mm] = totals.dof;
             }
-            nb::dict res = totals_dict(totals);
-            res["x"] = xo;
-            res["P"] = Po;
-            res["y"] = yo;
-            res["S"] = So;
-            res["d2"] = d2;
-            res["status"] = st;
-            res["landmark"] = lmo;
-            return res;
+            return nb::make_tuple(fo, io);
         },
         nb::arg("x"), nb::arg("P"), nb::arg("z"), nb::arg("present"), nb::arg("signature"),
         nb::arg("landmarks"), nb::arg("landmark_sig"), nb::arg("params"), nb::arg("sensor"),

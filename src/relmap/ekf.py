@@ -53,6 +53,8 @@ reweighted) and ν dof, otherwise the Gaussian ``N(0, S)``.
 from __future__ import annotations
 
 import enum
+import functools
+import math
 from collections.abc import Callable
 from typing import NamedTuple
 
@@ -231,6 +233,36 @@ def _predict_covariance(P: FloatArray, F: FloatArray, Q: FloatArray) -> FloatArr
     return out.reshape(*batch, n, n)
 
 
+@functools.lru_cache(maxsize=64)
+def _ones(B: int, m: int) -> np.ndarray:
+    """A read-only (B, m) uint8 array of ones ("every reading present"), cached."""
+    a = np.ones((B, m), np.uint8)
+    a.flags.writeable = False
+    return a
+
+
+@functools.lru_cache(maxsize=64)
+def _odometry_params(k_s: float, k_theta: float, k_theta_s: float) -> FloatArray:
+    """The core's parameter row (1, 11) of an odometry noise (read-only, cached)."""
+    p = np.zeros((1, _N_PARAMS))
+    p[0, :3] = (k_s, k_theta, k_theta_s)
+    p.flags.writeable = False
+    return p
+
+
+@functools.lru_cache(maxsize=64)
+def _sensor_params(
+    sigma_r: float, sigma_b: float, mount: tuple[float, ...], nu: float
+) -> FloatArray:
+    """The core's parameter row (1, 11) of a sensor (read-only, cached)."""
+    p = np.zeros((1, _N_PARAMS))
+    p[0, 3:5] = (sigma_r, sigma_b)
+    p[0, 7:10] = mount
+    p[0, 10] = nu
+    p.flags.writeable = False
+    return p
+
+
 def predict(
     state: State,
     u: ArrayLike,
@@ -254,8 +286,11 @@ def predict(
         if model.jacobians is not None:
             F, G = model.jacobians(x, uu)
         else:
-            F = numerical_jacobian(lambda xx: model.f(xx, uu), x, chart_in=chart, chart_out=chart)
-            G = numerical_jacobian(lambda v: model.f(x, v), uu, chart_out=chart)
+            # the helper perturbs along a new axis before the point's: the other input follows
+            F = numerical_jacobian(
+                lambda xx: model.f(xx, uu[..., None, :]), x, chart_in=chart, chart_out=chart
+            )
+            G = numerical_jacobian(lambda v: model.f(x[..., None, :], v), uu, chart_out=chart)
         Qu = np.asarray(model.noise(uu), dtype=np.float64)
         Q = G @ Qu @ np.swapaxes(G, -1, -2)
         return _like(state, x_new, _predict_covariance(P, np.asarray(F), Q))
@@ -264,15 +299,19 @@ def predict(
     m = _pairs(u, "motion")
     if drive is not None:
         m = drive.motion(m)
-    batch = np.broadcast_shapes(x.shape[:-1], m.shape[:-1])
     if isinstance(model, DistanceNoise) and integration == "midpoint":
+        k = _odometry_params(model.k_s, model.k_theta, model.k_theta_s)
+        if x.ndim == 1 and m.ndim == 1:  # one filter, one step: no broadcasting
+            xo, Po = _core.ekf_predict_odometry(x[None], P[None], m[None], k)
+            return AT._trusted(xo[0], Po[0])
+        batch = np.broadcast_shapes(x.shape[:-1], m.shape[:-1])
         B = int(np.prod(batch))
-        params = np.zeros((B, _N_PARAMS))
-        params[:, :3] = (model.k_s, model.k_theta, model.k_theta_s)
         xo, Po = _core.ekf_predict_odometry(
-            _flat(x, batch, (3,)), _flat(P, batch, (3, 3)), _flat(m, batch, (2,)), params
-        )
+            _flat(x, batch, (3,)), _flat(P, batch, (3, 3)), _flat(m, batch, (2,)),
+            np.repeat(k, B, axis=0),
+        )  # fmt: skip
         return AT._trusted(xo.reshape(*batch, 3), Po.reshape(*batch, 3, 3))
+    batch = np.broadcast_shapes(x.shape[:-1], m.shape[:-1])
     step = _step_ats(m, model, integration, drive)
     mean, F, G = se2.compose(x, step.mean, jacobians=True)
     Q = G @ step.cov @ np.swapaxes(G, -1, -2)
@@ -309,7 +348,9 @@ def _correct_arrays(state, x, P, y, H, R) -> Correction:
     n, d = x.shape[-1], y.shape[-1]
     if not (np.isfinite(y).all() and np.isfinite(H).all() and np.isfinite(R).all()):
         raise NonFiniteError("the innovation, H and R must be finite")
-    batch = np.broadcast_shapes(x.shape[:-1], P.shape[:-2], y.shape[:-1], H.shape[:-2], R.shape[:-2])
+    batch = np.broadcast_shapes(
+        x.shape[:-1], P.shape[:-2], y.shape[:-1], H.shape[:-2], R.shape[:-2]
+    )
     xo, Po, S, nis, _, ok = _core.ekf_correct(
         _flat(x, batch, (n,)), _flat(P, batch, (n, n)), _flat(y, batch, (d,)),
         _flat(H, batch, (d, n)), _flat(R, batch, (d, d)),
@@ -439,14 +480,19 @@ def _association(
     return a, method, 1 if a is Association.EUCLIDEAN else 0  # type: ignore[return-value]
 
 
+@functools.lru_cache(maxsize=256)
 def _gates(gate: float, d: int, k: int) -> tuple[float, FloatArray]:
-    """The individual χ²_d gate and, for JCBB, the joint χ²_{dk} gates for k = 0..k pairs."""
+    """The individual χ²_d gate and, for JCBB, the joint χ²_{dk} gates for k = 0..k pairs
+    (cached: a filter's steps ask for the same gates again and again)."""
     gaussian.check_probability(gate, "gate")
     joint = np.array([0.0] + [float(gaussian.confidence_k2(gate, d * j)) for j in range(1, k + 1)])
+    joint.flags.writeable = False
     return float(gaussian.confidence_k2(gate, d)), joint
 
 
-def _map(landmarks: ArrayLike, landmark_signatures: ArrayLike | None) -> tuple[FloatArray, IntArray]:
+def _map(
+    landmarks: ArrayLike, landmark_signatures: ArrayLike | None
+) -> tuple[FloatArray, IntArray]:
     lm = np.ascontiguousarray(landmarks, dtype=np.float64)
     if lm.ndim != 2 or lm.shape[1] != 2:
         raise ShapeError(f"landmarks must have shape (L, 2); got {lm.shape}")
@@ -493,42 +539,52 @@ def correct_landmarks(
     if range_only:
         z = z[..., None]
     if z.ndim < 2 or z.shape[-1] != d:
-        raise ShapeError(f"readings must have shape (..., m{', 2' if d == 2 else ''}); got {z.shape}")
+        raise ShapeError(
+            f"readings must have shape (..., m{', 2' if d == 2 else ''}); got {z.shape}"
+        )
     m = z.shape[-2]
     lm, lsig = _map(landmarks, landmark_signatures)
     a, method, cost = _association(associate, pairing, signatures is not None)
-    batch = np.broadcast_shapes(state.batch_shape, z.shape[:-2])
-    if valid is not None:
-        batch = np.broadcast_shapes(batch, np.shape(valid)[:-1])
-    if signatures is not None:
-        batch = np.broadcast_shapes(batch, np.shape(signatures)[:-1])
-    B = int(np.prod(batch))
-    present = np.ones((B, m), np.uint8) if valid is None else (
+    if state.ndim == 0 and z.ndim == 2 and np.ndim(valid) <= 1 and np.ndim(signatures) <= 1:
+        batch: tuple[int, ...] = ()  # one filter, one scan: no broadcasting to work out
+    else:
+        batch = np.broadcast_shapes(state.batch_shape, z.shape[:-2])
+        if valid is not None:
+            batch = np.broadcast_shapes(batch, np.shape(valid)[:-1])
+        if signatures is not None:
+            batch = np.broadcast_shapes(batch, np.shape(signatures)[:-1])
+    B = math.prod(batch)
+    present = _ones(B, m) if valid is None else (
         np.broadcast_to(np.asarray(valid, bool), (*batch, m)).reshape(B, m).astype(np.uint8)
     )  # fmt: skip
     sig = np.zeros((B, m), np.int64) if signatures is None else np.ascontiguousarray(
         np.broadcast_to(np.asarray(signatures, dtype=np.int64), (*batch, m)).reshape(B, m)
     )  # fmt: skip
-    params = np.zeros((B, _N_PARAMS))
-    params[:, 3:5] = (sensor.sigma_range, sensor.sigma_bearing)
-    params[:, 7:10] = sensor.mount
-    params[:, 10] = nu
+    params = _sensor_params(sensor.sigma_range, sensor.sigma_bearing, tuple(sensor.mount), nu)
+    if B != 1:
+        params = np.repeat(params, B, axis=0)
     gate2, joint = _gates(gate, d, m if a is Association.JCBB else 0)
+    if batch == ():  # one filter: no broadcasting
+        x, P, zz = state.mean[None], state.cov[None], np.ascontiguousarray(z)[None]
+    else:
+        x, P = _flat(state.mean, batch, (3,)), _flat(state.cov, batch, (3, 3))
+        zz = _flat(z, batch, (m, d))
     r = _core.ekf_correct_readings(
-        _flat(state.mean, batch, (3,)), _flat(state.cov, batch, (3, 3)), _flat(z, batch, (m, d)),
-        present, sig, lm, lsig, params, 1 if range_only else 0,
+        x, P, zz, present, sig, lm, lsig, params, 1 if range_only else 0,
         _NOISE_MODELS[sensor.noise_model], method, cost, signatures is not None, gate2, joint,
         _JCBB_NODES,
     )  # fmt: skip
-    y, S = r["y"].reshape(*batch, m, d), r["S"].reshape(*batch, m, d, d)
+    f, i = r  # packed: see the core's ekf_correct_readings
+    e = 12 + m * d
+    y, S = f[:, 12:e].reshape(*batch, m, d), f[:, e : e + m * d * d].reshape(*batch, m, d, d)
     if range_only:
         y, S = y[..., 0], S[..., 0, 0]
     return LandmarkUpdate(
-        AT._trusted(r["x"].reshape(*batch, 3), r["P"].reshape(*batch, 3, 3)),
-        r["landmark"].astype(np.int64).reshape(*batch, m),
-        r["d2"].reshape(*batch, m),
-        r["status"].astype(np.int64).reshape(*batch, m),
-        y, S, r["loglik"].reshape(batch), r["nis"].reshape(batch),
+        AT._trusted(f[:, :3].reshape(*batch, 3), f[:, 3:12].reshape(*batch, 3, 3)),
+        i[:, m : 2 * m].reshape(*batch, m),
+        f[:, e + m * d * d : e + m * d * d + m].reshape(*batch, m),
+        i[:, :m].reshape(*batch, m),
+        y, S, f[:, -2].reshape(batch), f[:, -1].reshape(batch),
     )  # fmt: skip
 
 
@@ -695,10 +751,12 @@ def run(
         raise ShapeError(f"start must be one pose or a batch {batch}; got {start.batch_shape}")
     per_event = int(np.bincount(index).max()) if M and a is Association.JCBB else 0
     gate2, joint = _gates(gate, d, per_event)
+    x0 = _flat(start.mean, batch, (3,)).reshape(B, 3)
+    P0 = _flat(start.cov, batch, (3, 3)).reshape(B, 3, 3)
+    keep_code = {"summary": 0, "events": 1, "all": 2}[kp.value]
     r = _core.ekf_run(
-        _flat(start.mean, batch, (3,)).reshape(B, 3), _flat(start.cov, batch, (3, 3)).reshape(B, 3, 3),
-        motion, index, z, sig, lm, lsig, p, 1 if d == 1 else 0, _NOISE_MODELS[noise_model],
-        method, cost, use_sig, gate2, joint, _JCBB_NODES, {"summary": 0, "events": 1, "all": 2}[kp.value],
+        x0, P0, motion, index, z, sig, lm, lsig, p, 1 if d == 1 else 0,
+        _NOISE_MODELS[noise_model], method, cost, use_sig, gate2, joint, _JCBB_NODES, keep_code,
         readings,
     )  # fmt: skip
     bad = r["overflow"]
@@ -714,9 +772,11 @@ def run(
     y, S = r["y"].reshape(*batch, Mo, d), r["S"].reshape(*batch, Mo, d, d)
     if d == 1:
         y, S = y[..., 0], S[..., 0, 0]
+    T = len(times)
     return Trace(
-        times, r["mean"].reshape(*batch, len(times), 3), r["cov"].reshape(*batch, len(times), 3, 3),
+        times, r["mean"].reshape(*batch, T, 3), r["cov"].reshape(*batch, T, 3, 3),
         y, S, r["d2"].reshape(*batch, Mo), r["status"].reshape(*batch, Mo),
         r["landmark"].reshape(*batch, Mo), r["loglik"].reshape(batch), r["nis"].reshape(batch),
-        r["dof"].reshape(batch), r["updates"].reshape(batch), r["counts"].reshape(*batch, len(Status)),
+        r["dof"].reshape(batch), r["updates"].reshape(batch),
+        r["counts"].reshape(*batch, len(Status)),
     )  # fmt: skip

@@ -290,6 +290,8 @@ def _nees(estimate: AT, truth: FloatArray) -> FloatArray:
 def _quadratic(e: FloatArray, cov: FloatArray) -> FloatArray:
     """``eᵀ C⁻¹ e`` per row, for positive-definite C (the filters start with Σ₀ > 0)."""
     return np.einsum("...i,...i->...", e, np.linalg.solve(cov, e[..., None])[..., 0])
+
+
 # -------------------------------------------------------------------------- calibration
 def _check_readings(count: int, what: str) -> None:
     """A ParameterError unless ``what`` has at least two readings to estimate a noise from."""

@@ -112,8 +112,8 @@ def figure(run: Localization, *, ellipses: int = 12) -> Figure:
         ax_hist.hist(np.clip(w, -6, 6), bins=60, range=(-6, 6), density=True, histtype="step",
                      color=f"C{i}", label=f"{name} (used)")  # fmt: skip
     x = np.linspace(-6, 6, 400)
-    ax_hist.plot(x, _density(x, nu), color="k", linewidth=1.0,
-                 label="model" + (f" (Student-t, ν={nu:.3g})" if math.isfinite(nu) else ""))  # fmt: skip
+    model = "model" + (f" (Student-t, ν={nu:.3g})" if math.isfinite(nu) else "")
+    ax_hist.plot(x, _density(x, nu), color="k", linewidth=1.0, label=model)
     ax_hist.set_yscale("log")
     ax_hist.set_ylim(1e-4, 1.0)
     ax_hist.set_xlabel("innovation / predicted σ")
