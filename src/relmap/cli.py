@@ -353,6 +353,8 @@ def _solve(args: argparse.Namespace) -> int:
 
 def _localize(args: argparse.Namespace) -> int:
     import json
+
+    import numpy as np
     from pathlib import Path
 
     from relmap._progress import TerminalProgress
@@ -362,20 +364,30 @@ def _localize(args: argparse.Namespace) -> int:
     for out in (args.plot, args.out):
         if out and not Path(out).resolve().parent.is_dir():
             raise ParameterError(f"cannot write {out}: its folder does not exist")
-    if args.calibrate is not None:
-        how, number = args.calibrate
+    if args.calibrate != ["auto"]:
+        how, number = (args.calibrate + [""])[:2] if len(args.calibrate) <= 2 else ("", "")
         if how != "from-run" or not number.isdigit():
-            raise ParameterError(f"--calibrate takes 'from-run N'; got {how} {number}")
+            raise ParameterError(
+                f"--calibrate takes 'auto' or 'from-run N'; got {' '.join(args.calibrate)}"
+            )
         args.calibrate_from = int(number)
+    stages = (
+        "estimating the noise from the run's innovations",
+        "searching the odometry's clock offset",
+        "refining the noise",
+        "measuring the innovations' whiteness",
+        "running the filter",
+        "scoring",
+    )
     bar = TerminalProgress(f"localizing {args.dataset}")
-    bar.update("reading the logs, estimating the noise", force=True)
+    bar.update("reading the logs", force=True)
     try:
         run = localize(
             args.dataset,
             robot=args.robot,
             associate=args.associate,
             calibrate_from=args.calibrate_from,
-            progress=lambda k, n: bar.update("running the filter" if k < n else "scoring"),
+            progress=lambda k, n: bar.update(stages[min(k, len(stages) - 1)], force=True),
         )
     finally:
         bar.close()
@@ -393,26 +405,43 @@ def _localize(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(run.summary()))
         return 0
-    cal = run.calibration
+    cal, p = run.calibration, run.calibration.parameters
     who = "CMU Plaza (second half)" if run.dataset == "plaza" else f"MRCLAM robot {run.robot}"
     span = run.t[-1] - run.t[0]
-    sensor = f"σ range {cal.sigma_range:.3g} m"
-    if cal.sigma_bearing is not None:
-        sensor += f", σ bearing {cal.sigma_bearing:.3g} rad"
-    if cal.range_scale != 1.0:
-        sensor += f", range scale {cal.range_scale:.4f}"
-    n = cal.odometry
+    ranges_only = run.dataset == "plaza"
+    sensor = f"σ range {float(p.sigma_r):.3g} m"
+    if not ranges_only:
+        sensor += f", σ bearing {float(p.sigma_b):.3g} rad"
+    if np.isfinite(float(p.nu)):
+        sensor += f", Student-t ν {float(p.nu):.3g}"
+    summary = run.summary()["calibration"]
+    if summary["method"] == "auto":
+        source = (
+            f"this run's innovations (clock offset {cal.delay:g} s"
+            + (f", range scale {cal.scale:g}" if ranges_only else "")
+            + f"; σ ×{cal.inflation:.2f} for correlated readings, ρ {cal.correlation[0]:.2f})"
+        )
+    else:
+        source = cal.trained_on + " against its ground truth"
+        if cal.range_scale != 1.0:
+            sensor += f", range scale {cal.range_scale:.4f}"
     print(f"{who}: {run.steps} filter times over {span:.1f} s, association {run.associate}")
+    print(f"  noise from {source}:")
     print(
-        f"  noise from {cal.trained_on}: odometry k_s={n.k_s:.3g} m²/m, "
-        f"k_θ={n.k_theta:.3g} rad²/rad, k_θs={n.k_theta_s:.3g} rad²/m; {sensor}"
+        f"    odometry k_s={float(p.k_s):.3g} m²/m, k_θ={float(p.k_theta):.3g} rad²/rad, "
+        f"k_θs={float(p.k_theta_s):.3g} rad²/m; {sensor}"
     )
     r = run.readings
     print(
         f"  readings: {r['used']} used, {run.score.rejected} rejected"
         + (f", {r['wrong']} paired with the wrong landmark" if r["wrong"] else "")
         + (f", {r['ignored']} ignored (not landmarks)" if r["ignored"] else "")
-        + f"; NIS/dof {run.anis:.2f} (1 if consistent)"
+        + f"; NIS/dof {run.anis:.2f} (1 if consistent"
+        + (
+            f"; below 1 by design when correlated readings are inflated, here σ ×{cal.inflation:.2f})"
+            if summary["method"] == "auto" and cal.inflation > 1.05
+            else ")"
+        )
     )
     print(f"  {'':16s}{'RMSE position':>15s}{'RMSE heading':>15s}{'coverage_90':>13s}{'ANEES':>9s}")
     for name, s in (("EKF", run.score), ("dead reckoning", run.baseline)):
@@ -649,11 +678,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     loc.add_argument(
         "--calibrate",
-        nargs=2,
-        metavar=("from-run", "N"),
-        type=str,
-        help="MRCLAM: estimate the noise on robot N's run against its ground truth (default: "
-        "the next robot, N mod 5 + 1)",
+        nargs="+",
+        metavar="HOW",
+        default=["auto"],
+        help="'auto' (default): the noise from this run's own innovations, no ground truth; "
+        "'from-run N' (MRCLAM): from robot N's run against its ground truth",
     )
     loc.add_argument("--json", action="store_true", help="print one JSON object")
     loc.add_argument(

@@ -34,26 +34,29 @@ truth's span, from the true pose there with covariance ``diag(σ², σ², σθ²
 exactly certain), and stops at the last odometry time inside that span. Plaza: the same, on the
 second half of the run (below).
 
-**Noise from data, never from the run being scored** (:class:`Calibration`, whose
-``parameters`` are the :class:`relmap.ekf.NoiseParameters` of the run; ``relmap localize
---calibrate from-run N`` names the training robot).
+**Noise from the run's own innovations** (the default; :mod:`relmap.autocalibration`): the
+odometry and sensor noise, the odometry's clock offset, for range-only sensors the range scale,
+and the σ factor for readings whose errors repeat from one reading to the next, all estimated
+from the innovations of the very filter being run. Ground truth is used for the start pose and
+for scoring, never for the noise.
 
-- MRCLAM, leave-one-out by neighbour: robot k is scored with noise estimated on robot
-  ``k mod 5 + 1`` alone (robot 1 on robot 2, …, robot 5 on robot 1), so every robot is scored
-  and none with its own data. Odometry: :func:`relmap.robot.calibration.fit_distance_noise` on
-  the training robot's whole run (inside its ground-truth span), windows of
-  :data:`ODOMETRY_WINDOW` seconds (10 s: longer than the typical gap between readings, so the
-  fit sees the errors that accumulate between corrections, including some of the systematic
-  part; chosen once, not per robot). Sensor: residuals of the training robot's landmark
-  readings (barcodes of landmarks only) against the reading predicted from the interpolated
-  ground truth; σ = 1.4826·MAD (median absolute deviation about the median), robust to the heavy
-  tails. The medians (biases) are reported but not corrected.
-- Plaza (one run): the ground-truth span is cut at its midpoint time. The noise comes from the
-  first half: odometry by the same windowed fit; the ranges' scale, ``median(z / r_true)``
-  (measured ranges are about 7% long, in proportion to the range: with the scale removed the
-  residuals have σ ≈ 0.5 m instead of a 2.8 m median bias), and the range σ by MAD of
-  ``z / scale - r_true``. The filter divides readings by the scale, and runs and is scored on
-  the second half only.
+**Or from another run's ground truth** (:class:`Calibration`; ``relmap localize --calibrate
+from-run N``), for comparison:
+
+- MRCLAM: noise estimated on robot N's run alone (:func:`calibrate_mrclam`). Odometry:
+  :func:`relmap.robot.calibration.fit_distance_noise` on the training robot's whole run (inside
+  its ground-truth span), windows of :data:`ODOMETRY_WINDOW` seconds (10 s: longer than the
+  typical gap between readings, so the fit sees the errors that accumulate between
+  corrections; chosen once, not per robot). Sensor: residuals of the training robot's landmark
+  readings against the reading predicted from the interpolated ground truth; σ = 1.4826·MAD,
+  robust to the heavy tails. The medians (biases) are reported but not corrected.
+- Plaza (one run, API only: ``localize_plaza(data, calibration=calibrate_plaza(data))``): the
+  noise from the first half of the run against its ground truth: odometry by the same windowed
+  fit; the ranges' scale, ``median(z / r_true)`` (measured ranges are about 7% long), and the
+  range σ by MAD of ``z / scale - r_true``.
+
+Plaza runs and is scored on the second half of its ground-truth span (cut at the midpoint
+time).
 
 **Scores** (:class:`Score`), at every filter time, against the ground truth interpolated there
 (``truth_at``): RMSE of the position and of the wrapped heading; ``coverage_90``, the fraction of
@@ -79,7 +82,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from relmap import ekf, gaussian
+from relmap import autocalibration, ekf, gaussian
 from relmap.at import AT
 from relmap.errors import ParameterError, ShapeError
 from relmap.io.datasets import (
@@ -183,7 +186,10 @@ class Localization(NamedTuple):
     dead_reckoning: AT  #: ``(n,)`` odometry alone from the same start, same noise
     truth: FloatArray  #: ``(n, 3)`` ground truth interpolated at the times
     landmarks: FloatArray  #: ``(L, 2)`` the map (landmarks or beacons)
-    calibration: Calibration  #: the noise used, and where it came from
+    #: the noise used and where it came from: the run's own innovations
+    #: (:class:`relmap.autocalibration.Calibrated`, the default) or another run's ground
+    #: truth (:class:`Calibration`)
+    calibration: Calibration | autocalibration.Calibrated
     score: Score  #: the EKF's score
     baseline: Score  #: dead reckoning's score
     readings: dict[str, int]  #: what happened to the readings (status names, "ignored", "wrong")
@@ -241,13 +247,7 @@ class Localization(NamedTuple):
             "nis": {"sum": float(tr.nis), "dof": int(tr.dof), "anis": _finite_or_none(self.anis)},
             "loglik": float(tr.loglik),
             "parameters": self.calibration.parameters.as_dict(),
-            "calibration": {
-                "trained_on": self.calibration.trained_on,
-                "readings": self.calibration.readings,
-                "range_bias": self.calibration.range_bias,
-                "bearing_bias": self.calibration.bearing_bias,
-                "range_scale": self.calibration.range_scale,
-            },
+            "calibration": _calibration_summary(self.calibration),
             "readings": {
                 "used": self.readings["used"],
                 "rejected": s.rejected,
@@ -257,6 +257,23 @@ class Localization(NamedTuple):
             },
             "warnings": self.warnings,
         }
+
+
+def _calibration_summary(cal: Calibration | autocalibration.Calibrated) -> dict[str, object]:
+    if isinstance(cal, autocalibration.Calibrated):
+        d = cal.as_dict()
+        keep = ("delay", "range_scale", "inflation", "correlation_before", "correlation_after",
+                "loglik")  # fmt: skip
+        return {"method": "auto", "trained_on": "this run's innovations",
+                **{k: d[k] for k in keep}}  # fmt: skip
+    return {
+        "method": "from-run",
+        "trained_on": cal.trained_on,
+        "readings": cal.readings,
+        "range_bias": cal.range_bias,
+        "bearing_bias": cal.bearing_bias,
+        "range_scale": cal.range_scale,
+    }
 
 
 def _finite_or_none(v: float) -> float | None:
@@ -413,33 +430,49 @@ def _check_associate(associate: str) -> None:
         )
 
 
+#: Progress stages of a localization: the four of the autocalibration, then the filter.
+STAGES = 5
+
+
 def _localization(
     what: tuple[str, int | None, str],
-    log: ekf.Log,
+    recording: autocalibration.Recording,
     landmarks: FloatArray,
-    cal: Calibration,
+    cal: Calibration | None,
     truth_at: Callable[[FloatArray], FloatArray],
     *,
     sensor: ekf.SensorKind,
-    true_landmark: np.ndarray,
     ignored: int,
+    gate: float,
     progress: Progress | None,
 ) -> Localization:
-    """Run the filter and dead reckoning (the filter without readings) from the true start,
-    and score both. ``true_landmark`` (M,): each reading's landmark by its id (-1: none), for
-    counting wrong pairings of the association modes that do not read it."""
+    """Calibrate (``cal`` None: from the run's own innovations), run the filter and dead
+    reckoning (the filter without readings) from the true start, and score both. Each
+    reading's signature is its landmark's row (-1: none), for counting the wrong pairings of the
+    association modes that do not read it. ``progress(k, STAGES)``."""
     dataset, robot, associate = what
-    start = _start(truth_at(log.t[:1])[0])
-    params = cal.parameters
-    if progress is not None:
-        progress(0, 1)
-    kw = dict(landmark_signatures=np.arange(len(landmarks)), sensor=sensor)
-    trace = ekf.run(log, landmarks, params, start=start, association=associate, **kw)
+    tick = progress or (lambda k, n: None)
+
+    def start(t0: float) -> AT:
+        return _start(truth_at(np.array([t0]))[0])
+
+    kw = dict(landmark_signatures=np.arange(len(landmarks)), sensor=sensor, gate=gate)
+    noise: Calibration | autocalibration.Calibrated
+    if cal is None:
+        noise = autocalibration.calibrate(recording, landmarks, start=start,
+                                          association=associate, progress=tick, **kw)  # fmt: skip
+        log = recording.log(noise.delay, noise.scale)
+    else:
+        noise, log = cal, recording.log(0.0, cal.range_scale)
+    tick(STAGES - 1, STAGES)
+    params = noise.parameters
+    trace = ekf.run(log, landmarks, params, start=start(float(log.t[0])), association=associate,
+                    **kw)  # fmt: skip
     quiet = log._replace(reading_index=log.reading_index[:0], z=log.z[:0], signature=None)
-    dr = ekf.run(quiet, landmarks, params, start=start, association="mahalanobis",
-                 readings=False, **kw)  # fmt: skip
-    if progress is not None:
-        progress(1, 1)
+    dr = ekf.run(quiet, landmarks, params, start=start(float(log.t[0])),
+                 association="mahalanobis", readings=False, **kw)  # fmt: skip
+    tick(STAGES, STAGES)
+    true_landmark = log.signature
     truth = truth_at(log.t)
     counts = {s.name.lower(): int(trace.count(s)) for s in ekf.Status}
     used = trace.status == ekf.Status.USED
@@ -456,7 +489,7 @@ def _localization(
         dead_reckoning=dead,
         truth=truth,
         landmarks=np.asarray(landmarks),
-        calibration=cal,
+        calibration=noise,
         score=score(estimate, truth, rejected=rejected),
         baseline=score(dead, truth),
         readings=counts,
@@ -477,12 +510,12 @@ def localize_mrclam(
 ) -> Localization:
     """EKF localization of MRCLAM robot ``robot`` with the landmark map (module docstring).
 
-    ``calibration`` defaults to :func:`calibrate_mrclam` on robot ``robot mod 5 + 1``.
+    ``calibration`` None (the default): the noise from the run's own innovations
+    (:func:`relmap.autocalibration.calibrate`); or e.g. :func:`calibrate_mrclam` of another
+    robot.
     """
     _check_associate(associate)
     log = _robot_log(data, robot)
-    n_robots = len(data.robots)
-    cal = calibration or calibrate_mrclam(data, robot % n_robots + 1)
     odo_t = log.odometry_t
     inside = _inside_truth(odo_t, log.truth_t)
     if inside.sum() < 2:
@@ -492,15 +525,15 @@ def localize_mrclam(
     lm_of = data.landmark_index(log.meas_subject)
     offered = lm_of >= 0
     z = np.column_stack([log.meas_range[offered], log.meas_bearing[offered]])
-    flog = ekf.Log.from_velocities(
+    rec = autocalibration.Recording(
         odo_t[o], log.odometry_v[o], log.odometry_w[o], log.meas_t[offered], z,
-        lm_of[offered], end=float(odo_t[end]),
+        lm_of[offered], float(odo_t[end]),
     )  # fmt: skip
-    in_run = (log.meas_t >= flog.t[0]) & (log.meas_t <= flog.t[-1])
+    in_run = (log.meas_t >= odo_t[first]) & (log.meas_t <= odo_t[end])
     return _localization(
-        ("mrclam", int(robot), associate), flog, data.landmark_xy, cal, log.truth_at,
-        sensor=ekf.SensorKind.RANGE_BEARING, true_landmark=flog.signature,
-        ignored=int((in_run & ~offered).sum()), progress=progress,
+        ("mrclam", int(robot), associate), rec, data.landmark_xy, calibration, log.truth_at,
+        sensor=ekf.SensorKind.RANGE_BEARING, ignored=int((in_run & ~offered).sum()), gate=gate,
+        progress=progress,
     )  # fmt: skip
 
 
@@ -514,9 +547,9 @@ def localize_plaza(
     progress: Progress | None = None,
 ) -> Localization:
     """EKF localization on the second half of a Plaza run with range-only beacons (module
-    docstring); ``calibration`` defaults to :func:`calibrate_plaza` (the first half)."""
+    docstring); ``calibration`` None (the default): the noise from the second half's own
+    innovations; or e.g. :func:`calibrate_plaza` (the first half against its ground truth)."""
     _check_associate(associate)
-    cal = calibration or calibrate_plaza(data)
     mid = _plaza_split(data)
     odo_t, v, w = _plaza_velocities(data)
     inside = _inside_truth(odo_t, data.truth_t) & (odo_t >= mid)
@@ -524,14 +557,13 @@ def localize_plaza(
         raise ParameterError("Plaza: fewer than 2 dead-reckoning records in the second half")
     first, end = np.flatnonzero(inside)[[0, -1]]
     o = slice(first, None)
-    flog = ekf.Log.from_velocities(
-        odo_t[o], v[o], w[o], data.meas_t, data.meas_range / cal.range_scale,
-        data.meas_beacon_index, end=float(odo_t[end]),
+    rec = autocalibration.Recording(
+        odo_t[o], v[o], w[o], data.meas_t, data.meas_range, data.meas_beacon_index,
+        float(odo_t[end]),
     )  # fmt: skip
     return _localization(
-        ("plaza", None, associate), flog, data.beacon_xy, cal, data.truth_at,
-        sensor=ekf.SensorKind.RANGE_ONLY, true_landmark=flog.signature, ignored=0,
-        progress=progress,
+        ("plaza", None, associate), rec, data.beacon_xy, calibration, data.truth_at,
+        sensor=ekf.SensorKind.RANGE_ONLY, ignored=0, gate=gate, progress=progress,
     )  # fmt: skip
 
 
@@ -547,9 +579,11 @@ def localize(
 ) -> Localization:
     """Localize on the dataset in ``folder``, recognised by its files (MRCLAM or Plaza).
 
-    MRCLAM: ``robot`` 1-5 (default 1); the noise from robot ``calibrate_from`` (default the
-    next robot, never the robot itself). Plaza has one robot: ``robot`` and ``calibrate_from``
-    must be None. A folder that is neither raises :class:`relmap.errors.FileFormatError`.
+    MRCLAM: ``robot`` 1-5 (default 1). The noise: by default from the run's own innovations
+    (:mod:`relmap.autocalibration`, no ground truth); with ``calibrate_from`` N, from robot N's
+    run against its ground truth (:func:`calibrate_mrclam`; never the robot itself). Plaza has
+    one robot: ``robot`` and ``calibrate_from`` must be None. A folder that is neither raises
+    :class:`relmap.errors.FileFormatError`.
     """
     from relmap.errors import FileFormatError
 
@@ -580,5 +614,5 @@ def localize(
     if robot is not None:
         raise ParameterError("a CMU Plaza folder holds one robot: leave out the robot number")
     if calibrate_from is not None:
-        raise ParameterError("a CMU Plaza run calibrates on its own first half: no from-run N")
+        raise ParameterError("a CMU Plaza folder holds one run: no from-run N")
     return localize_plaza(read_plaza(folder), associate=associate, gate=gate, progress=progress)
