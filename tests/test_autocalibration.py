@@ -128,3 +128,13 @@ def test_bad_input_is_a_clear_error() -> None:
     with pytest.raises(ParameterError, match="no readings"):
         empty = rec._replace(reading_t=rec.reading_t[:0], z=rec.z[:0], signature=rec.signature[:0])
         ac.calibrate(empty, LANDMARKS, start=start)
+
+
+def test_variance_factor_is_the_sum_of_the_autocorrelations() -> None:
+    """1 + 2 Σ ρ_k for ρ_k = ρ1 φ^(k-1), summed out to 10 000 lags; AR(1) and white cases."""
+    for r1, r2 in ((0.5, 0.25), (0.8, 0.7), (0.3, 0.25)):
+        phi = r2 / r1
+        want = 1 + 2 * sum(r1 * phi ** (k - 1) for k in range(1, 10_000))
+        assert ac.variance_factor(r1, r2) == pytest.approx(want, rel=1e-9)
+    assert ac.variance_factor(0.5, 0.25) == pytest.approx(1.5 / 0.5)  # AR(1): (1+ρ)/(1-ρ)
+    assert ac.variance_factor(-0.2, 0.1) == 1.0 and ac.variance_factor(np.nan, np.nan) == 1.0

@@ -21,14 +21,15 @@ never read. Three stages, each a standard tool of filter tuning:
    ``s + delay``); for range-only sensors a range scale (reading = scale × range; Plaza's
    radios read about 7% long) likewise over :data:`SCALES`.
 3. **Whiteness.** The innovations of a consistent filter are white (Kailath 1968). A reading
-   whose error repeats in the next reading of the same landmark (MRCLAM: a correlation of
-   0.8-0.95 between consecutive range errors) is counted again and again and makes the filter
-   overconfident, which the likelihood of stage 1 cannot see. The lag-one correlation ``ρ`` of
-   consecutive normalized range innovations of one landmark (at most :data:`PAIR_GAP` s apart,
-   :func:`innovation_correlation`) is measured and the reading covariance multiplied by
-   ``(1 + ρ)/(1 - ρ)``, the variance factor of the mean of an AR(1) sequence; repeated
-   :data:`WHITENING_PASSES` times as ``ρ`` settles. White reading errors give ``ρ ≈ 0`` and keep
-   their σ.
+   whose error repeats in the next readings of the same landmark (MRCLAM: a correlation of
+   0.8-0.95 between consecutive range errors, still 0.2-0.6 twenty seconds apart) is counted
+   again and again and makes the filter overconfident, which the likelihood of stage 1 cannot
+   see. The correlations ``ρ1``, ``ρ2`` of normalized range innovations of one landmark one and
+   two readings apart (at most :data:`PAIR_GAP` s per reading, :func:`innovation_correlation`)
+   are measured and the reading covariance multiplied by the variance factor of the mean of such
+   a sequence (:func:`variance_factor`: ``(1 + ρ)/(1 - ρ)`` for AR(1)); repeated
+   :data:`WHITENING_PASSES` times as the factor settles. White reading errors give ``ρ ≈ 0``
+   and keep their σ.
 
 Every constant of the method is fixed here, once, for all runs (:data:`START`, :data:`DELAYS`,
 :data:`SCALES`, :data:`PAIR_GAP`, :data:`WHITENING_PASSES`, :data:`ITERATIONS`,
@@ -64,6 +65,7 @@ __all__ = [
     "calibrate",
     "innovation_correlation",
     "loglik",
+    "variance_factor",
 ]
 
 #: Where the search starts (odometry m²/m, rad²/rad, rad²/m; σ m, rad; Student-t dof): noisy,
@@ -155,27 +157,42 @@ class Calibrated(NamedTuple):
         }
 
 
-def innovation_correlation(trace: ekf.Trace, t: ArrayLike, *, gap: float = PAIR_GAP) -> float:
-    """Lag-one correlation of the normalized range innovations ``y_r/√S_rr`` of consecutive
-    used readings of one landmark at most ``gap`` s apart (one filter's trace; ``t`` (M,) the
-    readings' times). Normalized innovations are clipped to ±3 robust σ (1.4826·MAD), so a few
-    wild readings do not decide it. NaN with fewer than 10 pairs."""
+def innovation_correlation(
+    trace: ekf.Trace, t: ArrayLike, *, lag: int = 1, gap: float = PAIR_GAP
+) -> float:
+    """Correlation of the normalized range innovations ``y_r/√S_rr`` of used readings of one
+    landmark ``lag`` readings apart and at most ``lag × gap`` s apart (one filter's trace; ``t``
+    (M,) the readings' times). Normalized innovations are clipped to ±3 robust σ
+    (1.4826·MAD), so a few wild readings do not decide it. NaN with fewer than 10 pairs."""
     y, S = np.asarray(trace.y), np.asarray(trace.S)
     yr, sr = (y, S) if y.ndim == 1 else (y[:, 0], S[:, 0, 0])
     idx = np.flatnonzero(np.asarray(trace.status) == ekf.Status.USED)
-    if len(idx) < 2:
+    if len(idx) <= lag:
         return float("nan")
     tt, lm = np.asarray(t, dtype=np.float64)[idx], np.asarray(trace.landmark)[idx]
     u = yr[idx] / np.sqrt(sr[idx])
     order = np.lexsort((tt, lm))  # by landmark, then time
-    same = (lm[order][1:] == lm[order][:-1]) & (np.diff(tt[order]) <= gap)
+    u, tt, lm = u[order], tt[order], lm[order]
+    same = (lm[lag:] == lm[:-lag]) & (tt[lag:] - tt[:-lag] <= lag * gap)
     if same.sum() < 10:
         return float("nan")
     s = 1.4826 * np.median(np.abs(u - np.median(u)))
-    c = np.clip(u[order] / s, -3.0, 3.0)
-    a, b = c[:-1][same], c[1:][same]
+    c = np.clip(u / s, -3.0, 3.0)
+    a, b = c[:-lag][same], c[lag:][same]
     a, b = a - a.mean(), b - b.mean()
     return float((a * b).mean() / np.sqrt((a * a).mean() * (b * b).mean()))
+
+
+def variance_factor(rho1: float, rho2: float) -> float:
+    """The variance factor ``1 + 2 Σ_k ρ_k`` of the mean of a correlated sequence whose
+    autocorrelation is ``ρ1`` at lag one and decays geometrically from there by ``φ = ρ2/ρ1``
+    (an ARMA(1,1) autocorrelation; φ kept in [ρ1, 0.99]): ``1 + 2ρ1/(1 - φ)``. For an AR(1)
+    sequence (``ρ2 = ρ1²``) it is ``(1 + ρ1)/(1 - ρ1)``. 1 for ``ρ1 ≤ 0`` or NaN."""
+    if not np.isfinite(rho1) or rho1 <= 0.0:
+        return 1.0
+    r1 = min(rho1, 0.99)
+    phi = min(max(rho2 / r1, r1), 0.99) if np.isfinite(rho2) else r1
+    return 1.0 + 2.0 * r1 / (1.0 - phi)
 
 
 def loglik(trace: ekf.Trace, nu: ArrayLike) -> FloatArray:
@@ -308,12 +325,10 @@ def calibrate(
     factor, rho0 = 1.0, float("nan")
     for k in range(WHITENING_PASSES):
         q = p._replace(sigma_r=p.sigma_r * factor, sigma_b=p.sigma_b * factor)
-        rho = innovation_correlation(run(log, q), t)
-        rho0 = rho if k == 0 else rho0
-        if not np.isfinite(rho):
-            break
-        r = min(max(rho, 0.0), 0.99)
-        factor = float(np.sqrt((1 + r) / (1 - r)))
+        tr = run(log, q)
+        r1, r2 = (innovation_correlation(tr, t, lag=j) for j in (1, 2))
+        rho0 = r1 if k == 0 else rho0
+        factor = float(np.sqrt(variance_factor(r1, r2)))
     tick(3, 4)
     q = p._replace(sigma_r=p.sigma_r * factor, sigma_b=p.sigma_b * factor)
     trace = run(log, q)
