@@ -159,36 +159,39 @@ class Calibrated(NamedTuple):
 
 def innovation_correlation(
     trace: ekf.Trace, t: ArrayLike, *, lag: int = 1, gap: float = PAIR_GAP
-) -> float:
+) -> tuple[float, int]:
     """Correlation of the normalized range innovations ``y_r/√S_rr`` of used readings of one
     landmark ``lag`` readings apart and at most ``lag × gap`` s apart (one filter's trace; ``t``
     (M,) the readings' times). Normalized innovations are clipped to ±3 robust σ
-    (1.4826·MAD), so a few wild readings do not decide it. NaN with fewer than 10 pairs."""
+    (1.4826·MAD), so a few wild readings do not decide it. Returns the correlation and the
+    number of pairs (NaN with fewer than 10 pairs)."""
     y, S = np.asarray(trace.y), np.asarray(trace.S)
     yr, sr = (y, S) if y.ndim == 1 else (y[:, 0], S[:, 0, 0])
     idx = np.flatnonzero(np.asarray(trace.status) == ekf.Status.USED)
     if len(idx) <= lag:
-        return float("nan")
+        return float("nan"), 0
     tt, lm = np.asarray(t, dtype=np.float64)[idx], np.asarray(trace.landmark)[idx]
     u = yr[idx] / np.sqrt(sr[idx])
     order = np.lexsort((tt, lm))  # by landmark, then time
     u, tt, lm = u[order], tt[order], lm[order]
     same = (lm[lag:] == lm[:-lag]) & (tt[lag:] - tt[:-lag] <= lag * gap)
-    if same.sum() < 10:
-        return float("nan")
+    n = int(same.sum())
+    if n < 10:
+        return float("nan"), n
     s = 1.4826 * np.median(np.abs(u - np.median(u)))
     c = np.clip(u / s, -3.0, 3.0)
     a, b = c[:-lag][same], c[lag:][same]
     a, b = a - a.mean(), b - b.mean()
-    return float((a * b).mean() / np.sqrt((a * a).mean() * (b * b).mean()))
+    return float((a * b).mean() / np.sqrt((a * a).mean() * (b * b).mean())), n
 
 
-def variance_factor(rho1: float, rho2: float) -> float:
+def variance_factor(rho1: float, rho2: float, pairs: int) -> float:
     """The variance factor ``1 + 2 Σ_k ρ_k`` of the mean of a correlated sequence whose
     autocorrelation is ``ρ1`` at lag one and decays geometrically from there by ``φ = ρ2/ρ1``
     (an ARMA(1,1) autocorrelation; φ kept in [ρ1, 0.99]): ``1 + 2ρ1/(1 - φ)``. For an AR(1)
-    sequence (``ρ2 = ρ1²``) it is ``(1 + ρ1)/(1 - ρ1)``. 1 for ``ρ1 ≤ 0`` or NaN."""
-    if not np.isfinite(rho1) or rho1 <= 0.0:
+    sequence (``ρ2 = ρ1²``) it is ``(1 + ρ1)/(1 - ρ1)``. 1 (white) unless ``ρ1`` is
+    significant: above 3/√pairs, three standard errors of a correlation of ``pairs`` pairs."""
+    if not np.isfinite(rho1) or rho1 <= 3.0 / np.sqrt(max(pairs, 1)):
         return 1.0
     r1 = min(rho1, 0.99)
     phi = min(max(rho2 / r1, r1), 0.99) if np.isfinite(rho2) else r1
@@ -326,11 +329,12 @@ def calibrate(
     for k in range(WHITENING_PASSES):
         q = p._replace(sigma_r=p.sigma_r * factor, sigma_b=p.sigma_b * factor)
         tr = run(log, q)
-        r1, r2 = (innovation_correlation(tr, t, lag=j) for j in (1, 2))
+        (r1, n1), (r2, _) = (innovation_correlation(tr, t, lag=j) for j in (1, 2))
         rho0 = r1 if k == 0 else rho0
-        factor = float(np.sqrt(variance_factor(r1, r2)))
+        factor = float(np.sqrt(variance_factor(r1, r2, n1)))
     tick(3, 4)
     q = p._replace(sigma_r=p.sigma_r * factor, sigma_b=p.sigma_b * factor)
     trace = run(log, q)
     tick(4, 4)
-    return Calibrated(q, delay, scale, factor, (rho0, innovation_correlation(trace, t)), fitted, trace)
+    rho = innovation_correlation(trace, t)[0]
+    return Calibrated(q, delay, scale, factor, (rho0, rho), fitted, trace)
