@@ -438,7 +438,7 @@ def _localization(
     what: tuple[str, int | None, str],
     recording: autocalibration.Recording,
     landmarks: FloatArray,
-    cal: Calibration | None,
+    cal: Calibration | autocalibration.Calibrated | None,
     truth_at: Callable[[FloatArray], FloatArray],
     *,
     sensor: ekf.SensorKind,
@@ -461,9 +461,12 @@ def _localization(
     if cal is None:
         noise = autocalibration.calibrate(recording, landmarks, start=start,
                                           association=associate, progress=tick, **kw)  # fmt: skip
+    else:
+        noise = cal
+    if isinstance(noise, autocalibration.Calibrated):
         log = recording.log(noise.delay, noise.scale)
     else:
-        noise, log = cal, recording.log(0.0, cal.range_scale)
+        log = recording.log(0.0, noise.range_scale)
     tick(STAGES - 1, STAGES)
     params = noise.parameters
     trace = ekf.run(log, landmarks, params, start=start(float(log.t[0])), association=associate,
@@ -505,7 +508,7 @@ def localize_mrclam(
     *,
     associate: str = "signatures",
     gate: float = 0.99,
-    calibration: Calibration | None = None,
+    calibration: Calibration | autocalibration.Calibrated | None = None,
     progress: Progress | None = None,
 ) -> Localization:
     """EKF localization of MRCLAM robot ``robot`` with the landmark map (module docstring).
@@ -543,7 +546,7 @@ def localize_plaza(
     *,
     associate: str = "signatures",
     gate: float = 0.99,
-    calibration: Calibration | None = None,
+    calibration: Calibration | autocalibration.Calibrated | None = None,
     progress: Progress | None = None,
 ) -> Localization:
     """EKF localization on the second half of a Plaza run with range-only beacons (module
