@@ -88,8 +88,10 @@ ITERATIONS = 40
 TOLERANCE = float(np.log(1.02))
 #: The first fit, before the clock is searched, stops at a coarser step (a factor of 1.1).
 COARSE = float(np.log(1.1))
-#: The log-scale step of the first round (×2 per move); it halves when no move gains.
+#: The log-scale step of the first fit's first round (×2 per move) and of the refining fit's
+#: (×1.25); it halves when no move gains.
 _STEP = float(np.log(2.0))
+_REFINE = float(np.log(1.25))
 
 Progress = Callable[[int, int], None]
 Runner = Callable[..., ekf.Trace]
@@ -229,9 +231,9 @@ def _free(sensor: ekf.SensorKind) -> tuple[str, ...]:
 
 
 def _moves(p: ekf.NoiseParameters, free: tuple[str, ...], step: float) -> ekf.NoiseParameters:
-    """A batch: ``p`` itself, then each free field times ``exp(∓step)``."""
+    """A batch: each free field of ``p`` times ``exp(-step)``, then times ``exp(step)``."""
     base = {k: float(v) for k, v in p._asdict().items()}
-    cols = {k: [v] for k, v in base.items()}
+    cols: dict[str, list[float]] = {k: [] for k in base}
     for name in free:
         for sign in (-1.0, 1.0):
             for k, v in base.items():
@@ -240,29 +242,34 @@ def _moves(p: ekf.NoiseParameters, free: tuple[str, ...], step: float) -> ekf.No
 
 
 def _fit(
-    log: ekf.Log, p: ekf.NoiseParameters, free: tuple[str, ...], run: Runner, tolerance: float
+    log: ekf.Log,
+    p: ekf.NoiseParameters,
+    free: tuple[str, ...],
+    run: Runner,
+    step: float,
+    tolerance: float,
 ) -> tuple[ekf.NoiseParameters, float]:
-    """Batched coordinate ascent of the innovations' log-likelihood, from ``p``, until the
-    log-scale step is below ``tolerance``."""
-    step, best = _STEP, float(run(log, p).loglik)
+    """Batched coordinate ascent of the innovations' log-likelihood from ``p``, log-scale
+    moves of ``step`` halved whenever no move gains, until the step is below ``tolerance``."""
+    best = float(run(log, p).loglik)
     for _ in range(ITERATIONS):
         if step < tolerance:
             break
         batch = _moves(p, free, step)
         ll = np.asarray(run(log, batch).loglik, dtype=np.float64)
         ll = np.where(np.isfinite(ll) & (np.asarray(batch.nu) >= NU_MIN), ll, -np.inf)
-        moved = ll[1:].reshape(len(free), 2)
+        moved = ll.reshape(len(free), 2)
         # every field to its better move where that gains; keep the best of that and the best move
         combined = p._asdict()
         for j, name in enumerate(free):
             if moved[j].max() > best:
-                combined[name] = float(np.asarray(getattr(batch, name))[1 + 2 * j + moved[j].argmax()])
-        both = ekf.NoiseParameters(**combined)
-        l_both = float(run(log, both).loglik)
+                combined[name] = float(np.asarray(getattr(batch, name))[2 * j + moved[j].argmax()])
         i = int(ll.argmax())
-        if max(l_both, ll[i]) <= best + 1e-6:
+        if ll[i] <= best + 1e-6:
             step /= 2
             continue
+        both = ekf.NoiseParameters(**combined)
+        l_both = float(run(log, both).loglik)
         if l_both >= ll[i]:
             p, best = both, l_both
         else:
@@ -318,11 +325,11 @@ def calibrate(
     free = _free(kind)
     tick = progress or (lambda k, n: None)
     tick(0, 4)
-    p, _ = _fit(recording.log(), START, free, run, COARSE)
+    p, _ = _fit(recording.log(), START, free, run, _STEP, COARSE)
     tick(1, 4)
     delay, scale = _clock(recording, p, run, kind)
     log = recording.log(delay, scale)
-    p, fitted = _fit(log, p, free, run, TOLERANCE)
+    p, fitted = _fit(log, p, free, run, _REFINE, TOLERANCE)
     tick(2, 4)
     t = log.t[log.reading_index]
     factor, rho0 = 1.0, float("nan")
