@@ -421,6 +421,7 @@ def _localization(
     truth_at: Callable[[FloatArray], FloatArray],
     *,
     sensor: ekf.SensorKind,
+    gate: float,
     true_landmark: np.ndarray,
     ignored: int,
     progress: Progress | None,
@@ -434,7 +435,7 @@ def _localization(
     if progress is not None:
         progress(0, 1)
     kw = dict(landmark_signatures=np.arange(len(landmarks)), sensor=sensor)
-    trace = ekf.run(log, landmarks, params, start=start, association=associate, **kw)
+    trace = ekf.run(log, landmarks, params, start=start, association=associate, gate=gate, **kw)
     quiet = log._replace(reading_index=log.reading_index[:0], z=log.z[:0], signature=None)
     dr = ekf.run(quiet, landmarks, params, start=start, association="mahalanobis",
                  readings=False, **kw)  # fmt: skip
@@ -499,7 +500,7 @@ def localize_mrclam(
     in_run = (log.meas_t >= flog.t[0]) & (log.meas_t <= flog.t[-1])
     return _localization(
         ("mrclam", int(robot), associate), flog, data.landmark_xy, cal, log.truth_at,
-        sensor=ekf.SensorKind.RANGE_BEARING, true_landmark=flog.signature,
+        sensor=ekf.SensorKind.RANGE_BEARING, gate=gate, true_landmark=flog.signature,
         ignored=int((in_run & ~offered).sum()), progress=progress,
     )  # fmt: skip
 
@@ -530,7 +531,7 @@ def localize_plaza(
     )  # fmt: skip
     return _localization(
         ("plaza", None, associate), flog, data.beacon_xy, cal, data.truth_at,
-        sensor=ekf.SensorKind.RANGE_ONLY, true_landmark=flog.signature, ignored=0,
+        sensor=ekf.SensorKind.RANGE_ONLY, gate=gate, true_landmark=flog.signature, ignored=0,
         progress=progress,
     )  # fmt: skip
 
