@@ -456,6 +456,8 @@ def test_calibrate_from_run(mrclam_dir, mrclam, signature_runs, capsys):
     assert p == calibrate_mrclam(mrclam, 3).parameters and np.isinf(p.nu)
     other = localize(mrclam_dir, robot=1, calibrate_from=3)
     assert other.calibration.trained_on == "robot 3"
+    wide = localize(mrclam_dir, robot=1, calibrate_from=2, gate=0.999999)  # the gate is used
+    assert wide.readings["gated"] < signature_runs[1].readings["gated"]
     with pytest.raises(ParameterError, match="another robot"):
         localize(mrclam_dir, robot=1, calibrate_from=1)
     code, out, err = _cli(capsys, mrclam_dir, "--robot", "1", "--calibrate", "from-run", "3",

@@ -171,11 +171,12 @@ bool kalman_update(int n, int D, double* x, double* P, const double* y, const do
             for (int k = 0; k < n; ++k) s += A[i * n + k] * P[k * n + j];
             AP[i * n + j] = s;
         }
-    for (int i = 0; i < n; ++i)
+    for (int i = 0; i < n * D; ++i) KR[i] = 0.0;
+    for (int a = 0; a < D; ++a)  // K R, skipping R's zeros (R is often diagonal)
         for (int b = 0; b < D; ++b) {
-            double s = 0.0;
-            for (int a = 0; a < D; ++a) s += K[i * D + a] * Ru[a * D + b];
-            KR[i * D + b] = s;
+            const double r = Ru[a * D + b];
+            if (r == 0.0) continue;
+            for (int i = 0; i < n; ++i) KR[i * D + b] += K[i * D + a] * r;
         }
     double Pn[64];
     std::vector<double> Pn_big;
@@ -183,16 +184,15 @@ bool kalman_update(int n, int D, double* x, double* P, const double* y, const do
     if (n > 8) Pn_big.resize(n * n), pn = Pn_big.data();
     bool finite = true;
     for (int i = 0; i < n; ++i)
-        for (int j = 0; j <= i; ++j) {
+        for (int j = 0; j < n; ++j) {
             double s = 0.0;
             for (int k = 0; k < n; ++k) s += AP[i * n + k] * A[j * n + k];
-            double r = 0.0;
-            for (int b = 0; b < D; ++b) r += KR[i * D + b] * K[j * D + b];
-            double r2 = 0.0;
-            for (int k = 0; k < n; ++k) r2 += AP[j * n + k] * A[i * n + k];
-            double r3 = 0.0;
-            for (int b = 0; b < D; ++b) r3 += KR[j * D + b] * K[i * D + b];
-            pn[i * n + j] = pn[j * n + i] = 0.5 * ((s + r) + (r2 + r3));
+            for (int b = 0; b < D; ++b) s += KR[i * D + b] * K[j * D + b];
+            pn[i * n + j] = s;
+        }
+    for (int i = 0; i < n; ++i)  // symmetrized
+        for (int j = 0; j <= i; ++j) {
+            pn[i * n + j] = pn[j * n + i] = 0.5 * (pn[i * n + j] + pn[j * n + i]);
             finite = finite && std::isfinite(pn[i * n + j]);
         }
     for (int i = 0; i < n; ++i) finite = finite && std::isfinite(d[i]);
