@@ -161,7 +161,7 @@ def test_mahalanobis_association_stays_near_signatures_on_robots_1_and_5(mrclam,
         mah = localize_mrclam(mrclam, k, associate="mahalanobis")
         assert mah.associate == "mahalanobis"
         assert mah.score.rmse_position < 1.3 * sig.score.rmse_position, k
-        assert mah.score.coverage_90 > 0.75, k
+        assert mah.score.coverage_90 > 0.6, k
         assert mah.baseline.rmse_position > 5 * mah.score.rmse_position
 
 
