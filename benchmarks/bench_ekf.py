@@ -1,4 +1,4 @@
-"""EKF localization speed: relmap vs filterpy (and roboticstoolbox), on the same inputs.
+"""EKF localization speed: relmap (its compiled core) vs filterpy, on the same inputs.
 
 Scenario: 50 point landmarks uniform in a 20 m × 20 m square; a robot drives circles of radius
 6 m (Δs = 0.1 m per step) with odometry noise; a range-bearing sensor (σr = 0.1 m, σφ = 1°,
@@ -6,29 +6,27 @@ Scenario: 50 point landmarks uniform in a 20 m × 20 m square; a robot drives ci
 random order. Each step is a prediction (Eq. 13) and a correction with all readings (Eqs. 20-28).
 
 1. One filter, 5000 steps:
-   - relmap, known association: ``predict`` + ``correct_landmarks(associate="signatures")``
-     (the landmark ids as signatures);
-   - relmap, Mahalanobis association: ``predict`` + ``correct_landmarks()`` — nearest landmark
-     by Mahalanobis distance among all 50, one to one, χ² gate;
+   - relmap step by step from Python: ``ekf.predict`` + ``ekf.correct_landmarks`` per step,
+     known association (``associate="signatures"``, the landmark ids as signatures) and
+     Mahalanobis association (nearest of all 50 landmarks, one to one, χ² gate);
+   - relmap ``ekf.run`` over the whole log (no Python per step), both associations;
    - filterpy's ``ExtendedKalmanFilter``, as a filterpy user writes it: per step ``F = Gx`` and
      ``Q = Gu Σu Guᵀ`` in numpy by hand, ``predict_x`` returning ``g(x, u)``, ``predict()``, then
      one stacked ``update()`` of the step's readings with ``HJacobian``/``Hx`` vectorized in
      numpy over the readings, ``R`` block diagonal and a residual that wraps the bearing. It is
      told the true association (it has none of its own) and given exactly the readings relmap
-     used (relmap gated out about 1%), so it does no association and no gating at all.
+     used, so it does no association and no gating at all.
    Both filters' states are checked equal at every step before any timing is printed.
-2. roboticstoolbox's EKF (map-based localization), if installed: its ``EKF.step()`` simulates
-   its own vehicle and sensor and corrects with one reading per step; its simulation alone is
-   timed too and subtracted, as an estimate of its filter's cost.
-3. A batch of 1000 filters (1000 Monte Carlo runs of the scenario, each with its own noise and
-   readings, padded to the step's largest count), one lap of the circle (380 steps, so that
-   the landmarks in view vary as over the single filter's 5000 steps), both associations; the
-   batch's first filter is checked equal to that filter run alone.
+2. A batch of 1000 filters, one lap of the circle (380 steps):
+   - Monte Carlo: 1000 runs each with its own noise and readings (padded to the step's largest
+     count), stepped from Python with ``predict`` + ``correct_landmarks`` on the whole batch;
+   - calibration: ``ekf.run`` of one log with 1000 noise parameter sets (``keep="summary"``).
+   The batch's first filter is checked equal to that filter run alone.
+3. ``ekf.run`` of MRCLAM robot 1 (50 201 filter times, 1 534 readings) with 64 parameter sets,
+   ``keep="summary"`` (what likelihood-based calibration calls), when the data is present.
 
-relmap runs its numba kernels when numba is installed (``RELMAP_NUMBA=0``: its numpy paths);
-the first lines printed say which. Timings are the best of interleaved repeats (this machine is
-noisy). Run:
-``python benchmarks/bench_ekf.py [--steps 5000] [--batch 1000] [--repeat 3]``.
+Timings: min and median of interleaved repeats (the machine is shared and noisy). Run:
+``python benchmarks/bench_ekf.py [--steps 5000] [--batch 1000] [--repeat 5]``.
 """
 
 from __future__ import annotations
@@ -37,6 +35,7 @@ import argparse
 import os
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # small dense blocks: threads only cost
 
@@ -180,43 +179,40 @@ def filterpy_run(single_steps, used, record: bool = False):
     return out, t_pred, t_corr
 
 
-# ------------------------------------------------------------------ roboticstoolbox
-def rtb_timing(n: int) -> tuple[float, float] | None:
-    """(µs per EKF.step, µs per step of its own vehicle and sensor simulation), or None."""
-    try:
-        import warnings
+# ------------------------------------------------------------------ runs
+def as_log(steps) -> ekf.Log:
+    """One filter's steps as an ekf.Log (readings of step k at time index k)."""
+    z = np.concatenate([zk[0][v[0]] for zk, v, _ in steps])
+    ids = np.concatenate([i[0][v[0]] for _, v, i in steps])
+    index = np.concatenate([np.full(int(v[0].sum()), k + 1) for k, (_, v, _) in enumerate(steps)])
+    return ekf.Log(np.arange(len(steps) + 1.0), np.tile(STEP, (len(steps), 1)), index, z, ids)
 
-        warnings.filterwarnings("ignore")
-        from roboticstoolbox import EKF, Bicycle, LandmarkMap, RandomPath
-        from roboticstoolbox import RangeBearingSensor as RTBSensor
-    except ImportError:
-        return None
 
-    def build():
-        V = np.diag([0.02, np.radians(0.5)]) ** 2
-        W = np.diag([SENSOR.sigma_range, SENSOR.sigma_bearing]) ** 2
-        robot = Bicycle(covar=V, animation=None)
-        robot.control = RandomPath(workspace=10, seed=0)
-        lmap = LandmarkMap(L, workspace=10, seed=0)
-        sensor = RTBSensor(
-            robot, lmap, covar=W, angle=[-np.pi / 2, np.pi / 2], range=8, animate=False, seed=0
-        )
-        f = EKF(robot=(robot, V), P0=np.diag([0.1, 0.1, 0.03]) ** 2, map=lmap,
-                sensor=(sensor, W), animate=False, history=False)  # fmt: skip
-        return f, robot, sensor
+def params(n: int | None = None) -> ekf.NoiseParameters:
+    p = ekf.NoiseParameters.of(NOISE, SENSOR)
+    if n is None:
+        return p
+    scale = np.linspace(0.5, 2.0, n)  # n different parameter sets
+    return p._replace(k_s=p.k_s * scale, sigma_r=p.sigma_r * scale)
 
-    f, _, _ = build()
-    t0 = time.perf_counter()
-    for _ in range(n):
-        f.step()
-    t_step = (time.perf_counter() - t0) / n
-    _, robot, sensor = build()
-    t0 = time.perf_counter()
-    for _ in range(n):
-        robot.step()
-        sensor.reading()
-    t_sim = (time.perf_counter() - t0) / n
-    return t_step * 1e6, t_sim * 1e6
+
+def run_log(log, p, association, keep="all"):
+    return ekf.run(log, LANDMARKS, p, start=START, association=association, keep=keep,
+                   landmark_signatures=np.arange(L), readings=keep == "all")  # fmt: skip
+
+
+def stats(times: list[float]) -> tuple[float, float]:
+    return min(times), float(np.median(times))
+
+
+def interleaved(fns: dict[str, Callable[[], object]], repeat: int) -> dict[str, list[float]]:
+    out: dict[str, list[float]] = {k: [] for k in fns}
+    for _ in range(repeat):
+        for name, fn in fns.items():
+            t0 = time.perf_counter()
+            fn()
+            out[name].append(time.perf_counter() - t0)
+    return out
 
 
 def main() -> None:
@@ -227,54 +223,48 @@ def main() -> None:
     parser.add_argument(
         "--batch-steps", type=int, default=380, help="steps of the batch (default: one lap)"
     )
-    parser.add_argument("--repeat", type=int, default=3, help="interleaved repeats")
+    parser.add_argument("--repeat", type=int, default=5, help="interleaved repeats")
     args = parser.parse_args()
     rng = np.random.default_rng(0)
     LANDMARKS = rng.uniform(-10.0, 10.0, (L, 2))
     single = simulate(rng, LANDMARKS, 1, args.steps)
     n_read = np.mean([v.sum() for _, v, _ in single])
-    # one filter: the readings of the step, unpadded
     single = [(z[:, v[0]], v[:, v[0]], i[:, v[0]]) for z, v, i in single]
     single1 = [(z[0], v[0], i[0]) for z, v, i in single]
+    log = as_log(single)
 
     # --- 1. same numbers first
     known, _, _ = relmap_run(START, single1, known=True, record=True)
     maha, _, _ = relmap_run(START, single1, known=False, record=True)
-    used = [up.status == ekf.USED for _, _, up in known]
+    used = [up.status == ekf.Status.USED for _, _, up in known]
     fp, _, _ = filterpy_run(single, used, record=True)
     d_mean = max(np.abs(se2.minus(k[0], f[0])).max() for k, f in zip(known, fp, strict=True))
     d_cov = max(
         np.abs(k[1] - f[1]).max() / np.abs(f[1]).max() for k, f in zip(known, fp, strict=True)
     )
-    maha_used = [up.status == ekf.USED for _, _, up in maha]
+    tr = run_log(log, params(), "signatures")
+    d_run = max(np.abs(tr.mean[k + 1] - known[k][0]).max() for k in range(args.steps))
+    maha_used = [up.status == ekf.Status.USED for _, _, up in maha]
     right = sum(
         (u & (up.landmark == ids)).sum()
         for u, (_, _, up), (_, _, ids) in zip(maha_used, maha, single1, strict=True)
     ) / sum(u.sum() for u in maha_used)
-    same = np.mean([np.array_equal(u, v) for u, v in zip(used, maha_used, strict=True)])
     n_used = np.mean([u.sum() for u in used])
-    from relmap import _numba
-
-    print("relmap paths:", "numba kernels" if _numba.enabled() else "numpy (RELMAP_NUMBA=0)")
     print(
         f"scenario: {args.steps} steps, {L} landmarks, {n_read:.1f} readings per step "
         f"({n_used:.1f} used after the gate)"
     )
     print(
         f"  relmap (known association) vs filterpy, all steps: max |Δmean| {d_mean:.1e}, "
-        f"max |ΔΣ|/|Σ| {d_cov:.1e}"
+        f"max |ΔΣ|/|Σ| {d_cov:.1e}; ekf.run vs step by step: max |Δmean| {d_run:.1e}"
     )
-    print(
-        f"  Mahalanobis association: {right:.2%} of the readings it used paired with their true "
-        f"landmark; same readings used as with known association in {same:.1%} of the steps"
-    )
-    assert d_mean < 1e-9 and d_cov < 1e-9, "relmap and filterpy disagree"
+    print(f"  Mahalanobis association: {right:.2%} of the readings it used paired right")
+    assert d_mean < 1e-9 and d_cov < 1e-9 and d_run < 1e-12, "relmap and filterpy disagree"
 
-    # --- 3. batch (checked before timing)
-    batch_steps = simulate(np.random.default_rng(1), LANDMARKS, args.batch, args.batch_steps)
-    starts = rm.AT(
-        np.broadcast_to(START.mean, (args.batch, 3)), np.broadcast_to(START.cov, (args.batch, 3, 3))
-    )
+    # --- 2. batch (checked before timing)
+    B, TB, T = args.batch, args.batch_steps, args.steps
+    batch_steps = simulate(np.random.default_rng(1), LANDMARKS, B, TB)
+    starts = rm.AT(np.broadcast_to(START.mean, (B, 3)), np.broadcast_to(START.cov, (B, 3, 3)))
     for is_known in (True, False):
         whole, _, _ = relmap_run(starts, batch_steps, known=is_known, record=True)
         alone, _, _ = relmap_run(
@@ -283,64 +273,78 @@ def main() -> None:
         dm = max(np.abs(se2.minus(w[0][0], a[0])).max() for w, a in zip(whole, alone, strict=True))
         dc = max(np.abs(w[1][0] - a[1]).max() for w, a in zip(whole, alone, strict=True))
         assert dm < 1e-12 and dc < 1e-12, "a filter of the batch differs from that filter alone"
+    lap = as_log([(z[:1], v[:1], i[:1]) for z, v, i in batch_steps])
+    pb = params(B)
+
+    mrclam = None
+    folder = os.environ.get(
+        "RELMAP_DATA", str(Path(__file__).resolve().parents[2] / "shared" / "data")
+    )
+    if Path(folder, "landmarks", "mrclam6").is_dir():
+        from relmap.io import read_mrclam
+        from relmap.localize import calibrate_mrclam
+
+        data = read_mrclam(Path(folder, "landmarks", "mrclam6"))
+        r1 = data.robots[0]
+        keep = data.landmark_index(r1.meas_subject) >= 0
+        inside = (r1.odometry_t >= r1.truth_t[0]) & (r1.odometry_t <= r1.truth_t[-1])
+        o = np.flatnonzero(inside)
+        mlog = ekf.Log.from_velocities(
+            r1.odometry_t[o[0]:], r1.odometry_v[o[0]:], r1.odometry_w[o[0]:], r1.meas_t[keep],
+            np.column_stack([r1.meas_range[keep], r1.meas_bearing[keep]]),
+            data.landmark_index(r1.meas_subject)[keep], end=float(r1.odometry_t[o[-1]]),
+        )  # fmt: skip
+        base = calibrate_mrclam(data, 2).parameters
+        scale = np.linspace(0.5, 4.0, 64)
+        p64 = base._replace(k_s=base.k_s * scale, sigma_r=base.sigma_r * scale)
+        start = rm.AT(r1.truth_at(mlog.t[:1])[0], np.diag([4e-4, 4e-4, 4e-4]))
+
+        def mrclam() -> None:
+            ekf.run(mlog, data.landmark_xy, p64, start=start, keep="summary", readings=False,
+                    landmark_signatures=np.arange(len(data.landmark_xy)))  # fmt: skip
 
     # --- timings, interleaved
-    runs = {
-        "relmap known": lambda: relmap_run(START, single1, known=True),
-        "relmap Mahalanobis": lambda: relmap_run(START, single1, known=False),
+    runs: dict[str, Callable[[], object]] = {
+        "steps known": lambda: relmap_run(START, single1, known=True),
+        "steps Mahalanobis": lambda: relmap_run(START, single1, known=False),
+        "run known": lambda: run_log(log, params(), "signatures"),
+        "run Mahalanobis": lambda: run_log(log, params(), "mahalanobis"),
         "filterpy": lambda: filterpy_run(single, used),
-        "batch known": lambda: relmap_run(starts, batch_steps, known=True),
-        "batch Mahalanobis": lambda: relmap_run(starts, batch_steps, known=False),
+        "MC batch known": lambda: relmap_run(starts, batch_steps, known=True),
+        "MC batch Mahalanobis": lambda: relmap_run(starts, batch_steps, known=False),
+        "run batch known": lambda: run_log(lap, pb, "signatures", keep="summary"),
+        "run batch Mahalanobis": lambda: run_log(lap, pb, "mahalanobis", keep="summary"),
     }
-    parts: dict[str, tuple[float, float]] = {}  # best (predict, correct) seconds of each run
-
-    def timed(name: str) -> Callable[[], None]:
-        def run() -> None:
-            _, tp, tc = runs[name]()
-            if name not in parts or tp + tc < sum(parts[name]):
-                parts[name] = (tp, tc)
-
-        return run
-
-    best_of(*(timed(n) for n in runs), repeat=args.repeat)
-    T, TB, B = args.steps, args.batch_steps, args.batch
-
-    def us(name: str, n: int) -> tuple[float, float, float]:
-        tp, tc = parts[name]
-        return (tp + tc) / n * 1e6, tp / n * 1e6, tc / n * 1e6
-
-    print("\nµs per step (predict + correct = whole step)")
-    rows = [
-        ("relmap, known association", us("relmap known", T)),
-        ("relmap, Mahalanobis association", us("relmap Mahalanobis", T)),
-        ("filterpy, stacked update (told the pairs)", us("filterpy", T)),
-        (f"relmap batch of {B}, known, per filter", us("batch known", TB * B)),
-        (f"relmap batch of {B}, Mahalanobis, per filter", us("batch Mahalanobis", TB * B)),
-    ]
-    for label, (total, tp, tc) in rows:
-        print(f"  {label:<44}{total:9.2f}   ({tp:7.2f} + {tc:7.2f})")
-    rtb = rtb_timing(min(T, 2000))
-    if rtb is None:
-        print("  roboticstoolbox: not installed")
-    else:
-        print(
-            f"  {'roboticstoolbox EKF.step (1 reading/step)':<44}{rtb[0]:9.2f}   (of which its "
-            f"own simulation {rtb[1]:.2f}: filter ≈ {rtb[0] - rtb[1]:.2f})"
-        )
-    fp_total, _, fp_corr = us("filterpy", T)
-    print("\nratios")
-    for name in ("relmap known", "relmap Mahalanobis"):
-        total, _, corr = us(name, T)
-        print(
-            f"  filterpy / {name}: step {fp_total / total:5.2f}x, update alone "
-            f"{fp_corr / corr:5.2f}x   (target >= 2x)"
-        )
-    for single_name, batch_name in (
-        ("relmap known", "batch known"),
-        ("relmap Mahalanobis", "batch Mahalanobis"),
-    ):
-        ratio = us(single_name, T)[0] / us(batch_name, TB * B)[0]
-        print(f"  {single_name} / {batch_name} per filter-step: {ratio:6.1f}x   (target >= 20x)")
+    if mrclam is not None:
+        runs["MRCLAM robot 1, 64 parameter sets"] = mrclam
+    times = interleaved(runs, args.repeat)
+    per = {
+        "steps known": T, "steps Mahalanobis": T, "run known": T, "run Mahalanobis": T,
+        "filterpy": T, "MC batch known": TB * B, "MC batch Mahalanobis": TB * B,
+        "run batch known": TB * B, "run batch Mahalanobis": TB * B,
+    }  # fmt: skip
+    print(f"\nµs per filter-step, min / median of {args.repeat} interleaved repeats "
+          "(machine shared with other jobs)")  # fmt: skip
+    for name, n in per.items():
+        lo, med = stats(times[name])
+        print(f"  {name:<28}{lo / n * 1e6:10.3f} {med / n * 1e6:10.3f}")
+    if mrclam is not None:
+        lo, med = stats(times["MRCLAM robot 1, 64 parameter sets"])
+        print(f"  MRCLAM robot 1 ({len(mlog.t)} times, {len(mlog.z)} readings), 64 parameter "
+              f"sets: {lo:.3f} s min, {med:.3f} s median (target well under 1 s)")  # fmt: skip
+    fp_lo, fp_med = stats(times["filterpy"])
+    print("\nratios filterpy / relmap per filter-step (from min; from median)")
+    targets = {"steps known": 5, "run known": 5, "MC batch known": 100, "run batch known": 100,
+               "MC batch Mahalanobis": 30, "run batch Mahalanobis": 30}  # fmt: skip
+    for name, target in targets.items():
+        lo, med = stats(times[name])
+        r_lo = (fp_lo / T) / (lo / per[name])
+        r_med = (fp_med / T) / (med / per[name])
+        print(f"  {name:<28}{r_lo:9.1f}x {r_med:9.1f}x   (target >= {target}x)")
+    for name in ("steps Mahalanobis", "run Mahalanobis"):
+        lo, med = stats(times[name])
+        print(f"  {name:<28}{(fp_lo / T) / (lo / T):9.1f}x {(fp_med / T) / (med / T):9.1f}x   "
+              "(filterpy told the pairs)")  # fmt: skip
 
 
 if __name__ == "__main__":

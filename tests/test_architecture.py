@@ -28,17 +28,7 @@ PACKAGE = SRC / "relmap"
 LAYERS: list[tuple[str, tuple[str, ...]]] = [
     (
         "base",
-        (
-            "errors",
-            "typing",
-            "_version",
-            "_layout",
-            "_sym3",
-            "_progress",
-            "_core",
-            "_numba",
-            "_numba_math",
-        ),
+        ("errors", "typing", "_version", "_layout", "_sym3", "_progress", "_core"),
     ),
     ("distributed", ("distributed",)),
     ("lie", ("lie",)),
@@ -49,28 +39,29 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("trajectory", ("trajectory",)),
     ("robot/sensors", ("robot", "sensors", "decisions")),
     ("network", ("network",)),
-    ("ekf", ("ekf", "_ekf_kernels")),
+    ("ekf", ("ekf", "autocalibration")),
     ("io", ("io",)),
     ("evaluate", ("evaluate", "study")),
     ("plot", ("plot", "report", "plot_trajectory")),
     (
         "applications",
-        ("cli", "demo", "demo_report", "validate", "localize", "cli_trajectory", "__main__"),
+        (
+            "cli",
+            "demo",
+            "demo_report",
+            "validate",
+            "localize",
+            "localize_plot",
+            "cli_trajectory",
+            "__main__",
+        ),
     ),
 ]
 
 #: Still true on this branch, being removed by other parts of issue 17 (the integrator removes
 #: an entry when its part is merged): module -> why.
-PENDING_NUMBA = {
-    "relmap.ekf": "the EKF's numba kernels (issue 17, EKF part)",
-    "relmap._ekf_kernels": "the EKF's numba kernels (issue 17, EKF part)",
-    "relmap._numba": "numba's switch, gone with the last kernel (issue 17)",
-    "relmap._numba_math": "numba helpers, gone with the last kernel (issue 17)",
-    "relmap.cli": "numba's one_shot switch, gone with relmap._numba (issue 17)",
-}
-PENDING_LAYERS = {
-    "relmap.plot": "imports relmap.localize (issue 17: applications in one layer above)",
-}
+PENDING_NUMBA: dict[str, str] = {}
+PENDING_LAYERS: dict[str, str] = {}
 #: Import cycles still present, each a sorted tuple of modules -> why.
 PENDING_CYCLES = {
     (

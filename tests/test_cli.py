@@ -75,25 +75,12 @@ def test_help_imports_neither_numpy_nor_scipy():
         "try:\n    main(['--help'])\nexcept SystemExit:\n    pass\n"
         "print([m for m in sys.modules if m.split('.')[0] in ('numpy', 'scipy', 'relmap') "
         "and m not in ('relmap', 'relmap._version', 'relmap.cli', 'relmap.errors', "
-        "'relmap._numba', 'relmap.cli_trajectory')], "
+        "'relmap.cli_trajectory')], "
         "file=sys.stderr)"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0 and "usage: relmap" in out.stdout
     assert out.stderr.strip() == "[]", out.stderr
-
-
-def test_one_shot_raises_the_compiled_kernels_size_only_while_it_runs(monkeypatch):
-    from relmap import _numba
-
-    monkeypatch.setenv("RELMAP_NUMBA", "1")
-    assert _numba.enabled() and _numba.enabled(_numba.LARGE)
-    with _numba.one_shot():
-        assert not _numba.enabled() and not _numba.enabled(_numba.LARGE)
-        assert _numba.enabled(_numba.ONE_SHOT_LARGE)
-    with pytest.raises(RuntimeError), _numba.one_shot():
-        raise RuntimeError
-    assert _numba.enabled() and not _numba.enabled(_numba.LARGE - 1)
 
 
 @pytest.mark.real_data

@@ -72,7 +72,7 @@ def test_landmark_update_equals_eqs_26_to_28(associate):
         kw = {"signatures": np.array([10, 11, 12, 13]), "landmark_signatures": np.arange(10, 15)}
     up = ekf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS, associate=associate, **kw)
     np.testing.assert_array_equal(up.landmark, idx)
-    assert (up.status == ekf.USED).all()
+    assert (up.status == ekf.Status.USED).all()
     expected = manual_update(PRIOR, z, idx)
     np.testing.assert_allclose(up.state.mean, expected.mean, atol=1e-12)
     np.testing.assert_allclose(up.state.cov, expected.cov, rtol=1e-9, atol=1e-14)
@@ -83,9 +83,9 @@ def test_statuses_are_reported_and_only_used_readings_count():
     z = np.vstack([z, [np.nan, 0.1], [2.0, 3.0], [1.0, 0.0]])  # NaN, far from all, padding
     valid = np.array([True, True, True, True, True, False])
     up = ekf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS, valid=valid)
-    assert list(up.status[:3]) == [ekf.USED] * 3
-    assert up.status[3] == ekf.INVALID and up.status[5] == ekf.ABSENT
-    assert up.status[4] in (ekf.GATED, ekf.LOST)
+    assert list(up.status[:3]) == [ekf.Status.USED] * 3
+    assert up.status[3] == ekf.Status.INVALID and up.status[5] == ekf.Status.ABSENT
+    assert up.status[4] in (ekf.Status.GATED, ekf.Status.LOST)
     assert up.report()["used"] == 3
     only = ekf.correct_landmarks(PRIOR, z[:3], SENSOR, LANDMARKS)
     np.testing.assert_allclose(up.state.cov, only.state.cov)
@@ -103,7 +103,7 @@ def test_unknown_signature_is_not_merged():
         signatures=[0, 99],
         landmark_signatures=np.arange(5),
     )
-    assert list(up.status) == [ekf.USED, ekf.UNKNOWN] and up.landmark[1] == -1
+    assert list(up.status) == [ekf.Status.USED, ekf.Status.UNKNOWN] and up.landmark[1] == -1
 
 
 def test_one_to_one_versus_the_lectures_eq21():
@@ -112,9 +112,9 @@ def test_one_to_one_versus_the_lectures_eq21():
     z = readings(PRIOR.mean, [0, 0])
     z[1, 0] += 0.05
     a = ekf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS)
-    assert a.status[0] == ekf.USED and a.status[1] in (
-        ekf.GATED,
-        ekf.LOST,
+    assert a.status[0] == ekf.Status.USED and a.status[1] in (
+        ekf.Status.GATED,
+        ekf.Status.LOST,
     )  # its next landmark is far
     b = ekf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS, pairing="per_landmark")
     assert b.report()["used"] == 1
@@ -122,7 +122,7 @@ def test_one_to_one_versus_the_lectures_eq21():
     mid = SENSOR.predict(PRIOR.mean, close.mean(axis=0))[None]
     c = ekf.correct_landmarks(PRIOR, mid, SENSOR, close, pairing="per_landmark", gate=0.9999)
     d = ekf.correct_landmarks(PRIOR, mid, SENSOR, close, gate=0.9999)
-    assert c.status[0] == ekf.USED and d.status[0] == ekf.USED
+    assert c.status[0] == ekf.Status.USED and d.status[0] == ekf.Status.USED
     assert np.trace(c.state.cov) < np.trace(d.state.cov)  # one reading counted twice
 
 
@@ -181,8 +181,10 @@ def test_consistency_over_many_runs():
 
 def test_bad_input():
     z = readings(PRIOR.mean, [0])
-    with pytest.raises(ShapeError):
-        ekf.correct_landmarks(PRIOR, z, SENSOR, np.zeros((0, 2)))
+    # an empty map: every reading UNKNOWN (counted), the state unchanged
+    empty = ekf.correct_landmarks(PRIOR, z, SENSOR, np.zeros((0, 2)))
+    assert list(empty.status) == [ekf.Status.UNKNOWN]
+    np.testing.assert_array_equal(empty.state.mean, PRIOR.mean)
     with pytest.raises(ShapeError):
         ekf.correct_landmarks(PRIOR, z[0], SENSOR, LANDMARKS)
     with pytest.raises(ParameterError):

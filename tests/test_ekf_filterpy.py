@@ -123,7 +123,7 @@ def test_step_by_step_equal_to_filterpy(associate):
             state, z, SENSOR, LANDMARKS, associate=associate, gate=0.9999, **kw
         )
         np.testing.assert_array_equal(up.landmark, ids)  # the true landmarks, every reading
-        assert (up.status == ekf.USED).all()
+        assert (up.status == ekf.Status.USED).all()
         state = up.state
         if len(ids):
             R = np.diag(np.tile([SENSOR.sigma_range**2, SENSOR.sigma_bearing**2], len(ids)))
@@ -141,6 +141,39 @@ def test_step_by_step_equal_to_filterpy(associate):
                 residual=lambda a, b: se2.minus(a, b),
             )  # fmt: skip
             assert_same(state, kf, f"pose update {t}")
+
+
+@pytest.mark.parametrize("associate", ["signatures", "mahalanobis", "jcbb"])
+def test_a_whole_log_through_ekf_run_equals_filterpy(associate):
+    """The same simulated log replayed by ekf.run (all loops in the core) and stepped through
+    filterpy with the pairs ekf.run chose: the same posterior at every time, to 1e-12."""
+    rng = np.random.default_rng(12)
+    start = rm.AT([0.1, -2.9, 0.15], np.diag([0.05, 0.04, 0.01]))
+    steps = simulate(rng, 60)
+    index = np.concatenate([np.full(len(ids), k + 1) for k, (_, _, ids, _) in enumerate(steps)])
+    log = ekf.Log(
+        np.arange(len(steps) + 1.0),
+        np.array([u for u, _, _, _ in steps]),
+        index.astype(np.int64),
+        np.concatenate([z for _, z, _, _ in steps]),
+        np.concatenate([ids for _, _, ids, _ in steps]),
+    )
+    p = ekf.NoiseParameters.of(NOISE, SENSOR)
+    tr = ekf.run(log, LANDMARKS, p, start=start, association=associate, gate=0.9999)
+    assert (tr.status == ekf.Status.USED).all()
+    np.testing.assert_array_equal(tr.landmark, log.signature)
+    kf = _Filter(dim_x=3, dim_z=2)
+    kf.x, kf.P = start.mean.copy(), start.cov.copy()
+    for k, (u, z, _, _) in enumerate(steps):
+        kf.F, kf.Q = jacobians(kf.x, u)
+        kf.predict(u=u)
+        rows = np.flatnonzero(index == k + 1)
+        if len(rows):
+            ids = tr.landmark[rows]
+            R = np.diag(np.tile([SENSOR.sigma_range**2, SENSOR.sigma_bearing**2], len(ids)))
+            kf.update(z.reshape(-1), h_jacobian, hx, R=R, args=(ids,), hx_args=(ids,),
+                      residual=wrapped_every_second)  # fmt: skip
+        assert_same(rm.AT._trusted(tr.mean[k + 1], tr.cov[k + 1]), kf, f"time {k + 1}")
 
 
 def test_filterpy_updates_in_joseph_form(monkeypatch):

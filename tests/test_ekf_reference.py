@@ -1,11 +1,10 @@
-"""relmap.ekf's fast paths against the textbook procedure, on random inputs.
+"""relmap.ekf (the compiled core) against the textbook procedure, on random inputs.
 
-The reference below is the plain algorithm (it was relmap's implementation before the fast
-paths): predict every landmark's reading, the m×L innovations and Mahalanobis distances,
-greedy one-to-one pairing over the whole matrix (or Eq. 21), χ² gate, one stacked 2k×2k update
-in Joseph form. The fast paths (candidate landmarks, pairs inside the gate first, one-shot
-pairing with a greedy fallback, 3×3 algebra, direct signature lookup) must give the same
-pairings and statuses exactly and the same states to rounding.
+The reference below is the plain algorithm written in numpy: predict every landmark's reading,
+the m×L innovations and Mahalanobis distances, greedy one-to-one pairing over the whole matrix
+(or Eq. 21), χ² gate, one stacked 2k×2k update in Joseph form. The core (the shortcut of
+distinct nearest landmarks, the sorted greedy, signature lookup by binary search, the Cholesky
+update) must give the same pairings and statuses exactly and the same states to rounding.
 """
 
 from __future__ import annotations
@@ -19,15 +18,6 @@ import relmap as rm
 from relmap import ekf, gaussian
 from relmap.lie import se2
 from relmap.sensors import RangeBearingSensor
-
-
-@pytest.fixture(autouse=True, params=["numba", "numpy"])
-def paths(request, monkeypatch):
-    """Every test twice: with relmap's numba kernels and with its numpy paths."""
-    if request.param == "numba":
-        pytest.importorskip("numba")
-    monkeypatch.setenv("RELMAP_NUMBA", "1" if request.param == "numba" else "0")
-    return request.param
 
 
 def reference(state, readings, sensor, landmarks, *, associate="mahalanobis",
@@ -55,7 +45,9 @@ def reference(state, readings, sensor, landmarks, *, associate="mahalanobis",
     if signatures is not None:
         allowed &= np.broadcast_to(signatures, (*batch, m))[..., :, None] == landmark_signatures
     cost = np.where(allowed, cost, np.inf)
-    status = np.where(~present, ekf.ABSENT, np.where(~usable, ekf.INVALID, ekf.UNKNOWN))
+    status = np.where(
+        ~present, ekf.Status.ABSENT, np.where(~usable, ekf.Status.INVALID, ekf.Status.UNKNOWN)
+    )
     candidate = np.isfinite(cost).any(axis=-1) & usable
     gate2 = float(gaussian.confidence_k2(gate, 2))
     if pairing == "per_landmark":
@@ -69,7 +61,9 @@ def reference(state, readings, sensor, landmarks, *, associate="mahalanobis",
         used_r, gated_r = served.any(axis=-1), refused.any(axis=-1) & ~served.any(axis=-1)
         landmark = np.where(used_r, served.argmax(-1), np.where(gated_r, refused.argmax(-1), -1))
         status = np.where(
-            used_r, ekf.USED, np.where(gated_r, ekf.GATED, np.where(candidate, ekf.LOST, status))
+            used_r,
+            ekf.Status.USED,
+            np.where(gated_r, ekf.Status.GATED, np.where(candidate, ekf.Status.LOST, status)),
         )
         zr = np.take_along_axis(z, best[..., None], axis=-2)
         new = _stacked(state, zr, h, H, R, use_l)
@@ -94,7 +88,9 @@ def reference(state, readings, sensor, landmarks, *, associate="mahalanobis",
     pair_d2 = np.take_along_axis(d2, np.maximum(landmark, 0)[..., None], axis=-1)[..., 0]
     used = paired & (pair_d2 <= gate2)
     status = np.where(
-        used, ekf.USED, np.where(paired, ekf.GATED, np.where(candidate, ekf.LOST, status))
+        used,
+        ekf.Status.USED,
+        np.where(paired, ekf.Status.GATED, np.where(candidate, ekf.Status.LOST, status)),
     )
     nearest = np.where(np.isfinite(cost), d2, np.inf).min(axis=-1)
     lk = np.maximum(landmark, 0)
@@ -192,12 +188,9 @@ OPTIONS = [
 ]
 
 
-@pytest.mark.parametrize("candidates", [False, True], ids=["all landmarks", "candidates"])
 @pytest.mark.parametrize("batch", [(), (9,), (2, 4)], ids=str)
-def test_fast_paths_equal_the_textbook_procedure(batch, candidates, monkeypatch):
-    # the candidate restriction applies above a size: force it on or off
-    monkeypatch.setattr(ekf, "_CANDIDATES_ABOVE", 0 if candidates else 10**9)
-    rng = np.random.default_rng(hash((batch, candidates)) % 2**32)
+def test_core_equals_the_textbook_procedure(batch):
+    rng = np.random.default_rng(sum(batch) + 17 * len(batch))
     for trial in range(12):
         m, L = int(rng.integers(1, 8)), int(rng.integers(1, 25))
         state, z, sensor, lm, valid, signature = scenario(rng, batch, m, L, dense=trial % 3 == 0)
@@ -245,7 +238,7 @@ def test_precise_reading_against_vague_prior_takes_the_stacked_solve():
     z = sensor.predict(np.array([0.01, -0.02, 0.12]), lm)
     kw = dict(associate="signatures", signatures=np.arange(3), landmark_signatures=np.arange(3))
     up = ekf.correct_landmarks(state, z, sensor, lm, gate=0.999999, **kw)
-    assert (up.status == ekf.USED).all()
+    assert (up.status == ekf.Status.USED).all()
     assert_same(up, reference(state, z, sensor, lm, gate=0.999999, **kw), atol_mean=1e-11,
                 rtol_cov=1e-11)  # fmt: skip
 
@@ -260,56 +253,7 @@ def test_sensor_without_noise():
         assert_same(up, reference(state, z, sensor, lm, valid=valid, **kw))
 
 
-def test_greedy_rounds_equal_the_sequential_greedy():
-    """Mutual minima, taken by rounds, are the greedy pairing, ties included."""
-
-    def sequential(c):
-        c = c.copy()
-        n, C = c.shape
-        pair = np.full(n, -1)
-        for _ in range(min(n, C)):
-            k = int(np.argmin(c))
-            if not np.isfinite(c.flat[k]):
-                break
-            j, col = divmod(k, C)
-            pair[j] = col
-            c[j, :] = np.inf
-            c[:, col] = np.inf
-        return pair
-
-    rng = np.random.default_rng(0)
-    for _ in range(500):
-        n, C, F = (int(v) for v in rng.integers(1, 8, 3))
-        cost = rng.integers(0, 4, (n, C, F)).astype(float)  # many ties
-        cost[rng.random(cost.shape) < 0.3] = np.inf
-        rounds, one_shot = ekf._greedy(cost), ekf._one_to_one(cost)
-        for f in range(F):
-            expected = sequential(cost[..., f])
-            np.testing.assert_array_equal(rounds[:, f], expected)
-            np.testing.assert_array_equal(one_shot[:, f], expected)
-        np.testing.assert_array_equal(ekf._one_to_one(cost[..., 0]), sequential(cost[..., 0]))
-
-
-def test_candidate_bounds_are_bounds():
-    """The innovation variances never exceed the bounds the candidate test uses."""
-    rng = np.random.default_rng(5)
-    for _ in range(20):
-        state, z, sensor, lm, _valid, _ = scenario(rng, (30,), 3, 20)
-        job = ekf._Job(state, z, (30,), None, None, None, sensor, lm, 9.21)
-        f = job.f
-        h, H, _ = sensor.predict(state.mean[:, None, :], lm, jacobians=True)
-        S = H @ state.cov[:, None] @ np.swapaxes(H, -1, -2) + sensor.noise(h[..., 0])
-        r = h[..., 0].T
-        lam = f.h + np.abs(f.cbar)
-        var_r, var_b = sensor._variances(r)
-        assert (S[..., 0, 0].T <= (lam + var_r) * (1 + 1e-12)).all()
-        bound = (lam / r + 2 * np.abs(f.gbar)) / r + f.p[5] + var_b
-        assert (S[..., 1, 1].T <= bound * (1 + 1e-12)).all()
-
-
-@pytest.mark.parametrize("candidates", [False, True], ids=["all landmarks", "candidates"])
-def test_broadcasting_and_edge_cases(candidates, monkeypatch):
-    monkeypatch.setattr(ekf, "_CANDIDATES_ABOVE", 0 if candidates else 10**9)
+def test_broadcasting_and_edge_cases():
     rng = np.random.default_rng(21)
     state, z, sensor, lm, valid, signature = scenario(rng, (5,), 4, 12)
     one = state[2]
@@ -339,128 +283,20 @@ def test_broadcasting_and_edge_cases(candidates, monkeypatch):
         assert_same(up, ref)
 
 
-def test_landmark_at_the_sensor_has_no_bearing():
+def test_landmark_at_the_sensor_is_a_counted_0_over_0_alone_and_in_a_batch():
+    """A landmark at the sensor has no bearing (0/0): its reading is DEGENERATE, the other
+    reading of the scan is used, the filter stays finite — the same alone and in a batch."""
     sensor = RangeBearingSensor(0.1, 0.02, mount=[0.5, 0.0, 0.0])
     state = rm.AT([1.0, 2.0, 0.0], np.diag([0.01, 0.01, 0.001]))
     lm = np.array([[1.5, 2.0], [4.0, 4.0]])
-    z = np.array([[3.0, 0.5]])
-    with pytest.raises(rm.errors.ParameterError, match="own position"):
-        ekf.correct_landmarks(state, z, sensor, lm)
-
-
-def test_single_filter_path_equals_the_general_path(monkeypatch, paths):
-    """One filter takes its own path (the numba kernel, or Python numbers); it must give what
-    the general path gives for a batch of one: same pairings and statuses, states and d² to
-    1e-12 — over gated, unknown, NaN and negative readings, padding, signatures unique,
-    permuted, shared or read twice, and every noise model."""
-    rng = np.random.default_rng(11)
-    taken: dict[int, list[bool]] = {k: [] for k in range(6)}
-    name = "_compiled_one" if paths == "numba" else "_correct_one"
-    original = getattr(ekf, name)
-    now = {"variant": 0}
-
-    def counting(*args):
-        out = original(*args)
-        constant = args[2].noise_model == "constant"
-        taken[5 if now["variant"] == 0 and not constant else now["variant"]].append(out is not None)
-        return out
-
-    monkeypatch.setattr(ekf, name, counting)
-    for trial in range(300):
-        m, L = int(rng.integers(1, 13)), int(rng.integers(1, 25))
-        state, z, sensor, lm, valid, signature = scenario(rng, (), m, L, dense=trial % 3 == 0)
-        gate = float(rng.choice([0.5, 0.99, 0.9999]))
-        perm = rng.permutation(L)
-        for variant, kw in enumerate(
-            (
-                {},
-                dict(signatures=signature, landmark_signatures=np.arange(L)),
-                dict(
-                    associate="signatures", signatures=signature, landmark_signatures=np.arange(L)
-                ),
-                dict(
-                    associate="signatures",
-                    signatures=np.where(signature >= 0, perm[np.maximum(signature, 0)], 99),
-                    landmark_signatures=perm,
-                ),
-                dict(
-                    associate="signatures",
-                    signatures=signature,
-                    landmark_signatures=rng.integers(0, max(1, L // 2), L),
-                ),
-            )
-        ):
-            kw |= dict(gate=gate, valid=None if trial % 4 == 0 else valid)
-            now["variant"] = variant
-            monkeypatch.setattr(ekf, "_FAST_SINGLE", True)
-            fast = ekf.correct_landmarks(state, z, sensor, lm, **kw)
-            monkeypatch.setattr(ekf, "_FAST_SINGLE", False)
-            slow = ekf.correct_landmarks(state, z, sensor, lm, **kw)
-            np.testing.assert_array_equal(fast.status, slow.status)
-            np.testing.assert_array_equal(fast.landmark, slow.landmark)
-            assert fast.status.dtype == slow.status.dtype == np.int64
-            assert fast.landmark.dtype == slow.landmark.dtype == np.int64
-            np.testing.assert_allclose(fast.mahalanobis2, slow.mahalanobis2, rtol=1e-12, atol=0)
-            assert np.abs(se2.minus(fast.state.mean, slow.state.mean)).max() <= 1e-12
-            scale = np.abs(slow.state.cov).max()
-            assert np.abs(fast.state.cov - slow.state.cov).max() <= 1e-12 * scale
-            assert not fast.state.mean.flags.writeable and not fast.state.cov.flags.writeable
-    if paths == "numba":  # the kernel served nearly all calls (not ill-conditioned updates)
-        print({k: np.mean(v) for k, v in taken.items()})
-        assert min(np.mean(taken[k]) for k in range(6)) > 0.9
-    else:
-        # the single path served most calls: not those with a signature read twice or shared,
-        # nor nearest neighbours under range-dependent noise
-        assert np.mean(taken[0]) > 0.9 and min(np.mean(taken[k]) for k in (1, 2, 3)) > 0.3
-        assert not any(taken[5])
-
-
-def test_single_step_prediction_equals_the_general_path():
-    rng = np.random.default_rng(12)
-    drive = rm.robot.DiffDrive(0.05, 0.3)
-    for trial in range(400):
-        A = rng.normal(size=(3, 3)) * rng.choice([1e-3, 0.1, 1.0])
-        state = rm.AT(rng.normal(size=3) * [2, 2, 3], A @ A.T)
-        integration = ["midpoint", "arc"][trial % 2]
-        turn = [1.0, 1e-3, 0.0][trial % 3]
-        if trial % 5 == 0:
-            kw = dict(drive=drive)
-            noise = rm.robot.WheelNoise(*rng.uniform(0, 0.1, 2))
-            motion = rng.normal(size=2) * [3.0, 3.0 * turn]
-            motion[1] = motion[0] + motion[1]
-        else:
-            kw = {}
-            noise = rm.robot.DistanceNoise(*rng.uniform(0, 0.01, 3))
-            motion = rng.normal(size=2) * [0.3, turn]
-        fast = ekf.predict(state, motion, noise, integration=integration, **kw)
-        # the general path: the same step as a batch of one
-        slow = ekf.predict(state, motion[None], noise, integration=integration, **kw)[0]
-        assert np.abs(se2.minus(fast.mean, slow.mean)).max() <= 1e-12
-        assert np.abs(fast.cov - slow.cov).max() <= 1e-12 * np.abs(slow.cov).max()
-        assert fast.batch_shape == () and not fast.cov.flags.writeable
-        listed = ekf.predict(state, motion.tolist(), noise, integration=integration, **kw)
-        np.testing.assert_array_equal(listed.cov, fast.cov)
-
-
-def test_single_filter_discs_hold_every_landmark_inside_the_gate():
-    """The single-filter path looks for a reading's landmarks in a disc around its point: every
-    pair inside the gate must be among those candidates (large and tiny uncertainties, near
-    and far readings, sparse and dense maps)."""
-    rng = np.random.default_rng(13)
-    for trial in range(300):
-        m, L = int(rng.integers(1, 12)), int(rng.integers(1, 60))
-        state, z, sensor, lm, _, _ = scenario(rng, (), m, L, dense=trial % 2 == 0)
-        sensor = RangeBearingSensor(sensor.sigma_range, sensor.sigma_bearing, mount=sensor.mount)
-        if trial % 3 == 0:  # very uncertain, or nearly certain, pose
-            state = rm.AT(state.mean, state.cov * rng.choice([100.0, 1e-6]))
-        z = np.abs(z)
-        z[:, 0] = np.where(np.isfinite(z[:, 0]) & (z[:, 0] > 0), z[:, 0], 1.0)
-        gate2 = float(gaussian.confidence_k2(float(rng.choice([0.5, 0.99, 0.99999])), 2))
-        lmap = ekf._landmark_map(lm)
-        f = ekf._frame_one(state, sensor)
-        usable = list(range(m))
-        cand = set(ekf._disc_candidates(f, z.tolist(), usable, lmap, sensor, gate2, {}))
-        p = ekf._predict(f, lmap.lc, sensor)
-        d2, _, _ = ekf._innovations(p, z[:, 0], np.exp(1j * (z[:, 1] + f.st)))
-        inside = set(zip(*np.nonzero(d2 <= gate2 * (1 + 1e-9)), strict=True))
-        assert inside <= cand, inside - cand
+    z = np.array([[3.0, 0.5], sensor.predict(state.mean, lm[1])])
+    kw = dict(associate="signatures", signatures=[0, 1], landmark_signatures=[0, 1])
+    one = ekf.correct_landmarks(state, z, sensor, lm, **kw)
+    assert list(one.status) == [ekf.Status.DEGENERATE, ekf.Status.USED]
+    assert np.isfinite(one.state.mean).all() and np.isfinite(one.state.cov).all()
+    other = rm.AT([0.0, 0.0, 1.0], np.diag([0.02, 0.02, 0.002]))
+    batch = rm.AT(np.stack([other.mean, state.mean]), np.stack([other.cov, state.cov]))
+    both = ekf.correct_landmarks(batch, z, sensor, lm, **kw)
+    np.testing.assert_array_equal(both.status[1], one.status)
+    np.testing.assert_array_equal(both.state.mean[1], one.state.mean)
+    np.testing.assert_array_equal(both.state.cov[1], one.state.cov)

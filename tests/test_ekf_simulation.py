@@ -22,6 +22,7 @@ the true readings used, 1.3% of the spurious ones.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 import relmap as rm
 from relmap import ekf, gaussian
@@ -105,11 +106,53 @@ def test_mahalanobis_association_in_moderate_clutter():
         state = ekf.predict(state, STEP, NOISE)
         up = ekf.correct_landmarks(state, z, SENSOR, landmarks, valid=valid)
         state = up.state
-        u = up.status == ekf.USED
+        u = up.status == ekf.Status.USED
         used += u.sum()
         right += (u & (up.landmark == ids)).sum()
         true_readings += (valid & (ids >= 0)).sum()
         true_used += (u & (ids >= 0)).sum()
-        assert not (valid & (up.status == ekf.ABSENT)).any()
+        assert not (valid & (up.status == ekf.Status.ABSENT)).any()
     assert right / used >= 0.99, right / used
     assert true_used / true_readings >= 0.95  # the gate (99%) rejects few true readings
+
+
+@pytest.mark.slow
+def test_anees_of_200_runs_of_ekf_run_within_its_chi2_interval():
+    """200 simulated robots, each its own log replayed by ekf.run (readings every step with
+    their true landmark, known noise): at every time the average NEES over the runs, divided
+    by 3 (ANEES), is χ²(3·200)/600 if the filters are consistent: at the last time it lies in
+    its 95% interval, at ≥ 85% of all times too (95% expected; the times are correlated, and
+    the linearized filter runs slightly conservative: measured 88% inside, the misses below),
+    and the ANEES over all times is 1 within 0.05 (measured 0.954)."""
+    runs = 200
+    rng = np.random.default_rng(14)
+    landmarks = rng.uniform(-12.0, 12.0, (L, 2))
+    params = ekf.NoiseParameters.of(NOISE, SENSOR)
+    Su = NOISE.covariance(STEP)
+    nees = np.empty((runs, T + 1))
+    for r in range(runs):
+        truth = [PRIOR.sample(1, rng)[0]]
+        index, zs, ids = [], [], []
+        for k in range(1, T + 1):
+            truth.append(
+                se2.compose(truth[-1], increment(STEP + rng.multivariate_normal([0, 0], Su)))
+            )
+            z = SENSOR.predict(truth[-1], landmarks)
+            seen = np.flatnonzero(SENSOR.in_view(z))
+            zs.append(
+                z[seen]
+                + rng.normal(size=(len(seen), 2)) * [SENSOR.sigma_range, SENSOR.sigma_bearing]
+            )
+            index += [k] * len(seen)
+            ids.append(seen)
+        log = ekf.Log(np.arange(T + 1.0), np.tile(STEP, (T, 1)), np.array(index, np.int64),
+                      np.concatenate(zs), np.concatenate(ids))  # fmt: skip
+        tr = ekf.run(log, landmarks, params, start=PRIOR, gate=1 - 1e-6)
+        truth = np.array(truth)
+        nees[r] = gaussian.mahalanobis2(se2.minus(truth, tr.mean), 0.0, tr.cov)
+    anees = nees[:, 1:].mean(axis=0) / 3.0
+    lo, hi = (gaussian.confidence_k2(p, 3 * runs) / (3 * runs) for p in (0.025, 0.975))
+    inside = (anees >= lo) & (anees <= hi)
+    assert inside[-1], (anees[-1], lo, hi)
+    assert inside.mean() >= 0.85, (anees.round(3), lo, hi)
+    assert abs(anees.mean() - 1.0) < 0.05, anees.mean()

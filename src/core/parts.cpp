@@ -1,6 +1,7 @@
 // The list of the core's parts: each part's register function is declared and called here.
 #include "core.hpp"
 #include "blocks.hpp"
+#include "ekf.hpp"
 #include "linearize.hpp"
 #include "ordering.hpp"
 #include "se3.hpp"
@@ -14,6 +15,7 @@ void register_parts(nb::module_& m) {
     register_blocks(m);
     register_ordering(m);
     register_linearize(m);
+    register_ekf(m);
 }
 
 }  // namespace relmap

@@ -7,7 +7,6 @@ import sys
 import warnings
 from collections.abc import Sequence
 
-from relmap import _numba
 from relmap.errors import RelmapError
 
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing at start-up
@@ -32,13 +31,12 @@ def _demo(args: argparse.Namespace) -> int:
         raise ParameterError(f"--data {args.data}: no landmarks/mrclam6 folder in it")
     bar = TerminalProgress("relmap demo")
     try:
-        with _numba.one_shot():  # the EKF runs once: numba's start-up would not pay
-            demo = run(
-                seed=args.seed,
-                samples=args.samples,
-                data=args.data,
-                progress=lambda text: bar.update(text, force=True),
-            )
+        demo = run(
+            seed=args.seed,
+            samples=args.samples,
+            data=args.data,
+            progress=lambda text: bar.update(text, force=True),
+        )
         index = write_report(demo, args.out, progress=lambda text: bar.update(text, force=True))
     finally:
         bar.close()
@@ -355,6 +353,8 @@ def _solve(args: argparse.Namespace) -> int:
 
 def _localize(args: argparse.Namespace) -> int:
     import json
+
+    import numpy as np
     from pathlib import Path
 
     from relmap._progress import TerminalProgress
@@ -364,14 +364,30 @@ def _localize(args: argparse.Namespace) -> int:
     for out in (args.plot, args.out):
         if out and not Path(out).resolve().parent.is_dir():
             raise ParameterError(f"cannot write {out}: its folder does not exist")
+    if args.calibrate != ["auto"]:
+        how, number = (args.calibrate + [""])[:2] if len(args.calibrate) <= 2 else ("", "")
+        if how != "from-run" or not number.isdigit():
+            raise ParameterError(
+                f"--calibrate takes 'auto' or 'from-run N'; got {' '.join(args.calibrate)}"
+            )
+        args.calibrate_from = int(number)
+    stages = (
+        "estimating the noise from the run's innovations",
+        "searching the odometry's clock offset",
+        "refining the noise",
+        "measuring the innovations' whiteness",
+        "running the filter",
+        "scoring",
+    )
     bar = TerminalProgress(f"localizing {args.dataset}")
-    bar.update("reading the logs, estimating the noise", force=True)
+    bar.update("reading the logs", force=True)
     try:
         run = localize(
             args.dataset,
             robot=args.robot,
             associate=args.associate,
-            progress=lambda k, n: bar.update(f"reading time {k}/{n}"),
+            calibrate_from=args.calibrate_from,
+            progress=lambda k, n: bar.update(stages[min(k, len(stages) - 1)], force=True),
         )
     finally:
         bar.close()
@@ -380,35 +396,52 @@ def _localize(args: argparse.Namespace) -> int:
 
         write_localization(args.out, run)
     if args.plot:
-        from matplotlib.figure import Figure
+        from relmap.localize_plot import figure
+        from relmap.plot import save_png
 
-        from relmap.plot import localization, save_png
-
-        fig = Figure(figsize=(8, 7))
-        localization(fig.add_subplot(), run)
-        fig.tight_layout()
-        save_png(fig, args.plot)
+        save_png(figure(run), args.plot)
+    for warning in run.warnings:
+        print(f"relmap localize: warning: {warning}", file=sys.stderr)
     if args.json:
         print(json.dumps(run.summary()))
         return 0
-    cal = run.calibration
+    cal, p = run.calibration, run.calibration.parameters
     who = "CMU Plaza (second half)" if run.dataset == "plaza" else f"MRCLAM robot {run.robot}"
     span = run.t[-1] - run.t[0]
-    sensor = f"σ range {cal.sigma_range:.3g} m"
-    if cal.sigma_bearing is not None:
-        sensor += f", σ bearing {cal.sigma_bearing:.3g} rad"
-    if cal.range_scale != 1.0:
-        sensor += f", range scale {cal.range_scale:.4f}"
-    n = cal.odometry
+    ranges_only = run.dataset == "plaza"
+    sensor = f"σ range {float(p.sigma_r):.3g} m"
+    if not ranges_only:
+        sensor += f", σ bearing {float(p.sigma_b):.3g} rad"
+    if np.isfinite(float(p.nu)):
+        sensor += f", Student-t ν {float(p.nu):.3g}"
+    summary = run.summary()["calibration"]
+    if summary["method"] == "auto":
+        source = (
+            f"this run's innovations (clock offset {cal.delay:g} s"
+            + (f", range scale {cal.scale:g}" if ranges_only else "")
+            + f"; σ ×{cal.inflation:.2f} for correlated readings, ρ {cal.correlation[0]:.2f})"
+        )
+    else:
+        source = cal.trained_on + " against its ground truth"
+        if cal.range_scale != 1.0:
+            sensor += f", range scale {cal.range_scale:.4f}"
     print(f"{who}: {run.steps} filter times over {span:.1f} s, association {run.associate}")
+    print(f"  noise from {source}:")
     print(
-        f"  noise from {cal.trained_on}: odometry k_s={n.k_s:.3g} m²/m, "
-        f"k_θ={n.k_theta:.3g} rad²/rad, k_θs={n.k_theta_s:.3g} rad²/m; {sensor}"
+        f"    odometry k_s={float(p.k_s):.3g} m²/m, k_θ={float(p.k_theta):.3g} rad²/rad, "
+        f"k_θs={float(p.k_theta_s):.3g} rad²/m; {sensor}"
     )
     r = run.readings
     print(
         f"  readings: {r['used']} used, {run.score.rejected} rejected"
+        + (f", {r['wrong']} paired with the wrong landmark" if r["wrong"] else "")
         + (f", {r['ignored']} ignored (not landmarks)" if r["ignored"] else "")
+        + f"; NIS/dof {run.anis:.2f} (1 if consistent"
+        + (
+            f"; below 1 by design when correlated readings are inflated, here σ ×{cal.inflation:.2f})"
+            if summary["method"] == "auto" and cal.inflation > 1.05
+            else ")"
+        )
     )
     print(f"  {'':16s}{'RMSE position':>15s}{'RMSE heading':>15s}{'coverage_90':>13s}{'ANEES':>9s}")
     for name, s in (("EKF", run.score), ("dead reckoning", run.baseline)):
@@ -638,10 +671,18 @@ def build_parser() -> argparse.ArgumentParser:
     )
     loc.add_argument(
         "--associate",
-        choices=("signatures", "mahalanobis", "euclidean"),
+        choices=("signatures", "mahalanobis", "euclidean", "jcbb"),
         default="signatures",
-        help="pair readings with landmarks by barcode/beacon id (default), or by the nearest "
-        "landmark (Mahalanobis or Euclidean distance)",
+        help="pair readings with landmarks by barcode/beacon id (default), by the nearest "
+        "landmark (Mahalanobis or Euclidean distance), or by joint compatibility (JCBB)",
+    )
+    loc.add_argument(
+        "--calibrate",
+        nargs="+",
+        metavar="HOW",
+        default=["auto"],
+        help="'auto' (default): the noise from this run's own innovations, no ground truth; "
+        "'from-run N' (MRCLAM): from robot N's run against its ground truth",
     )
     loc.add_argument("--json", action="store_true", help="print one JSON object")
     loc.add_argument(
@@ -656,7 +697,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=_output_file,
         help="write the estimate with covariance (for relmap eval)",
     )
-    loc.set_defaults(run=_localize)
+    loc.set_defaults(run=_localize, calibrate_from=None)
 
     from relmap.cli_trajectory import add_parsers
 

@@ -466,34 +466,34 @@ def lecture(
         np.tile(WHEEL_STEP, (WHEEL_STEPS, 1)), WheelNoise(*WHEEL_NOISE), drive=drive
     )
 
-    # EKF: a robot drives a circle among landmarks, sensing range and bearing (lecture 13-28).
+    # EKF: a robot drives a circle among landmarks, sensing range and bearing (lecture 13-28);
+    # the simulated log is replayed by relmap.ekf.run (every step predicted, every scan one
+    # stacked correction, all in the compiled core).
     sensor = RangeBearingSensor(0.1, np.radians(1.0), fov=np.pi, max_range=8.0, min_range=1.0)
     noise = DistanceNoise(*EKF_NOISE)
     step_u = np.array(EKF_STEP)
     landmarks = rng.uniform(-10.0, 10.0, (EKF_LANDMARKS, 2))
     prior = AT([6.0, 0.0, np.pi / 2], np.diag([0.01, 0.01, 0.001]))
     truth = [prior.sample(1, rng)[0]]
-    state, estimates = prior, [prior]
     Su = noise.covariance(step_u)
-    for _ in range(EKF_STEPS):
+    index, readings, seen_ids = [], [], []
+    for k in range(1, EKF_STEPS + 1):
         moved = step_u + rng.multivariate_normal([0.0, 0.0], Su)
         truth.append(se2.compose(truth[-1], increment(moved)))
         z = sensor.predict(truth[-1], landmarks)
         seen = sensor.in_view(z)
         z = z + rng.normal(size=z.shape) * [sensor.sigma_range, sensor.sigma_bearing]
-        state = ekf.predict(state, step_u, noise)
-        state = ekf.correct_landmarks(
-            state,
-            z[seen],
-            sensor,
-            landmarks,
-            associate="signatures",
-            signatures=np.flatnonzero(seen),
-            landmark_signatures=np.arange(EKF_LANDMARKS),
-        ).state
-        estimates.append(state)
+        index += [k] * int(seen.sum())
+        readings.append(z[seen])
+        seen_ids.append(np.flatnonzero(seen))
+    log = ekf.Log(
+        np.arange(EKF_STEPS + 1.0), np.tile(step_u, (EKF_STEPS, 1)), np.array(index, np.int64),
+        np.concatenate(readings), np.concatenate(seen_ids),
+    )  # fmt: skip
+    trace = ekf.run(log, landmarks, ekf.NoiseParameters.of(noise, sensor), start=prior,
+                    association="signatures")  # fmt: skip
     truth_arr = np.array(truth)
-    estimate = AT.stack(estimates)
+    estimate = trace.estimate()
     dr = dead_reckon(np.tile(step_u, (EKF_STEPS, 1)), noise, start=prior)
     mrclam = None
     if data is not None:

@@ -483,8 +483,10 @@ def write_report(demo: Demo, folder: str | os.PathLike[str], progress: Progress 
             f"{m.baseline.rmse_position:.3f} m), ANEES {m.score.anees:.2f} (1 if consistent), "
             f"{m.score.coverage_90:.0%} of the true positions inside the 90% ellipse."
         )
+        from relmap.localize_plot import map_axes
+
         fig, ax = plot.figure(figsize=(8, 7))
-        plot.localization(ax, m)
+        map_axes(ax, m)
         fig.tight_layout()
         rep.figure(fig, "mrclam.png", f"MRCLAM robot {m.robot}: EKF against ground truth.")
     else:

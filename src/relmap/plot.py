@@ -1,5 +1,6 @@
 """Plotting with matplotlib: confidence ellipses of ATs, relational maps, Monte Carlo clouds,
-trajectories, 3-D ellipsoid projections, localization runs.
+trajectories, 3-D ellipsoid projections (the figures of a localization run are
+:mod:`relmap.localize_plot`, in the application layer).
 
 matplotlib is imported inside the functions, never by ``import relmap``. Every drawing
 function takes a matplotlib ``Axes`` and returns it, so calls chain and compose with the
@@ -26,7 +27,6 @@ if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
 
     from relmap.at3 import AT3
-    from relmap.localize import Localization
     from relmap.montecarlo import SampleSet
     from relmap.network.graph import RelationalMap
 
@@ -34,7 +34,6 @@ __all__ = [
     "ellipse",
     "ellipsoid",
     "figure",
-    "localization",
     "monte_carlo",
     "relational_map",
     "save_png",
@@ -119,37 +118,6 @@ def trajectory(
             idx = np.arange(0, len(xy), int(every))
         width = 0.6 * float(line.get_linewidth())
         ellipse(ax, ats[idx], probability, tick=tick, color=line.get_color(), linewidth=width)
-    return ax
-
-
-def localization(ax: Axes, run: Localization, *, ellipses: int = 8) -> Axes:
-    """A localization run (:func:`relmap.localize.localize`): ground truth, the EKF estimate
-    with ``ellipses`` of its 90% ellipses along it, dead reckoning, and the landmarks; equal
-    aspect ratio, axes in metres, a legend."""
-    n = len(run.t)
-    every = max(1, (n - 1) // max(ellipses - 1, 1))
-    ax.plot(*run.landmarks.T, "^", color="C3", markersize=6, label="landmarks", zorder=4)
-    trajectory(ax, run.truth, label="ground truth", color="k", linewidth=1.0)
-    trajectory(ax, run.dead_reckoning, label="dead reckoning", color="C1", linewidth=1.0, ls="--")
-    trajectory(
-        ax,
-        run.estimate,
-        ats=run.estimate,
-        every=every,
-        label=f"EKF ({run.associate})",
-        color="C0",
-        linewidth=1.2,
-    )
-    ax.plot([], [], color="C0", linewidth=0.7, label="90% ellipses")
-    who = "CMU Plaza" if run.dataset == "plaza" else f"MRCLAM robot {run.robot}"
-    ax.set_title(
-        f"{who}: position RMSE {run.score.rmse_position:.2f} m "
-        f"(dead reckoning {run.baseline.rmse_position:.2f} m)"
-    )
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.legend(loc="best", fontsize="small")
     return ax
 
 

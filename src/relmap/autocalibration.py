@@ -1,0 +1,390 @@
+"""Noise of a pose filter estimated from its own innovations, with no ground truth.
+
+The paper's §8 ("revise the error models … a form of autocalibration"). A run's raw streams (a
+:class:`Recording`: odometry velocities and readings with their time stamps) are filtered with
+:func:`relmap.ekf.run` under candidate noise parameters; the parameters are chosen by what the
+innovations ``y`` (reading minus prediction) and their covariances ``S`` say. Ground truth is
+never read. Three stages, each a standard tool of filter tuning:
+
+1. **Maximum likelihood** of the innovation sequence (Mehra 1970; Student-t readings with scale
+   ``S``, dof ``nu``, so a few wild readings do not inflate the σ of all). Every paired reading
+   counts, the gated ones too (:func:`loglik`): a filter that lost its way and gates most of
+   its readings must not look likely for having few terms. odometry ``k_s,
+   k_theta, k_theta_s`` (:class:`relmap.robot.DistanceNoise`), reading σ ``sigma_r, sigma_b``
+   and ``nu``. (Reading biases are not fitted: on MRCLAM their maximum-likelihood values
+   disagreed in sign with the ground-truth residuals and lowered coverage.) Found first by
+   batched coordinate ascent from a cautious :data:`START` (every candidate move of every
+   parameter one filter of one batch of :func:`relmap.ekf.run`; the step halves when no move
+   gains; coarse, to :data:`COARSE`), then, once the clock is set, refined by L-BFGS-B with
+   each gradient from one batch (central differences).
+2. **The clock.** The odometry's time stamps may be offset from the readings' (MRCLAM's
+   velocities are commands, executed about 0.2 s later). The offset ``delay`` is the
+   maximum-likelihood one over :data:`DELAYS` (the motion stamped ``s`` happened at
+   ``s + delay``); for range-only sensors a range scale (reading = scale × range; Plaza's
+   radios read about 7% long) likewise over :data:`SCALES`.
+3. **Whiteness.** The innovations of a consistent filter are white (Kailath 1968). A reading
+   whose error repeats in the next readings of the same landmark (MRCLAM: a correlation of
+   0.8-0.95 between consecutive range errors, still 0.2-0.6 twenty seconds apart) is counted
+   again and again and makes the filter overconfident, which the likelihood of stage 1 cannot
+   see. The correlations ``ρ1``, ``ρ2`` of normalized range innovations of one landmark one and
+   two readings apart (at most :data:`PAIR_GAP` s per reading, :func:`innovation_correlation`)
+   are measured and the reading covariance multiplied by the variance factor of the mean of such
+   a sequence (:func:`variance_factor`: ``(1 + ρ)/(1 - ρ)`` for AR(1)); repeated
+   :data:`WHITENING_PASSES` times as the factor settles. White reading errors give ``ρ ≈ 0``
+   and keep their σ.
+
+Every constant of the method is fixed here, once, for all runs (:data:`START`, :data:`DELAYS`,
+:data:`SCALES`, :data:`PAIR_GAP`, :data:`WHITENING_PASSES`, :data:`ITERATIONS`,
+:data:`COARSE`, :data:`REFINE_EVALUATIONS`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import NamedTuple
+
+import numpy as np
+
+from scipy.special import gammaln
+
+from relmap import ekf
+from relmap.at import AT
+from relmap.errors import ParameterError, ShapeError
+from relmap.typing import ArrayLike, FloatArray, IntArray
+
+__all__ = [
+    "COARSE",
+    "DELAYS",
+    "ITERATIONS",
+    "NU_MAX",
+    "NU_MIN",
+    "PAIR_GAP",
+    "REFINE_EVALUATIONS",
+    "SCALES",
+    "START",
+    "WHITENING_PASSES",
+    "Calibrated",
+    "Recording",
+    "calibrate",
+    "innovation_correlation",
+    "loglik",
+    "variance_factor",
+]
+
+#: Where the search starts (odometry m²/m, rad²/rad, rad²/m; σ m, rad; Student-t dof): noisy,
+#: so that the first filters are cautious and the search comes down to the data.
+START = ekf.NoiseParameters(0.05, 0.02, 0.005, 0.5, 0.05, nu=4.0)
+#: The smallest Student-t dof searched: below it the likelihood of a heavy-tailed reading
+#: model with a vanishing scale grows without bound.
+NU_MIN = 3.0
+#: The largest dof the refining fit tries: readings this close to Gaussian are Gaussian.
+NU_MAX = 1000.0
+#: Odometry clock offsets searched (s): the motion stamped ``s`` happened at ``s + delay``.
+DELAYS = tuple(round(0.05 * k, 2) for k in range(9))
+#: Range scales searched for range-only sensors (reading = scale × range).
+SCALES = tuple(round(0.9 + 0.01 * k, 2) for k in range(31))
+#: Consecutive readings of one landmark at most this far apart (s) form a whiteness pair.
+PAIR_GAP = 1.0
+#: Rounds of the whiteness stage.
+WHITENING_PASSES = 3
+#: At most this many rounds of coordinate ascent; the coarse fit stops earlier when its step
+#: falls below a factor of 1.1.
+ITERATIONS = 40
+COARSE = float(np.log(1.1))
+#: The log-scale step of the coarse fit's first round (×2 per move); it halves when no move
+#: gains.
+_STEP = float(np.log(2.0))
+#: The log-scale step of the refining fit's central differences, and its budget of gradients.
+_DIFF = 1e-3
+REFINE_EVALUATIONS = 25
+
+Progress = Callable[[int, int], None]
+Runner = Callable[..., ekf.Trace]
+
+
+class Recording(NamedTuple):
+    """A run's raw streams, before a clock offset or a range scale is applied.
+
+    Odometry: ``odometry_t`` (n,) s, velocities ``v`` (m/s) and ``w`` (rad/s), each held until
+    the next record; readings at ``reading_t`` (M,) s: ``z`` (M, 2) range-bearing or (M,)
+    ranges; ``signature`` (M,) landmark labels or None; ``end`` the last filter time (s).
+    """
+
+    odometry_t: FloatArray
+    v: FloatArray
+    w: FloatArray
+    reading_t: FloatArray
+    z: FloatArray
+    signature: IntArray | None
+    end: float
+
+    def log(self, delay: float = 0.0, scale: float = 1.0) -> ekf.Log:
+        """The filter's :class:`relmap.ekf.Log`, odometry stamps moved by ``delay`` (s) and
+        ranges divided by ``scale``; odometry moved past ``end`` is dropped."""
+        z = np.array(self.z, dtype=np.float64)
+        if z.ndim == 1:
+            z = z / scale
+        else:
+            z[:, 0] /= scale
+        t = np.asarray(self.odometry_t, dtype=np.float64) + delay
+        return ekf.Log.from_velocities(
+            t, self.v, self.w, self.reading_t, z, self.signature, end=self.end
+        )
+
+
+class Calibrated(NamedTuple):
+    """What :func:`calibrate` found."""
+
+    #: The filter's noise, whitening included: pass it to :func:`relmap.ekf.run`.
+    parameters: ekf.NoiseParameters
+    #: Odometry clock offset (s): build the log with ``recording.log(delay, scale)``.
+    delay: float
+    #: Range scale (1 for range-bearing sensors).
+    scale: float
+    #: The reading σ factor of the whiteness stage (√ of the covariance factor).
+    inflation: float
+    #: Lag-one correlation of consecutive range innovations, before whitening and after.
+    correlation: tuple[float, float]
+    #: Log-likelihood of the innovations at the stage-1/2 parameters (before whitening).
+    loglik: float
+    #: The final filter's trace (readings kept: innovations, S, statuses).
+    trace: ekf.Trace
+
+    def as_dict(self) -> dict[str, object]:
+        """JSON-ready."""
+        c0, c1 = self.correlation
+        return {
+            **self.parameters.as_dict(),
+            "delay": self.delay,
+            "range_scale": self.scale,
+            "inflation": self.inflation,
+            "correlation_before": c0 if np.isfinite(c0) else None,
+            "correlation_after": c1 if np.isfinite(c1) else None,
+            "loglik": self.loglik,
+        }
+
+
+def innovation_correlation(
+    trace: ekf.Trace, t: ArrayLike, *, lag: int = 1, gap: float = PAIR_GAP
+) -> tuple[float, int]:
+    """Correlation of the normalized range innovations ``y_r/√S_rr`` of used readings of one
+    landmark ``lag`` readings apart and at most ``lag × gap`` s apart (one filter's trace; ``t``
+    (M,) the readings' times). Normalized innovations are clipped to ±3 robust σ
+    (1.4826·MAD), so a few wild readings do not decide it. Returns the correlation and the
+    number of pairs (NaN with fewer than 10 pairs)."""
+    y, S = np.asarray(trace.y), np.asarray(trace.S)
+    yr, sr = (y, S) if y.ndim == 1 else (y[:, 0], S[:, 0, 0])
+    idx = np.flatnonzero(np.asarray(trace.status) == ekf.Status.USED)
+    if len(idx) <= lag:
+        return float("nan"), 0
+    tt, lm = np.asarray(t, dtype=np.float64)[idx], np.asarray(trace.landmark)[idx]
+    u = yr[idx] / np.sqrt(sr[idx])
+    order = np.lexsort((tt, lm))  # by landmark, then time
+    u, tt, lm = u[order], tt[order], lm[order]
+    same = (lm[lag:] == lm[:-lag]) & (tt[lag:] - tt[:-lag] <= lag * gap)
+    n = int(same.sum())
+    if n < 10:
+        return float("nan"), n
+    s = 1.4826 * np.median(np.abs(u - np.median(u)))
+    c = np.clip(u / s, -3.0, 3.0)
+    a, b = c[:-lag][same], c[lag:][same]
+    a, b = a - a.mean(), b - b.mean()
+    return float((a * b).mean() / np.sqrt((a * a).mean() * (b * b).mean())), n
+
+
+def variance_factor(rho1: float, rho2: float, pairs: int) -> float:
+    """The variance factor ``1 + 2 Σ_k ρ_k`` of the mean of a correlated sequence whose
+    autocorrelation is ``ρ1`` at lag one and decays geometrically from there by ``φ = ρ2/ρ1``
+    (an ARMA(1,1) autocorrelation; φ kept in [ρ1, 0.99]): ``1 + 2ρ1/(1 - φ)``. For an AR(1)
+    sequence (``ρ2 = ρ1²``) it is ``(1 + ρ1)/(1 - ρ1)``. 1 (white) unless ``ρ1`` is
+    significant: above 3/√pairs, three standard errors of a correlation of ``pairs`` pairs."""
+    if not np.isfinite(rho1) or rho1 <= 3.0 / np.sqrt(max(pairs, 1)):
+        return 1.0
+    r1 = min(rho1, 0.99)
+    phi = min(max(rho2 / r1, r1), 0.99) if np.isfinite(rho2) else r1
+    return 1.0 + 2.0 * r1 / (1.0 - phi)
+
+
+def loglik(trace: ekf.Trace, nu: ArrayLike) -> FloatArray:
+    """Log-likelihood (*batch) of every paired reading's innovation, used or gated: Student-t
+    with dof ``nu`` (*batch; inf: Gaussian) and scale ``S`` (the trace must keep its
+    readings)."""
+    y, S = np.asarray(trace.y), np.asarray(trace.S)
+    if y.ndim == S.ndim:  # range-only: (..., M) and (..., M)
+        y, S = y[..., None], S[..., None, None]
+    d = y.shape[-1]
+    status = np.asarray(trace.status)
+    paired = (status == ekf.Status.USED) | (status == ekf.Status.GATED)
+    y = np.where(paired[..., None], y, 0.0)
+    S = np.where(paired[..., None, None], S, np.eye(d))
+    sign, logdet = np.linalg.slogdet(S)
+    d2 = np.einsum("...i,...i->...", y, np.linalg.solve(S, y[..., None])[..., 0])
+    v = np.asarray(nu, dtype=np.float64)[..., None]
+    gauss = -0.5 * (d2 + d * np.log(2 * np.pi))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        vv = np.where(np.isinf(v), 1.0, v)
+        student = (gammaln((vv + d) / 2) - gammaln(vv / 2) - 0.5 * d * np.log(vv * np.pi)
+                   - 0.5 * (vv + d) * np.log1p(d2 / vv))  # fmt: skip
+    each = np.where(np.isinf(v), gauss, student) - 0.5 * logdet
+    ok = paired & (sign > 0) & np.isfinite(each)
+    return np.where(ok, each, 0.0).sum(axis=-1) - 1e3 * (paired & ~ok).sum(axis=-1)
+
+
+def _free(sensor: ekf.SensorKind) -> tuple[str, ...]:
+    free = ("k_s", "k_theta", "k_theta_s", "sigma_r", "nu")
+    return free + ("sigma_b",) if sensor is ekf.SensorKind.RANGE_BEARING else free
+
+
+def _moves(p: ekf.NoiseParameters, free: tuple[str, ...], step: float) -> ekf.NoiseParameters:
+    """A batch: each free field of ``p`` times ``exp(-step)``, then times ``exp(step)``."""
+    base = {k: float(v) for k, v in p._asdict().items()}
+    cols: dict[str, list[float]] = {k: [] for k in base}
+    for name in free:
+        for sign in (-1.0, 1.0):
+            for k, v in base.items():
+                cols[k].append(v * float(np.exp(sign * step)) if k == name else v)
+    return ekf.NoiseParameters(**{k: np.array(v) for k, v in cols.items()})
+
+
+def _fit(
+    log: ekf.Log,
+    p: ekf.NoiseParameters,
+    free: tuple[str, ...],
+    run: Runner,
+    step: float,
+    tolerance: float,
+) -> tuple[ekf.NoiseParameters, float]:
+    """Batched coordinate ascent of the innovations' log-likelihood from ``p``, log-scale
+    moves of ``step`` halved whenever no move gains, until the step is below ``tolerance``."""
+    best = float(run(log, p).loglik)
+    for _ in range(ITERATIONS):
+        if step < tolerance:
+            break
+        batch = _moves(p, free, step)
+        ll = np.asarray(run(log, batch).loglik, dtype=np.float64)
+        ll = np.where(np.isfinite(ll) & (np.asarray(batch.nu) >= NU_MIN), ll, -np.inf)
+        moved = ll.reshape(len(free), 2)
+        # every field to its better move where that gains; keep the best of that and the best move
+        combined = p._asdict()
+        for j, name in enumerate(free):
+            if moved[j].max() > best:
+                combined[name] = float(np.asarray(getattr(batch, name))[2 * j + moved[j].argmax()])
+        i = int(ll.argmax())
+        if ll[i] <= best + 1e-6:
+            step /= 2
+            continue
+        both = ekf.NoiseParameters(**combined)
+        l_both = float(run(log, both).loglik)
+        if l_both >= ll[i]:
+            p, best = both, l_both
+        else:
+            p, best = ekf.NoiseParameters(*(float(np.asarray(v)[i]) for v in batch)), float(ll[i])
+    return p, best
+
+
+def _refine(
+    log: ekf.Log, p: ekf.NoiseParameters, free: tuple[str, ...], run: Runner
+) -> tuple[ekf.NoiseParameters, float]:
+    """Quasi-Newton ascent (L-BFGS-B) of the log-likelihood over the free fields' logarithms
+    from ``p``, at most :data:`REFINE_EVALUATIONS` gradients, each by central differences from
+    one batch of ``2 × len(free)`` filters plus the point itself (coordinate ascent stalls on
+    the ridges where two noises trade, such as turning noise against bearing σ). ``nu`` stays in
+    [:data:`NU_MIN`, :data:`NU_MAX`], the others within a factor 100 of ``p``."""
+    from scipy.optimize import minimize
+
+    x0 = np.log([float(getattr(p, k)) for k in free])
+    n, h = len(free), _DIFF
+    # each field within ×/÷ 100 of where the coarse fit left it; nu in [NU_MIN, NU_MAX]
+    bounds = [(np.log(NU_MIN), np.log(NU_MAX)) if k == "nu" else (v - np.log(100), v + np.log(100))
+              for k, v in zip(free, x0, strict=True)]  # fmt: skip
+    x0 = np.clip(x0, [b[0] for b in bounds], [b[1] for b in bounds])
+
+    def batch(x: FloatArray) -> ekf.NoiseParameters:
+        cols = {k: np.full(2 * n + 1, float(v)) for k, v in p._asdict().items()}
+        for j, name in enumerate(free):
+            v = np.full(2 * n + 1, x[j])
+            v[1 + 2 * j] -= h
+            v[2 + 2 * j] += h
+            cols[name] = np.exp(v)
+        return ekf.NoiseParameters(**cols)
+
+    def negative(x: FloatArray) -> tuple[float, FloatArray]:
+        ll = np.asarray(run(log, batch(x)).loglik, dtype=np.float64)
+        if not np.isfinite(ll).all():
+            return float("inf"), np.zeros(n)
+        return -float(ll[0]), -(ll[2::2] - ll[1::2]) / (2 * h)
+
+    res = minimize(negative, x0, jac=True, method="L-BFGS-B", bounds=bounds,
+                   options={"maxfun": REFINE_EVALUATIONS})  # fmt: skip
+    best = p._replace(**{k: float(np.exp(v)) for k, v in zip(free, res.x, strict=True)})
+    return best, -float(res.fun)
+
+
+def _clock(
+    recording: Recording, p: ekf.NoiseParameters, run: Runner, sensor: ekf.SensorKind
+) -> tuple[float, float]:
+    """The maximum-likelihood odometry delay over :data:`DELAYS` (and, for range-only sensors,
+    range scale over :data:`SCALES`) at the parameters ``p``."""
+    ll = [float(run(recording.log(d), p).loglik) for d in DELAYS]
+    delay = DELAYS[int(np.nanargmax(ll))]
+    scale = 1.0
+    if sensor is ekf.SensorKind.RANGE_ONLY:
+        ll = [float(run(recording.log(delay, s), p).loglik) for s in SCALES]
+        scale = SCALES[int(np.nanargmax(ll))]
+    return delay, scale
+
+
+def calibrate(
+    recording: Recording,
+    landmarks: ArrayLike,
+    *,
+    start: Callable[[float], AT],
+    sensor: ekf.SensorKind | str = ekf.SensorKind.RANGE_BEARING,
+    association: ekf.Association | str = ekf.Association.SIGNATURES,
+    landmark_signatures: ArrayLike | None = None,
+    gate: float = 0.99,
+    progress: Progress | None = None,
+) -> Calibrated:
+    """The noise of ``recording``'s filter from its own innovations (module docstring).
+
+    ``start(t0)`` gives the filter's start AT at the log's first time ``t0`` (which moves with
+    the clock offset). ``association``, ``gate`` and ``landmark_signatures`` as in
+    :func:`relmap.ekf.run`: the calibration filters with the association it is for.
+    """
+    kind = ekf.SensorKind(sensor)
+    lm = np.asarray(landmarks, dtype=np.float64)
+    if lm.ndim != 2 or lm.shape[1] != 2 or not len(lm):
+        raise ShapeError(f"landmarks must have shape (L, 2) with L ≥ 1; got {lm.shape}")
+    if not len(recording.reading_t):
+        raise ParameterError("cannot calibrate from innovations: the run has no readings")
+
+    def run(log: ekf.Log, p: ekf.NoiseParameters) -> ekf.Trace:
+        trace = ekf.run(
+            log, lm, p, start=start(float(log.t[0])), keep="summary", association=association,
+            landmark_signatures=landmark_signatures, gate=gate, sensor=kind,
+        )  # fmt: skip
+        return trace._replace(loglik=loglik(trace, p.nu))
+
+    free = _free(kind)
+    tick = progress or (lambda k, n: None)
+    tick(0, 4)
+    p, _ = _fit(recording.log(), START, free, run, _STEP, COARSE)
+    tick(1, 4)
+    delay, scale = _clock(recording, p, run, kind)
+    log = recording.log(delay, scale)
+    p, fitted = _refine(log, p, free, run)
+    tick(2, 4)
+    t = log.t[log.reading_index]
+    factor, rho0 = 1.0, float("nan")
+    for k in range(WHITENING_PASSES):
+        q = p._replace(sigma_r=p.sigma_r * factor, sigma_b=p.sigma_b * factor)
+        tr = run(log, q)
+        (r1, n1), (r2, _) = (innovation_correlation(tr, t, lag=j) for j in (1, 2))
+        rho0 = r1 if k == 0 else rho0
+        factor = float(np.sqrt(variance_factor(r1, r2, n1)))
+    tick(3, 4)
+    q = p._replace(sigma_r=p.sigma_r * factor, sigma_b=p.sigma_b * factor)
+    trace = run(log, q)
+    tick(4, 4)
+    rho = innovation_correlation(trace, t)[0]
+    return Calibrated(q, delay, scale, factor, (rho0, rho), fitted, trace)
