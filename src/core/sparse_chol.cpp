@@ -205,6 +205,7 @@ int64_t SparseCholesky::position(int64_t s, int64_t row) const {
     return (it != end && *it == row) ? it - begin : -1;
 }
 
+RELMAP_MULTIVERSION
 int64_t SparseCholesky::factorize(const double* data) {
     std::fill(X_.begin(), X_.end(), 0.0);
     for (size_t e = 0; e < src_.size(); ++e) X_[dst_[e]] += data[src_[e]];
@@ -275,6 +276,7 @@ int64_t SparseCholesky::factorize(const double* data) {
     return -1;
 }
 
+RELMAP_MULTIVERSION
 void SparseCholesky::forward(double* y, int64_t m, const std::vector<int64_t>* only) const {
     // Supernode by supernode: L_JJ x_J = y_J, then y_S -= L_SJ x_J (one gather-free product
     // into a buffer, one scatter).
@@ -310,6 +312,7 @@ void SparseCholesky::forward(double* y, int64_t m, const std::vector<int64_t>* o
     }
 }
 
+RELMAP_MULTIVERSION
 void SparseCholesky::backward(double* y, int64_t m) const {
     // Supernodes in reverse: x_J = L_JJ⁻ᵀ (y_J - L_SJᵀ x_S).
     std::vector<double> tmp;
@@ -377,6 +380,7 @@ void SparseCholesky::inverse_submatrix(const int64_t* idx, int64_t k, double* ou
         }
 }
 
+RELMAP_MULTIVERSION
 bool SparseCholesky::selected_inverse_blocks(const int64_t* groups, int64_t count, int64_t b,
                                              double* out) const {
     // Z = A⁻¹ on L's pattern, in panels like L's, by Takahashi's recurrence from the last
