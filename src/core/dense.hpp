@@ -130,6 +130,28 @@ RELMAP_INLINE void lower_product_t(int64_t m, int64_t q, int64_t k, double alpha
     }
 }
 
+// Σ_i a[i] b[i], in four-wide partial sums (a reordered sum: equal to rounding).
+RELMAP_INLINE double dot(int64_t n, const double* a, const double* b) {
+    v4 s0 = splat4(0.0), s1 = splat4(0.0);
+    int64_t i = 0;
+    for (; i + 8 <= n; i += 8) {
+        s0 += load4(a + i) * load4(b + i);
+        s1 += load4(a + i + 4) * load4(b + i + 4);
+    }
+    if (i + 4 <= n) {
+        s0 += load4(a + i) * load4(b + i);
+        i += 4;
+    }
+    s0 += s1;
+    double sum = 0.0;
+    for (; i < n; ++i) sum += a[i] * b[i];
+#if defined(__GNUC__)
+    return sum + ((s0[0] + s0[1]) + (s0[2] + s0[3]));
+#else
+    return sum + ((s0.x[0] + s0.x[1]) + (s0.x[2] + s0.x[3]));
+#endif
+}
+
 // The entry points (dense.cpp), each compiled per ISA (RELMAP_MULTIVERSION).
 // C (m × n) += alpha A Bᵀ, A (m × k), B (n × k).
 void gemm_nt(int64_t m, int64_t n, int64_t k, double alpha, const double* A, int64_t lda,

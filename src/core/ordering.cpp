@@ -127,6 +127,30 @@ std::vector<int64_t> minimum_degree(int64_t n, int64_t m, const int64_t* a, cons
     return order;
 }
 
+std::vector<int64_t> components(int64_t n, int64_t m, const int64_t* a, const int64_t* b) {
+    std::vector<int64_t> parent(n), size(n, 1);
+    for (int64_t v = 0; v < n; ++v) parent[v] = v;
+    auto find = [&](int64_t v) {
+        while (parent[v] != v) v = parent[v] = parent[parent[v]];
+        return v;
+    };
+    for (int64_t e = 0; e < m; ++e) {
+        int64_t x = find(a[e]), y = find(b[e]);
+        if (x == y) continue;
+        if (size[x] < size[y]) std::swap(x, y);
+        parent[y] = x;
+        size[x] += size[y];
+    }
+    std::vector<int64_t> label(n), of_root(n, -1);
+    int64_t count = 0;
+    for (int64_t v = 0; v < n; ++v) {
+        int64_t& l = of_root[find(v)];
+        if (l < 0) l = count++;
+        label[v] = l;
+    }
+    return label;
+}
+
 void register_ordering(nb::module_& m) {
     m.def(
         "minimum_degree",
@@ -147,6 +171,20 @@ void register_ordering(nb::module_& m) {
         nb::arg("n"), nb::arg("a"), nb::arg("b"),
         "Multiple minimum degree ordering (new → old) of the graph with n nodes and edges "
         "(a, b).");
+    m.def(
+        "components",
+        [](int64_t n, Index1 a, Index1 b) {
+            const int64_t count = static_cast<int64_t>(a.shape(0));
+            if (n < 0 || static_cast<int64_t>(b.shape(0)) != count)
+                throw nb::value_error("n >= 0, and a and b of the same length");
+            for (int64_t e = 0; e < count; ++e)
+                if (a.data()[e] < 0 || a.data()[e] >= n || b.data()[e] < 0 || b.data()[e] >= n)
+                    throw nb::value_error("edge end out of range");
+            return vector_array(components(n, count, a.data(), b.data()));
+        },
+        nb::arg("n"), nb::arg("a"), nb::arg("b"),
+        "Connected components of the graph with n nodes and edges (a, b): a label per node, "
+        "0, 1, … in order of each component's lowest node.");
 }
 
 }  // namespace relmap

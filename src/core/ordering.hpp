@@ -21,6 +21,11 @@ namespace relmap {
 // The order (new → old) of the n nodes of the undirected graph with edges (a[e], b[e]).
 std::vector<int64_t> minimum_degree(int64_t n, int64_t m, const int64_t* a, const int64_t* b);
 
+// The connected components of the same graph: a label (0, 1, …, in order of each component's
+// lowest node) for every node, by union-find (union by size, path halving). With the ordering
+// here because both read the frame graph; it spares a process scipy.sparse's import.
+std::vector<int64_t> components(int64_t n, int64_t m, const int64_t* a, const int64_t* b);
+
 void register_ordering(nb::module_& m);
 
 }  // namespace relmap
