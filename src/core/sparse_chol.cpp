@@ -191,16 +191,6 @@ SparseCholesky::SparseCholesky(int64_t n, const int64_t* indptr, const int64_t* 
     X_.assign(panel_ptr_[S], 0.0);
 }
 
-double SparseCholesky::flops() const {
-    double total = 0.0;
-    for (int64_t s = 0; s < supernodes(); ++s) {
-        const double w = static_cast<double>(first_[s + 1] - first_[s]);
-        const double nr = static_cast<double>(rows_ptr_[s + 1] - rows_ptr_[s]);
-        for (double c = 0; c < w; c += 1.0) total += (nr - c) * (nr - c);  // column c's update
-    }
-    return total;
-}
-
 int64_t SparseCholesky::nnz_L() const {
     int64_t total = 0;
     for (int64_t s = 0; s < supernodes(); ++s) {
@@ -500,7 +490,6 @@ void register_sparse_chol(nb::module_& m) {
         .def_prop_ro("n", &SparseCholesky::n)
         .def_prop_ro("nnz_L", &SparseCholesky::nnz_L)
         .def_prop_ro("supernodes", &SparseCholesky::supernodes)
-        .def_prop_ro("flops", [](const SparseCholesky& f) { return f.flops(); })
         .def(
             "ordering", [](const SparseCholesky& f) { return vector_array(f.perm()); },
             "The elimination order (new → old): the caller's ordering, postordered.")

@@ -50,7 +50,6 @@ public:
 
     int64_t n() const { return n_; }
     int64_t nnz_L() const;  // entries of L (one triangle, diagonal included)
-    double flops() const;   // multiply-adds of a factorization, explicit zeros included
     int64_t supernodes() const { return static_cast<int64_t>(first_.size()) - 1; }
     const std::vector<int64_t>& perm() const { return perm_; }
 
