@@ -1,38 +1,102 @@
-// Small dense kernels for the panels of the sparse Cholesky (column-major storage): a matrix
-// product with 4 × NB register blocks, so that each loaded entry serves several multiply-adds
-// (no BLAS is linked). Compiled for the baseline ISA (SSE2 on x86-64): a build with GCC's
-// target_clones for AVX2 + FMA measured no faster on sphere2500's factorization.
+// Small dense kernels for the panels of the sparse Cholesky (column-major storage): a
+// register-tiled matrix product (8 × 4 tiles of C held in vector registers over the whole
+// inner dimension, so that each loaded entry of A serves four multiply-adds and each of B
+// eight; no BLAS is linked). Written once with GCC/Clang vector types; RELMAP_MULTIVERSION
+// compiles the entry points (and the loops that call them) twice, for the baseline ISA and
+// for x86-64-v3 (AVX2 + FMA), the copy chosen when the module loads (function multiversioning:
+// one source, no run-time compilation).
 #pragma once
 
 #include <algorithm>
 #include <cstdint>
+#include <cstring>
+
+// Function multiversioning where the toolchain resolves it at load time (GCC with glibc's
+// ifunc on x86-64); elsewhere the baseline build alone.
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__GLIBC__)
+#define RELMAP_MULTIVERSION __attribute__((target_clones("arch=x86-64-v3", "default")))
+#else
+#define RELMAP_MULTIVERSION
+#endif
+#if defined(__GNUC__)
+#define RELMAP_INLINE inline __attribute__((always_inline))
+#else
+#define RELMAP_INLINE inline
+#endif
 
 namespace relmap::dense {
+
+#if defined(__GNUC__)
+typedef double v4 __attribute__((vector_size(32)));  // four doubles (one AVX register)
+RELMAP_INLINE v4 load4(const double* p) {
+    v4 x;
+    std::memcpy(&x, p, sizeof x);
+    return x;
+}
+RELMAP_INLINE void store4(double* p, v4 x) { std::memcpy(p, &x, sizeof x); }
+RELMAP_INLINE v4 splat4(double a) { return v4{a, a, a, a}; }
+#else
+struct v4 {  // the same arithmetic without vector extensions (MSVC)
+    double x[4];
+    v4& operator+=(const v4& o) {
+        for (int u = 0; u < 4; ++u) x[u] += o.x[u];
+        return *this;
+    }
+    friend v4 operator*(const v4& a, const v4& b) {
+        v4 r;
+        for (int u = 0; u < 4; ++u) r.x[u] = a.x[u] * b.x[u];
+        return r;
+    }
+};
+inline v4 load4(const double* p) {
+    v4 r;
+    std::memcpy(r.x, p, sizeof r.x);
+    return r;
+}
+inline void store4(double* p, v4 v) { std::memcpy(p, v.x, sizeof v.x); }
+inline v4 splat4(double a) { return v4{{a, a, a, a}}; }
+#endif
 
 // C(i, j) += alpha Σ_c A(i, c) B(j, c) for i < m, j < NB; A(i, c) = A[i + c lda],
 // B(j, c) = B[j + c ldb] (BT) or B[c + j ldb] (not BT), C(i, j) = C[i + j ldc].
 template <int NB, bool BT>
-inline void columns(int64_t m, int64_t k, double alpha, const double* A, int64_t lda,
-                    const double* B, int64_t ldb, double* C, int64_t ldc) {
+RELMAP_INLINE void columns(int64_t m, int64_t k, double alpha, const double* A, int64_t lda,
+                           const double* B, int64_t ldb, double* C, int64_t ldc) {
     auto b = [&](int t, int64_t c) { return BT ? B[t + c * ldb] : B[c + t * ldb]; };
+    const v4 va = splat4(alpha);
     int64_t i = 0;
-    for (; i + 4 <= m; i += 4) {
-        double acc[NB][4] = {};
+    for (; i + 8 <= m; i += 8) {  // 8 × NB tile: 2 NB accumulators
+        v4 lo[NB], hi[NB];
+        for (int t = 0; t < NB; ++t) lo[t] = hi[t] = splat4(0.0);
         for (int64_t c = 0; c < k; ++c) {
             const double* a = A + i + c * lda;
-            const double a0 = a[0], a1 = a[1], a2 = a[2], a3 = a[3];
+            const v4 a0 = load4(a), a1 = load4(a + 4);
             for (int t = 0; t < NB; ++t) {
-                const double bt = b(t, c);
-                acc[t][0] += a0 * bt;
-                acc[t][1] += a1 * bt;
-                acc[t][2] += a2 * bt;
-                acc[t][3] += a3 * bt;
+                const v4 bt = splat4(b(t, c));
+                lo[t] += a0 * bt;
+                hi[t] += a1 * bt;
             }
         }
-        for (int t = 0; t < NB; ++t)
-            for (int u = 0; u < 4; ++u) C[i + u + t * ldc] += alpha * acc[t][u];
+        for (int t = 0; t < NB; ++t) {
+            double* ct = C + i + t * ldc;
+            store4(ct, load4(ct) + va * lo[t]);
+            store4(ct + 4, load4(ct + 4) + va * hi[t]);
+        }
     }
-    for (; i < m; ++i)
+    if (i + 4 <= m) {  // 4 × NB
+        v4 lo[NB];
+        for (int t = 0; t < NB; ++t) lo[t] = splat4(0.0);
+        for (int64_t c = 0; c < k; ++c) {
+            const v4 a0 = load4(A + i + c * lda);
+            for (int t = 0; t < NB; ++t) lo[t] += a0 * splat4(b(t, c));
+        }
+        for (int t = 0; t < NB; ++t) {
+            double* ct = C + i + t * ldc;
+            store4(ct, load4(ct) + va * lo[t]);
+        }
+        i += 4;
+    }
+    for (; i < m; ++i)  // the last rows, one by one
         for (int t = 0; t < NB; ++t) {
             double sum = 0.0;
             for (int64_t c = 0; c < k; ++c) sum += A[i + c * lda] * b(t, c);
@@ -42,8 +106,8 @@ inline void columns(int64_t m, int64_t k, double alpha, const double* A, int64_t
 
 // C += alpha A op(B) for C (m × n): A (m × k); op(B) = Bᵀ with B (n × k) (BT), or B (k × n).
 template <bool BT>
-inline void gemm_t(int64_t m, int64_t n, int64_t k, double alpha, const double* A, int64_t lda,
-                 const double* B, int64_t ldb, double* C, int64_t ldc) {
+RELMAP_INLINE void gemm_t(int64_t m, int64_t n, int64_t k, double alpha, const double* A,
+                          int64_t lda, const double* B, int64_t ldb, double* C, int64_t ldc) {
     int64_t j = 0;
     for (; j + 4 <= n; j += 4)
         columns<4, BT>(m, k, alpha, A, lda, BT ? B + j : B + j * ldb, ldb, C + j * ldc, ldc);
@@ -56,15 +120,46 @@ inline void gemm_t(int64_t m, int64_t n, int64_t k, double alpha, const double* 
     }
 }
 
-// The entry points (dense.cpp).
+// The lower trapezoid of C += alpha A A[:q]ᵀ for C (m × q), A (m × k): column blocks of 4 from
+// their diagonal down (a few entries above the diagonal in each block are formed too).
+RELMAP_INLINE void lower_product_t(int64_t m, int64_t q, int64_t k, double alpha,
+                                   const double* A, int64_t lda, double* C, int64_t ldc) {
+    for (int64_t j = 0; j < q; j += 4) {
+        const int64_t nb = std::min<int64_t>(4, q - j);
+        gemm_t<true>(m - j, nb, k, alpha, A + j, lda, A + j, lda, C + j + j * ldc, ldc);
+    }
+}
+
+// Σ_i a[i] b[i], in four-wide partial sums (a reordered sum: equal to rounding).
+RELMAP_INLINE double dot(int64_t n, const double* a, const double* b) {
+    v4 s0 = splat4(0.0), s1 = splat4(0.0);
+    int64_t i = 0;
+    for (; i + 8 <= n; i += 8) {
+        s0 += load4(a + i) * load4(b + i);
+        s1 += load4(a + i + 4) * load4(b + i + 4);
+    }
+    if (i + 4 <= n) {
+        s0 += load4(a + i) * load4(b + i);
+        i += 4;
+    }
+    s0 += s1;
+    double sum = 0.0;
+    for (; i < n; ++i) sum += a[i] * b[i];
+#if defined(__GNUC__)
+    return sum + ((s0[0] + s0[1]) + (s0[2] + s0[3]));
+#else
+    return sum + ((s0.x[0] + s0.x[1]) + (s0.x[2] + s0.x[3]));
+#endif
+}
+
+// The entry points (dense.cpp), each compiled per ISA (RELMAP_MULTIVERSION).
 // C (m × n) += alpha A Bᵀ, A (m × k), B (n × k).
 void gemm_nt(int64_t m, int64_t n, int64_t k, double alpha, const double* A, int64_t lda,
              const double* B, int64_t ldb, double* C, int64_t ldc);
 // C (m × n) += alpha A B, A (m × k), B (k × n).
 void gemm_nn(int64_t m, int64_t n, int64_t k, double alpha, const double* A, int64_t lda,
              const double* B, int64_t ldb, double* C, int64_t ldc);
-// The lower trapezoid of C += alpha A A[:q]ᵀ for C (m × q), A (m × k): column blocks of 4 from
-// their diagonal down (a few entries above the diagonal in each block are formed too).
+// The lower trapezoid of C += alpha A A[:q]ᵀ (see lower_product_t).
 void lower_product(int64_t m, int64_t q, int64_t k, double alpha, const double* A, int64_t lda,
                    double* C, int64_t ldc);
 

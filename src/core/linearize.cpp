@@ -4,45 +4,58 @@
 #include <vector>
 
 #include "arrays.hpp"
+#include "dense.hpp"
 
 namespace relmap {
 
 namespace {
 
-// One measurement's contribution for b × b blocks (b = 3 in the plane, 6 in 3-D).
+// The measurements' contributions for b × b blocks (b = 3 in the plane, 6 in 3-D): per
+// measurement W r, W J_i, W J_j, then the blocks J_iᵀ W J_i, J_iᵀ W J_j, J_jᵀ W J_j (the
+// (j, i) block written as the transpose of (i, j): the matrix is exactly symmetric), each
+// loop running along rows so that it vectorizes.
 template <int B>
-double accumulate(int64_t m, const double* r, const double* Ji, const double* Jj,
-                  const double* W, const int64_t* slots, const int64_t* g_index, double* data,
-                  double* grad) {
+RELMAP_INLINE double accumulate(int64_t m, const double* r, const double* Ji, const double* Jj,
+                                const double* W, const int64_t* slots, const int64_t* g_index,
+                                double* data, double* grad) {
     double cost = 0.0;
     for (int64_t k = 0; k < m; ++k) {
         const double* rk = r + k * B;
         const double* Wk = W + k * B * B;
         const double* J[2] = {Ji + k * B * B, Jj + k * B * B};
-        double Wr[B], WJ[2][B * B];
+        double Wr[B], WJ[2][B * B], H[3][B * B];
         for (int a = 0; a < B; ++a) {
             double s = 0.0;
             for (int c = 0; c < B; ++c) s += Wk[a * B + c] * rk[c];
             Wr[a] = s;
             cost += rk[a] * s;
         }
-        for (int t = 0; t < 2; ++t)  // W J_t
+        for (int t = 0; t < 2; ++t) {  // WJ_t[a, :] = Σ_e W[a, e] J_t[e, :]
+            for (int q = 0; q < B * B; ++q) WJ[t][q] = 0.0;
             for (int a = 0; a < B; ++a)
-                for (int c = 0; c < B; ++c) {
-                    double s = 0.0;
-                    for (int e = 0; e < B; ++e) s += Wk[a * B + e] * J[t][e * B + c];
-                    WJ[t][a * B + c] = s;
+                for (int e = 0; e < B; ++e) {
+                    const double w = Wk[a * B + e];
+                    for (int c = 0; c < B; ++c) WJ[t][a * B + c] += w * J[t][e * B + c];
                 }
+        }
+        const int pair[3][2] = {{0, 0}, {0, 1}, {1, 1}};
+        for (int h = 0; h < 3; ++h) {  // H[a, :] = Σ_e J_ta[e, a] WJ_tb[e, :]
+            const double* Ja = J[pair[h][0]];
+            const double* WJb = WJ[pair[h][1]];
+            for (int q = 0; q < B * B; ++q) H[h][q] = 0.0;
+            for (int e = 0; e < B; ++e)
+                for (int a = 0; a < B; ++a) {
+                    const double s = Ja[e * B + a];
+                    for (int c = 0; c < B; ++c) H[h][a * B + c] += s * WJb[e * B + c];
+                }
+        }
         const int64_t* sk = slots + k * 4 * B * B;  // blocks (i,i), (i,j), (j,i), (j,j)
-        for (int ta = 0; ta < 2; ++ta)
-            for (int tb = 0; tb < 2; ++tb) {
-                const int64_t* sb = sk + (2 * ta + tb) * B * B;
-                for (int a = 0; a < B; ++a)
-                    for (int c = 0; c < B; ++c) {  // (J_aᵀ W J_b)[a, c]
-                        double s = 0.0;
-                        for (int e = 0; e < B; ++e) s += J[ta][e * B + a] * WJ[tb][e * B + c];
-                        data[sb[a * B + c]] += s;
-                    }
+        for (int a = 0; a < B; ++a)
+            for (int c = 0; c < B; ++c) {
+                data[sk[a * B + c]] += H[0][a * B + c];
+                data[sk[B * B + a * B + c]] += H[1][a * B + c];
+                data[sk[2 * B * B + a * B + c]] += H[1][c * B + a];
+                data[sk[3 * B * B + a * B + c]] += H[2][a * B + c];
             }
         for (int t = 0; t < 2; ++t)
             for (int a = 0; a < B; ++a) {
@@ -52,6 +65,21 @@ double accumulate(int64_t m, const double* r, const double* Ji, const double* Jj
             }
     }
     return cost;
+}
+
+// Compiled per ISA (RELMAP_MULTIVERSION, dense.hpp).
+RELMAP_MULTIVERSION
+double accumulate3(int64_t m, const double* r, const double* Ji, const double* Jj,
+                   const double* W, const int64_t* slots, const int64_t* g_index, double* data,
+                   double* grad) {
+    return accumulate<3>(m, r, Ji, Jj, W, slots, g_index, data, grad);
+}
+
+RELMAP_MULTIVERSION
+double accumulate6(int64_t m, const double* r, const double* Ji, const double* Jj,
+                   const double* W, const int64_t* slots, const int64_t* g_index, double* data,
+                   double* grad) {
+    return accumulate<6>(m, r, Ji, Jj, W, slots, g_index, data, grad);
 }
 
 }  // namespace
@@ -85,7 +113,7 @@ void register_linearize(nb::module_& m) {
             double cost;
             {
                 nb::gil_scoped_release unlocked;
-                auto run = b == 3 ? accumulate<3> : accumulate<6>;
+                auto run = b == 3 ? accumulate3 : accumulate6;
                 cost = run(count, r.data(), Ji.data(), Jj.data(), W.data(), slots.data(),
                            g_index.data(), data.data(), grad.data());
             }

@@ -2,9 +2,6 @@
 #include "ordering.hpp"
 
 #include <algorithm>
-#include <functional>
-#include <queue>
-#include <unordered_map>
 #include <utility>
 
 #include "arrays.hpp"
@@ -32,27 +29,40 @@ std::vector<int64_t> minimum_degree(int64_t n, int64_t m, const int64_t* a, cons
         for (int64_t u : adj[v]) d += weight[u];
         return d;
     };
-    using Entry = std::pair<int64_t, int64_t>;  // (degree, node); stale entries are skipped
-    std::priority_queue<Entry, std::vector<Entry>, std::greater<Entry>> heap;
-    for (int64_t v = 0; v < n; ++v) heap.emplace(degree[v] = external(v), v);
+    // Degree lists (doubly linked, O(1) moves): head[d] is a supervariable of degree d.
+    std::vector<int64_t> head(n + 1, -1), next(n, -1), prev(n, -1);
+    int64_t least = n, alive = n;
+    auto insert = [&](int64_t v, int64_t d) {
+        degree[v] = d;
+        prev[v] = -1;
+        next[v] = head[d];
+        if (head[d] >= 0) prev[head[d]] = v;
+        head[d] = v;
+        least = std::min(least, d);
+    };
+    auto remove = [&](int64_t v) {
+        if (prev[v] >= 0)
+            next[prev[v]] = next[v];
+        else
+            head[degree[v]] = next[v];
+        if (next[v] >= 0) prev[next[v]] = prev[v];
+    };
+    for (int64_t v = n - 1; v >= 0; --v) insert(v, external(v));  // lowest index first
     std::vector<char> done(n, 0);
-    std::vector<int64_t> order, merged, deferred, changed, touched(n, -1);
+    std::vector<int64_t> order, merged, changed, touched(n, -1);
+    std::vector<std::pair<int64_t, int64_t>> keyed;  // (neighbourhood sum, supervariable)
     order.reserve(n);
     // Multiple elimination (J. W. H. Liu, ACM TOMS 11, 1985): each round eliminates
     // supervariables of the round's least degree that are not neighbours of one eliminated in
     // the same round; then indistinguishable neighbours merge and degrees are updated.
-    for (int64_t round = 0; !heap.empty(); ++round) {
-        const int64_t least = heap.top().first;
-        deferred.clear();
+    for (int64_t round = 0; alive > 0; ++round) {
+        while (head[least] < 0) ++least;
         changed.clear();
-        while (!heap.empty() && heap.top().first <= least) {
-            const auto [d, v] = heap.top();
-            heap.pop();
-            if (done[v] || d != degree[v]) continue;
-            if (touched[v] == round) {
-                deferred.push_back(v);
-                continue;
-            }
+        for (int64_t v = head[least], after; v != -1; v = after) {
+            after = next[v];  // elimination below moves no other supervariable between lists
+            if (touched[v] == round) continue;  // a neighbour of this round's: degree changes
+            remove(v);
+            --alive;
             done[v] = 1;
             order.insert(order.end(), members[v].begin(), members[v].end());
             const std::vector<int64_t> clique = std::move(adj[v]);
@@ -63,7 +73,6 @@ std::vector<int64_t> minimum_degree(int64_t n, int64_t m, const int64_t* a, cons
                 touched[u] = round;
                 const std::vector<int64_t>& nu = adj[u];
                 merged.clear();
-                merged.reserve(nu.size() + clique.size());
                 auto i = nu.begin(), j = clique.begin();
                 while (i != nu.end() || j != clique.end()) {
                     int64_t x;
@@ -77,24 +86,27 @@ std::vector<int64_t> minimum_degree(int64_t n, int64_t m, const int64_t* a, cons
                     }
                     if (x != u && x != v) merged.push_back(x);
                 }
-                adj[u].swap(merged);
+                adj[u].assign(merged.begin(), merged.end());  // merged keeps its capacity
             }
         }
         // Indistinguishable neighbours (equal closed neighbourhoods) become one supervariable.
-        std::unordered_map<int64_t, std::vector<int64_t>> by_hash;
+        // Candidates are grouped by the sum of their closed neighbourhood (equal for equal
+        // sets), sorted so that the result does not depend on a hash table's order.
+        keyed.clear();
         for (int64_t u : changed) {
             if (done[u]) continue;
             int64_t h = u;
             for (int64_t x : adj[u]) h += x;
-            by_hash[h].push_back(u);
+            keyed.emplace_back(h, u);
         }
-        for (auto& [h, group] : by_hash) {
-            (void)h;
-            for (size_t p = 0; p < group.size(); ++p) {
-                const int64_t u = group[p];
+        std::sort(keyed.begin(), keyed.end());
+        for (size_t g0 = 0, g1; g0 < keyed.size(); g0 = g1) {
+            for (g1 = g0 + 1; g1 < keyed.size() && keyed[g1].first == keyed[g0].first;) ++g1;
+            for (size_t p = g0; p < g1; ++p) {
+                const int64_t u = keyed[p].second;
                 if (done[u]) continue;
-                for (size_t q = p + 1; q < group.size(); ++q) {
-                    const int64_t x = group[q];
+                for (size_t q = p + 1; q < g1; ++q) {
+                    const int64_t x = keyed[q].second;
                     if (done[x] || adj[x].size() != adj[u].size()) continue;
                     // closed neighbourhoods equal: N(u) \ {x} == N(x) \ {u}, u ∈ N(x)
                     if (!std::binary_search(adj[x].begin(), adj[x].end(), u)) continue;
@@ -109,6 +121,8 @@ std::vector<int64_t> minimum_degree(int64_t n, int64_t m, const int64_t* a, cons
                     }
                     if (!same) continue;
                     done[x] = 1;  // absorbed into u
+                    remove(x);
+                    --alive;
                     weight[u] += weight[x];
                     members[u].insert(members[u].end(), members[x].begin(), members[x].end());
                     for (int64_t y : adj[x]) {
@@ -119,12 +133,37 @@ std::vector<int64_t> minimum_degree(int64_t n, int64_t m, const int64_t* a, cons
                 }
             }
         }
-        for (int64_t u : deferred)
-            if (!done[u]) heap.emplace(degree[u] = external(u), u);
         for (int64_t u : changed)  // the neighbours of this round's nodes: new degrees
-            if (!done[u]) heap.emplace(degree[u] = external(u), u);
+            if (!done[u]) {
+                remove(u);
+                insert(u, external(u));
+            }
     }
     return order;
+}
+
+std::vector<int64_t> components(int64_t n, int64_t m, const int64_t* a, const int64_t* b) {
+    std::vector<int64_t> parent(n), size(n, 1);
+    for (int64_t v = 0; v < n; ++v) parent[v] = v;
+    auto find = [&](int64_t v) {
+        while (parent[v] != v) v = parent[v] = parent[parent[v]];
+        return v;
+    };
+    for (int64_t e = 0; e < m; ++e) {
+        int64_t x = find(a[e]), y = find(b[e]);
+        if (x == y) continue;
+        if (size[x] < size[y]) std::swap(x, y);
+        parent[y] = x;
+        size[x] += size[y];
+    }
+    std::vector<int64_t> label(n), of_root(n, -1);
+    int64_t count = 0;
+    for (int64_t v = 0; v < n; ++v) {
+        int64_t& l = of_root[find(v)];
+        if (l < 0) l = count++;
+        label[v] = l;
+    }
+    return label;
 }
 
 void register_ordering(nb::module_& m) {
@@ -147,6 +186,20 @@ void register_ordering(nb::module_& m) {
         nb::arg("n"), nb::arg("a"), nb::arg("b"),
         "Multiple minimum degree ordering (new → old) of the graph with n nodes and edges "
         "(a, b).");
+    m.def(
+        "components",
+        [](int64_t n, Index1 a, Index1 b) {
+            const int64_t count = static_cast<int64_t>(a.shape(0));
+            if (n < 0 || static_cast<int64_t>(b.shape(0)) != count)
+                throw nb::value_error("n >= 0, and a and b of the same length");
+            for (int64_t e = 0; e < count; ++e)
+                if (a.data()[e] < 0 || a.data()[e] >= n || b.data()[e] < 0 || b.data()[e] >= n)
+                    throw nb::value_error("edge end out of range");
+            return vector_array(components(n, count, a.data(), b.data()));
+        },
+        nb::arg("n"), nb::arg("a"), nb::arg("b"),
+        "Connected components of the graph with n nodes and edges (a, b): a label per node, "
+        "0, 1, … in order of each component's lowest node.");
 }
 
 }  // namespace relmap

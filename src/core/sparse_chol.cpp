@@ -12,40 +12,32 @@ namespace relmap {
 
 namespace {
 
-// The strict upper triangle (i < k) of P A Pᵀ, column by column (CSC), from the pattern of A
-// (either triangle or both; duplicates are harmless below).
-void upper_pattern(int64_t n, const int64_t* indptr, const int64_t* indices,
-                   const std::vector<int64_t>& inv, std::vector<int64_t>& up,
-                   std::vector<int64_t>& ui) {
-    up.assign(n + 1, 0);
-    for (int64_t c = 0; c < n; ++c)
-        for (int64_t e = indptr[c]; e < indptr[c + 1]; ++e) {
-            int64_t i = inv[indices[e]], k = inv[c];
-            if (i != k) ++up[std::max(i, k) + 1];
-        }
-    for (int64_t k = 0; k < n; ++k) up[k + 1] += up[k];
-    ui.resize(up[n]);
-    std::vector<int64_t> fill(up.begin(), up.end() - 1);
-    for (int64_t c = 0; c < n; ++c)
-        for (int64_t e = indptr[c]; e < indptr[c + 1]; ++e) {
-            int64_t i = inv[indices[e]], k = inv[c];
-            if (i != k) ui[fill[std::max(i, k)]++] = std::min(i, k);
-        }
+// Calls visit(i) for the entries i < k of column k of P A Pᵀ (the strict upper triangle), read
+// straight from A's CSC (both triangles stored) with the ordering perm (new → old) and its
+// inverse inv.
+template <class Visit>
+inline void upper_column(int64_t k, const int64_t* indptr, const int64_t* indices,
+                         const int64_t* perm, const int64_t* inv, Visit&& visit) {
+    const int64_t c = perm[k];
+    for (int64_t e = indptr[c]; e < indptr[c + 1]; ++e) {
+        const int64_t i = inv[indices[e]];
+        if (i < k) visit(i);
+    }
 }
 
-// Elimination tree of the matrix with strict upper pattern (up, ui): Liu's algorithm with
-// path compression (Davis 2006, cs_etree).
-std::vector<int64_t> elimination_tree(int64_t n, const std::vector<int64_t>& up,
-                                      const std::vector<int64_t>& ui) {
+// Elimination tree of P A Pᵀ: Liu's algorithm with path compression (Davis 2006, cs_etree).
+std::vector<int64_t> elimination_tree(int64_t n, const int64_t* indptr, const int64_t* indices,
+                                      const int64_t* perm, const int64_t* inv) {
     std::vector<int64_t> parent(n, -1), ancestor(n, -1);
     for (int64_t k = 0; k < n; ++k)
-        for (int64_t p = up[k]; p < up[k + 1]; ++p)
-            for (int64_t i = ui[p]; i != -1 && i < k;) {
-                int64_t next = ancestor[i];
+        upper_column(k, indptr, indices, perm, inv, [&](int64_t i) {
+            while (i != -1 && i < k) {
+                const int64_t next = ancestor[i];
                 ancestor[i] = k;
                 if (next == -1) parent[i] = k;
                 i = next;
             }
+        });
     return parent;
 }
 
@@ -84,16 +76,24 @@ SparseCholesky::SparseCholesky(int64_t n, const int64_t* indptr, const int64_t* 
                                const int64_t* perm)
     : n_(n), nnz_A_(indptr[n]) {
     // The caller's ordering, then the postorder of its elimination tree (same fill).
-    std::vector<int64_t> inv(n), up, ui;
+    std::vector<int64_t> inv(n);
     for (int64_t k = 0; k < n; ++k) inv[perm[k]] = k;
-    upper_pattern(n, indptr, indices, inv, up, ui);
-    std::vector<int64_t> post = postorder(elimination_tree(n, up, ui));
+    const std::vector<int64_t> parent0 = elimination_tree(n, indptr, indices, perm, inv.data());
+    const std::vector<int64_t> post = postorder(parent0);
     perm_.resize(n);
     inv_.resize(n);
-    for (int64_t k = 0; k < n; ++k) perm_[k] = perm[post[k]];
+    std::vector<int64_t> rank(n);  // position of each column of the caller's order in post
+    for (int64_t k = 0; k < n; ++k) {
+        perm_[k] = perm[post[k]];
+        rank[post[k]] = k;
+    }
     for (int64_t k = 0; k < n; ++k) inv_[perm_[k]] = k;
-    upper_pattern(n, indptr, indices, inv_, up, ui);
-    parent_ = elimination_tree(n, up, ui);
+    // A postorder relabels the elimination tree and changes nothing else.
+    parent_.resize(n);
+    for (int64_t k = 0; k < n; ++k) {
+        const int64_t p0 = parent0[post[k]];
+        parent_[k] = p0 == -1 ? -1 : rank[p0];
+    }
 
     // Column counts of L by row subtrees: row k of L is the set of columns met walking up
     // the tree from each i < k of A's row k until a column already marked for k (cs_ereach).
@@ -102,11 +102,12 @@ SparseCholesky::SparseCholesky(int64_t n, const int64_t* indptr, const int64_t* 
         std::fill(mark.begin(), mark.end(), -1);
         for (int64_t k = 0; k < n; ++k) {
             mark[k] = k;
-            for (int64_t p = up[k]; p < up[k + 1]; ++p)
-                for (int64_t j = ui[p]; j != -1 && mark[j] != k; j = parent_[j]) {
+            upper_column(k, indptr, indices, perm_.data(), inv_.data(), [&](int64_t i) {
+                for (int64_t j = i; j != -1 && mark[j] != k; j = parent_[j]) {
                     mark[j] = k;
                     visit(j, k);
                 }
+            });
         }
     };
     each_row_entry([&](int64_t j, int64_t) { ++count[j]; });
@@ -168,18 +169,25 @@ SparseCholesky::SparseCholesky(int64_t n, const int64_t* indptr, const int64_t* 
         const int64_t wt = fund[t + 1] - fund[t];
         std::copy(frows.begin() + fptr[t] + wt, frows.begin() + fptr[t + 1], out);
     }
-    // A's entries on or below the diagonal (new order) → their slots in the panels.
+    // A's entries on or below the diagonal (new order) → their slots in the panels, column
+    // by column of the new order, each supernode's rows looked up in a map (slot of each row).
     src_.clear();
     dst_.clear();
-    for (int64_t c = 0; c < n; ++c)
+    src_.reserve(nnz_A_ / 2 + n);
+    dst_.reserve(nnz_A_ / 2 + n);
+    std::vector<int64_t> slot(n, -1);
+    for (int64_t k = 0; k < n; ++k) {
+        const int64_t s = sn_[k], nr = rows_ptr_[s + 1] - rows_ptr_[s];
+        if (k == first_[s])
+            for (int64_t p = 0; p < nr; ++p) slot[rows_[rows_ptr_[s] + p]] = p;
+        const int64_t c = perm_[k], base = panel_ptr_[s] + (k - first_[s]) * nr;
         for (int64_t e = indptr[c]; e < indptr[c + 1]; ++e) {
-            int64_t i = inv_[indices[e]], k = inv_[c];
+            const int64_t i = inv_[indices[e]];
             if (i < k) continue;
-            int64_t s = sn_[k];
-            int64_t nr = rows_ptr_[s + 1] - rows_ptr_[s];
             src_.push_back(e);
-            dst_.push_back(panel_ptr_[s] + (k - first_[s]) * nr + position(s, i));
+            dst_.push_back(base + slot[i]);
         }
+    }
     X_.assign(panel_ptr_[S], 0.0);
 }
 
@@ -205,6 +213,7 @@ int64_t SparseCholesky::position(int64_t s, int64_t row) const {
     return (it != end && *it == row) ? it - begin : -1;
 }
 
+RELMAP_MULTIVERSION
 int64_t SparseCholesky::factorize(const double* data) {
     std::fill(X_.begin(), X_.end(), 0.0);
     for (size_t e = 0; e < src_.size(); ++e) X_[dst_[e]] += data[src_[e]];
@@ -275,6 +284,7 @@ int64_t SparseCholesky::factorize(const double* data) {
     return -1;
 }
 
+RELMAP_MULTIVERSION
 void SparseCholesky::forward(double* y, int64_t m, const std::vector<int64_t>* only) const {
     // Supernode by supernode: L_JJ x_J = y_J, then y_S -= L_SJ x_J (one gather-free product
     // into a buffer, one scatter).
@@ -310,6 +320,7 @@ void SparseCholesky::forward(double* y, int64_t m, const std::vector<int64_t>* o
     }
 }
 
+RELMAP_MULTIVERSION
 void SparseCholesky::backward(double* y, int64_t m) const {
     // Supernodes in reverse: x_J = L_JJ⁻ᵀ (y_J - L_SJᵀ x_S).
     std::vector<double> tmp;
@@ -325,9 +336,7 @@ void SparseCholesky::backward(double* y, int64_t m) const {
         for (int64_t c = 0; c < w; ++c) {
             const double* Lc = L + c * nr + w;
             if (m == 1) {
-                double acc = 0.0;
-                for (int64_t i = 0; i < r; ++i) acc += Lc[i] * tmp[i];
-                x[c] -= acc;
+                x[c] -= dense::dot(r, Lc, tmp.data());
             } else {
                 for (int64_t i = 0; i < r; ++i)
                     for (int64_t q = 0; q < m; ++q) x[c * m + q] -= Lc[i] * tmp[i * m + q];
@@ -377,6 +386,7 @@ void SparseCholesky::inverse_submatrix(const int64_t* idx, int64_t k, double* ou
         }
 }
 
+RELMAP_MULTIVERSION
 bool SparseCholesky::selected_inverse_blocks(const int64_t* groups, int64_t count, int64_t b,
                                              double* out) const {
     // Z = A⁻¹ on L's pattern, in panels like L's, by Takahashi's recurrence from the last

@@ -27,7 +27,7 @@ namespace relmap {
 
 class SparseCholesky {
 public:
-    // Pattern of A in CSC (n + 1 pointers, row indices; both triangles or either), and the
+    // Pattern of A in CSC (n + 1 pointers, row indices; both triangles), and the
     // fill-reducing ordering perm (new → old). The ordering is postordered here.
     SparseCholesky(int64_t n, const int64_t* indptr, const int64_t* indices, const int64_t* perm);
 

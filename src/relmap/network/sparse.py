@@ -86,6 +86,7 @@ class SymmetricPattern:
         pattern = cls.__new__(cls)
         pattern._setup(b * nodes, indices, indptr, position, node)
         pattern.block = b
+        pattern._pairs = (b * urow, b * ucol)  # one parameter pair per block, for the ordering
         return pattern
 
     def _setup(
@@ -109,6 +110,8 @@ class SymmetricPattern:
         self.diagonal_position[cols[on_diag]] = on_diag
         self.node = np.arange(size) if node is None else np.asarray(node)
         self._perm: IntArray | None = None
+        #: parameter pairs (rows, cols) whose nodes meet, for the ordering (None: every entry)
+        self._pairs: tuple[IntArray, IntArray] | None = None
         self.block: int | None = None  #: parameters per node when nodes are uniform blocks
 
     def assemble(self, values: FloatArray) -> FloatArray:
@@ -136,8 +139,10 @@ class SymmetricPattern:
     def permutation(self) -> IntArray:
         """Fill-reducing ordering of the parameters (new → old), nodes kept together."""
         if self._perm is None:
-            cols = np.repeat(np.arange(self.size), np.diff(self.indptr))
-            self._perm = node_ordering(self.node, self.indices, cols)
+            if self._pairs is None:
+                cols = np.repeat(np.arange(self.size), np.diff(self.indptr))
+                self._pairs = (self.indices, cols)
+            self._perm = node_ordering(self.node, *self._pairs)
         return self._perm
 
 
