@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import time
+from concurrent.futures import CancelledError
 import uuid
 from collections import deque
 from collections.abc import Callable, Iterator
@@ -34,6 +35,8 @@ CHUNK_SECONDS = 0.5
 CONNECT_SECONDS = 5.0
 #: How long to wait for a first worker on a cluster that has none yet.
 WORKER_SECONDS = 60.0
+#: How often a chunk the scheduler dropped (with a dead worker) is submitted again.
+RETRIES = 3
 #: Packages every worker needs (a worker missing one is named in the error).
 NEEDED = ("relmap", "numpy", "scipy")
 
@@ -206,21 +209,40 @@ class _OnCluster:
         self.depth = 2 * self.slots
         self.job = client.scatter(job, broadcast=True, hash=False)
         self.done = distributed.as_completed(loop=client.loop)
-        self.running: dict[str, tuple[Any, int, int]] = {}
+        self.running: dict[str, tuple[Any, int, int, int]] = {}
         self.token = uuid.uuid4().hex[:12]
+        self._job = job
 
-    def submit(self, first: int, stop: int) -> None:
-        key = f"relmap-{getattr(self.fn, '__name__', 'block')}-{self.token}-{first}-{stop}"
+    def submit(self, first: int, stop: int, attempt: int = 0) -> None:
+        name = getattr(self.fn, "__name__", "block")
+        key = f"relmap-{name}-{self.token}-{first}-{stop}-{attempt}"
         future = self.client.submit(_chunk, self.fn, self.job, first, stop, key=key, pure=False)
-        self.running[future.key] = (future, first, stop)
+        self.running[future.key] = (future, first, stop, attempt)
         self.done.add(future)
 
     def next_done(self) -> tuple[int, int, list[Any], float]:
-        future = next(self.done)
-        _, first, stop = self.running.pop(future.key)
+        while True:
+            future = next(self.done)
+            _, first, stop, attempt = self.running.pop(future.key)
+            try:
+                out, seconds = self._result(future, first, stop)
+            except CancelledError:
+                # Not cancelled here: the scheduler dropped the chunk with a dead worker (its
+                # input, the scattered job, may have gone with it). Scatter it again and rerun.
+                if attempt >= RETRIES:
+                    raise ClusterError(
+                        f"Dask dropped blocks {first}-{stop - 1} {attempt + 1} times (workers "
+                        "dying?)"
+                    ) from None
+                self.job = self.client.scatter(self._job, broadcast=True, hash=False)
+                self.submit(first, stop, attempt + 1)
+                continue
+            return first, stop, out, seconds
+
+    def _result(self, future: Any, first: int, stop: int) -> tuple[list[Any], float]:
         try:
-            out, seconds = future.result()
-        except ChunkError:
+            return future.result()
+        except (ChunkError, CancelledError):
             raise
         except ModuleNotFoundError as exc:
             raise ClusterError(
@@ -235,10 +257,9 @@ class _OnCluster:
             raise
         finally:
             future.release()
-        return first, stop, out, seconds
 
     def cancel(self) -> None:
-        futures = [f for f, _, _ in self.running.values()]
+        futures = [f for f, _, _, _ in self.running.values()]
         if futures:
             self.client.cancel(futures, force=True)
         self.running.clear()
