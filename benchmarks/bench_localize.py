@@ -28,9 +28,7 @@ def row(name: str, run, seconds: float | None) -> str:
         if seconds is not None
         else f"{'from ' + cal.trained_on:>40s}"
     )
-    return (
-        f"{name:26s} {s.rmse_position:7.3f} {s.coverage_90:6.2f} {s.anees:7.2f}   {how}"
-    )
+    return f"{name:26s} {s.rmse_position:7.3f} {s.coverage_90:6.2f} {s.anees:7.2f}   {how}"
 
 
 def main() -> None:

@@ -44,7 +44,6 @@ from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
-
 from scipy.special import gammaln
 
 from relmap import ekf
@@ -232,7 +231,7 @@ def loglik(trace: ekf.Trace, nu: ArrayLike) -> FloatArray:
 
 def _free(sensor: ekf.SensorKind) -> tuple[str, ...]:
     free = ("k_s", "k_theta", "k_theta_s", "sigma_r", "nu")
-    return free + ("sigma_b",) if sensor is ekf.SensorKind.RANGE_BEARING else free
+    return (*free, "sigma_b") if sensor is ekf.SensorKind.RANGE_BEARING else free
 
 
 def _moves(p: ekf.NoiseParameters, free: tuple[str, ...], step: float) -> ekf.NoiseParameters:

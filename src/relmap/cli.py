@@ -353,9 +353,9 @@ def _solve(args: argparse.Namespace) -> int:
 
 def _localize(args: argparse.Namespace) -> int:
     import json
+    from pathlib import Path
 
     import numpy as np
-    from pathlib import Path
 
     from relmap._progress import TerminalProgress
     from relmap.errors import ParameterError
@@ -365,7 +365,7 @@ def _localize(args: argparse.Namespace) -> int:
         if out and not Path(out).resolve().parent.is_dir():
             raise ParameterError(f"cannot write {out}: its folder does not exist")
     if args.calibrate != ["auto"]:
-        how, number = (args.calibrate + [""])[:2] if len(args.calibrate) <= 2 else ("", "")
+        how, number = [*args.calibrate, ""][:2] if len(args.calibrate) <= 2 else ("", "")
         if how != "from-run" or not number.isdigit():
             raise ParameterError(
                 f"--calibrate takes 'auto' or 'from-run N'; got {' '.join(args.calibrate)}"
@@ -438,7 +438,8 @@ def _localize(args: argparse.Namespace) -> int:
         + (f", {r['ignored']} ignored (not landmarks)" if r["ignored"] else "")
         + f"; NIS/dof {run.anis:.2f} (1 if consistent"
         + (
-            f"; below 1 by design when correlated readings are inflated, here σ ×{cal.inflation:.2f})"
+            f"; below 1 by design when correlated readings are inflated, here σ "
+            f"×{cal.inflation:.2f})"
             if summary["method"] == "auto" and cal.inflation > 1.05
             else ")"
         )

@@ -18,10 +18,10 @@ from __future__ import annotations
 
 import contextlib
 import time
-from concurrent.futures import CancelledError
 import uuid
 from collections import deque
 from collections.abc import Callable, Iterator
+from concurrent.futures import CancelledError
 from typing import Any, NamedTuple
 
 from relmap.errors import ChunkError, ClusterError, ParameterError
