@@ -9,9 +9,9 @@ never read. Three stages, each a standard tool of filter tuning:
 1. **Maximum likelihood** of the innovation sequence (Mehra 1970; Student-t readings with scale
    ``S``, dof ``nu``, so a few wild readings do not inflate the σ of all). Every paired reading
    counts, the gated ones too (:func:`loglik`): a filter that lost its way and gates most of
-   its readings must not look likely for having few terms. odometry ``k_s,
-   k_theta, k_theta_s`` (:class:`relmap.robot.DistanceNoise`), reading σ ``sigma_r, sigma_b``
-   and ``nu``. (Reading biases are not fitted: on MRCLAM their maximum-likelihood values
+   its readings must not look likely for having few terms. Fitted: the odometry's ``k_s,
+   k_theta, k_theta_s`` (:class:`relmap.robot.DistanceNoise`), the readings' ``sigma_r,
+   sigma_b`` and ``nu``. (Reading biases are not fitted: on MRCLAM their maximum-likelihood values
    disagreed in sign with the ground-truth residuals and lowered coverage.) Found first by
    batched coordinate ascent from a cautious :data:`START` (every candidate move of every
    parameter one filter of one batch of :func:`relmap.ekf.run`; the step halves when no move
@@ -86,9 +86,9 @@ SCALES = tuple(round(0.9 + 0.01 * k, 2) for k in range(31))
 PAIR_GAP = 1.0
 #: Rounds of the whiteness stage.
 WHITENING_PASSES = 3
-#: At most this many rounds of coordinate ascent; the coarse fit stops earlier when its step
-#: falls below a factor of 1.1.
+#: At most this many rounds of coordinate ascent.
 ITERATIONS = 40
+#: The coarse fit stops when its log-scale step falls below this (a factor of 1.1).
 COARSE = float(np.log(1.1))
 #: The log-scale step of the coarse fit's first round (×2 per move); it halves when no move
 #: gains.
