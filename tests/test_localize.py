@@ -15,11 +15,12 @@ robot 5    0.157   0.80   1.04     0.156   0.97   0.46     0.244   0.29   20.7
 Plaza      0.420   0.85   1.59                             0.408   0.78   2.0
 =========  ======================  ======================  ======================
 
-(``python benchmarks/bench_localize.py``, 2 December 2026.) The last columns are the noise taken from the next robot's run against its ground truth
-(``--calibrate from-run N``; Plaza: its first half), which was the default before. The readings'
-errors are strongly correlated in time (consecutive range innovations of one landmark: 0.47-0.90),
-which a white-noise EKF counts as independent information; the autocalibration's whitening
-inflates their σ by ×2.8-5.8 and the odometry's clock offset comes out 0.2-0.25 s.
+(``python benchmarks/bench_localize.py``, 2 December 2026.) The last columns are the noise
+taken from the next robot's run against its ground truth (``--calibrate from-run N``; Plaza:
+its first half), which was the default before. The readings' errors are strongly correlated in
+time (consecutive range innovations of one landmark: 0.47-0.90), which a white-noise EKF counts
+as independent information; the autocalibration's whitening inflates their σ by ×2.8-5.8 and
+the odometry's clock offset comes out 0.2-0.25 s.
 
 Time: reading MRCLAM 0.4 s (once per module); one robot 5-15 s (the autocalibration: a few
 hundred filters over the whole run); Plaza ~1 s.

@@ -127,7 +127,11 @@ def figure(run: Localization, *, ellipses: int = 12) -> Figure:
     ax_nis.axhline(lo, color="k", ls=":", linewidth=0.8)
     ax_nis.axhline(hi, color="k", ls=":", linewidth=0.8)
     ax_nis.set_xlabel("time [s]")
-    ax_nis.set_title(f"NIS per reading ({d} dof), NIS/dof {run.anis:.2f}", fontsize="medium")
+    title = f"NIS per reading ({d} dof), NIS/dof {run.anis:.2f}"
+    inflation = getattr(run.calibration, "inflation", 1.0)
+    if inflation > 1.05:  # whitened readings: S holds the inflated R, so NIS < dof by design
+        title += f" (readings' σ ×{inflation:.2f}: below 1 by design)"
+    ax_nis.set_title(title, fontsize="medium")
     fig.tight_layout()
     return fig
 
