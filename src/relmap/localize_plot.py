@@ -118,7 +118,7 @@ def figure(run: Localization, *, ellipses: int = 12) -> Figure:
     ax_hist.set_ylim(1e-4, 1.0)
     ax_hist.set_xlabel("innovation / predicted σ")
     ax_hist.legend(loc="lower center", fontsize="x-small")
-    ax_hist.set_title("innovations vs the noise model", fontsize="medium")
+    ax_hist.set_title("innovations vs\nthe noise model", fontsize="medium")
 
     rt = run.reading_t - run.t[0]
     ax_nis.semilogy(rt[used], np.maximum(tr.mahalanobis2[used], 1e-6), ".", markersize=1.5,
@@ -127,10 +127,10 @@ def figure(run: Localization, *, ellipses: int = 12) -> Figure:
     ax_nis.axhline(lo, color="k", ls=":", linewidth=0.8)
     ax_nis.axhline(hi, color="k", ls=":", linewidth=0.8)
     ax_nis.set_xlabel("time [s]")
-    title = f"NIS per reading ({d} dof), NIS/dof {run.anis:.2f}"
+    title = f"NIS per reading ({d} dof),\nNIS/dof {run.anis:.2f}"
     inflation = getattr(run.calibration, "inflation", 1.0)
     if inflation > 1.05:  # whitened readings: S holds the inflated R, so NIS < dof by design
-        title += f" (readings' σ ×{inflation:.2f}: below 1 by design)"
+        title += f" (σ ×{inflation:.2f}: < 1 by design)"
     ax_nis.set_title(title, fontsize="medium")
     fig.tight_layout()
     return fig
