@@ -144,3 +144,11 @@ def test_variance_factor_is_the_sum_of_the_autocorrelations() -> None:
     assert ac.variance_factor(-0.2, 0.1, 1000) == 1.0 and ac.variance_factor(np.nan, 0, 0) == 1.0
     # a correlation within three standard errors of 0 is white: 0.05 of 1000 pairs (σ 0.032)
     assert ac.variance_factor(0.05, 0.049, 1000) == 1.0
+
+
+def test_logpdf_is_scipys_student_t_and_normal() -> None:
+    x = np.linspace(-5, 5, 11)
+    for nu in (3.0, 8.5):
+        want = stats.t(df=nu).logpdf(x)
+        assert np.allclose(ac.logpdf(x * x, 0.0, 1, nu), want, rtol=1e-12, atol=0)
+    assert np.allclose(ac.logpdf(x * x, 0.0, 1, np.inf), stats.norm.logpdf(x), rtol=1e-12)

@@ -67,6 +67,7 @@ __all__ = [
     "calibrate",
     "innovation_correlation",
     "loglik",
+    "logpdf",
     "variance_factor",
 ]
 
@@ -204,6 +205,19 @@ def variance_factor(rho1: float, rho2: float, pairs: int) -> float:
     return 1.0 + 2.0 * r1 / (1.0 - phi)
 
 
+def logpdf(d2: ArrayLike, logdet: ArrayLike, d: int, nu: ArrayLike) -> FloatArray:
+    """Log-density of a ``d``-dimensional reading model at an innovation with Mahalanobis
+    ``d2 = yᵀS⁻¹y`` and ``logdet = log det S``: Student-t with dof ``nu`` and scale ``S``, or
+    the normal for ``nu`` inf (all broadcast together)."""
+    d2, v = np.asarray(d2, dtype=np.float64), np.asarray(nu, dtype=np.float64)
+    gauss = -0.5 * (d2 + d * np.log(2 * np.pi))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        vv = np.where(np.isinf(v), 1.0, v)
+        student = (gammaln((vv + d) / 2) - gammaln(vv / 2) - 0.5 * d * np.log(vv * np.pi)
+                   - 0.5 * (vv + d) * np.log1p(d2 / vv))  # fmt: skip
+    return np.where(np.isinf(v), gauss, student) - 0.5 * np.asarray(logdet)
+
+
 def loglik(trace: ekf.Trace, nu: ArrayLike) -> FloatArray:
     """Log-likelihood (*batch) of every paired reading's innovation, used or gated: Student-t
     with dof ``nu`` (*batch; inf: Gaussian) and scale ``S`` (the trace must keep its
@@ -218,13 +232,7 @@ def loglik(trace: ekf.Trace, nu: ArrayLike) -> FloatArray:
     S = np.where(paired[..., None, None], S, np.eye(d))
     sign, logdet = np.linalg.slogdet(S)
     d2 = np.einsum("...i,...i->...", y, np.linalg.solve(S, y[..., None])[..., 0])
-    v = np.asarray(nu, dtype=np.float64)[..., None]
-    gauss = -0.5 * (d2 + d * np.log(2 * np.pi))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        vv = np.where(np.isinf(v), 1.0, v)
-        student = (gammaln((vv + d) / 2) - gammaln(vv / 2) - 0.5 * d * np.log(vv * np.pi)
-                   - 0.5 * (vv + d) * np.log1p(d2 / vv))  # fmt: skip
-    each = np.where(np.isinf(v), gauss, student) - 0.5 * logdet
+    each = logpdf(d2, logdet, d, np.asarray(nu, dtype=np.float64)[..., None])
     ok = paired & (sign > 0) & np.isfinite(each)
     return np.where(ok, each, 0.0).sum(axis=-1) - 1e3 * (paired & ~ok).sum(axis=-1)
 

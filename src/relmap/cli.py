@@ -358,6 +358,7 @@ def _localize(args: argparse.Namespace) -> int:
     import numpy as np
 
     from relmap._progress import TerminalProgress
+    from relmap.autocalibration import Calibrated
     from relmap.errors import ParameterError
     from relmap.localize import localize
 
@@ -414,8 +415,8 @@ def _localize(args: argparse.Namespace) -> int:
         sensor += f", σ bearing {float(p.sigma_b):.3g} rad"
     if np.isfinite(float(p.nu)):
         sensor += f", Student-t ν {float(p.nu):.3g}"
-    summary = run.summary()["calibration"]
-    if summary["method"] == "auto":
+    auto = isinstance(cal, Calibrated)
+    if auto:
         source = (
             f"this run's innovations (clock offset {cal.delay:g} s"
             + (f", range scale {cal.scale:g}" if ranges_only else "")
@@ -440,7 +441,7 @@ def _localize(args: argparse.Namespace) -> int:
         + (
             f"; below 1 by design when correlated readings are inflated, here σ "
             f"×{cal.inflation:.2f})"
-            if summary["method"] == "auto" and cal.inflation > 1.05
+            if auto and cal.inflation > 1.05
             else ")"
         )
     )

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from relmap import ekf, gaussian
+from relmap import autocalibration, ekf, gaussian
 from relmap.lie import se2
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -113,7 +113,8 @@ def figure(run: Localization, *, ellipses: int = 12) -> Figure:
                      color=f"C{i}", label=f"{name} (used)")  # fmt: skip
     x = np.linspace(-6, 6, 400)
     model = "model" + (f" (Student-t, ν={nu:.3g})" if math.isfinite(nu) else "")
-    ax_hist.plot(x, _density(x, nu), color="k", linewidth=1.0, label=model)
+    density = np.exp(autocalibration.logpdf(x * x, 0.0, 1, nu))  # unit scale
+    ax_hist.plot(x, density, color="k", linewidth=1.0, label=model)
     ax_hist.set_yscale("log")
     ax_hist.set_ylim(1e-4, 1.0)
     ax_hist.set_xlabel("innovation / predicted σ")
@@ -134,11 +135,3 @@ def figure(run: Localization, *, ellipses: int = 12) -> Figure:
     ax_nis.set_title(title, fontsize="medium")
     fig.tight_layout()
     return fig
-
-
-def _density(x: np.ndarray, nu: float) -> np.ndarray:
-    """Density of a unit-scale Student-t (ν dof; the normal when ν is inf) at x."""
-    if not math.isfinite(nu):
-        return np.exp(-0.5 * x * x) / math.sqrt(2 * math.pi)
-    c = math.lgamma((nu + 1) / 2) - math.lgamma(nu / 2) - 0.5 * math.log(nu * math.pi)
-    return np.exp(c - 0.5 * (nu + 1) * np.log1p(x * x / nu))
