@@ -3,9 +3,10 @@ Dask cluster.
 
 Each point runs ``relmap.localize.localize_mrclam`` (its public options only) on the UTIAS
 MRCLAM dataset 6 (``../shared/data/landmarks/mrclam6``), read once and sent to each worker once
-(``shared=``). Calibration choices: ``"neighbour"`` (the default of ``localize``: noise
-estimated on robot ``k mod 5 + 1``, never on the scored run) and ``"own"`` (noise estimated on
-the scored robot itself: optimistic, the comparison says how much). The table (one row per
+(``shared=``). Calibration choices: ``"auto"`` (the default of ``localize``: noise from the run's
+own innovations, no ground truth), ``"neighbour"`` (robot ``k mod 5 + 1``'s run against its
+ground truth) and ``"own"`` (the scored robot's run against its own ground truth: optimistic,
+the comparison says how much). The table (one row per
 point: RMSE, coverage of the 90% ellipse, ANEES, rejected readings) is printed and written as
 CSV.
 
@@ -16,7 +17,6 @@ Run: ``python benchmarks/study_ekf.py [--workers 2 | --scheduler tcp://host:8786
 from __future__ import annotations
 
 import argparse
-import contextlib
 import os
 import time
 from pathlib import Path
@@ -30,11 +30,12 @@ DATA = Path(os.environ.get("RELMAP_DATA", Path(__file__).resolve().parents[2] / 
 
 def ekf(robot: int, associate: str, calibration: str, data) -> dict[str, object]:
     """One point of the study: one EKF run, scored against the ground truth."""
-    cal = calibrate_mrclam(data, robot) if calibration == "own" else None
+    trained = {"auto": None, "neighbour": robot % len(data.robots) + 1, "own": robot}[calibration]
+    cal = None if trained is None else calibrate_mrclam(data, trained)
     run = localize_mrclam(data, robot, associate=associate, calibration=cal)
     s = run.score
     return {
-        "trained_on": run.calibration.trained_on,
+        "trained_on": run.summary()["calibration"]["trained_on"],
         "rmse_position": s.rmse_position,
         "rmse_heading": s.rmse_heading,
         "coverage_90": s.coverage_90,
@@ -53,16 +54,11 @@ def main() -> None:
     args = ap.parse_args()
     data = read_mrclam(DATA / "landmarks" / "mrclam6")
     points = study.grid(
-        robot=args.robots, associate=list(ASSOCIATIONS), calibration=["neighbour", "own"]
+        robot=args.robots, associate=list(ASSOCIATIONS), calibration=["auto", "neighbour", "own"]
     )
-    with contextlib.ExitStack() as stack:
-        client = None
-        if args.workers:
-            from relmap.distributed import local_client
+    from relmap.distributed import client_for
 
-            client = stack.enter_context(local_client(args.workers))
-        elif args.scheduler:
-            client = args.scheduler
+    with client_for(args.workers, args.scheduler) as client:
         t0 = time.perf_counter()
         table = study.run(ekf, points, shared={"data": data}, client=client)
         seconds = time.perf_counter() - t0

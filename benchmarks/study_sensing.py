@@ -11,7 +11,6 @@ Run: ``python benchmarks/study_sensing.py [--workers 2 | --scheduler tcp://host:
 from __future__ import annotations
 
 import argparse
-import contextlib
 import os
 import time
 from pathlib import Path
@@ -41,14 +40,9 @@ def main() -> None:
     g = load_map(DATA / "posegraph2d" / f"{args.graph}.g2o")
     last = max(g.frames)
     points = study.grid(k=[last // 4, last // 2, last], sigma=[0.01, 0.1, 1.0, 10.0])
-    with contextlib.ExitStack() as stack:
-        client = None
-        if args.workers:
-            from relmap.distributed import local_client
+    from relmap.distributed import client_for
 
-            client = stack.enter_context(local_client(args.workers))
-        elif args.scheduler:
-            client = args.scheduler
+    with client_for(args.workers, args.scheduler) as client:
         t0 = time.perf_counter()
         table = study.run(forecast, points, shared={"g": g, "last": last}, client=client)
         seconds = time.perf_counter() - t0

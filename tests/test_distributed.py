@@ -187,3 +187,16 @@ def test_cli_workers_starts_its_own_cluster(tmp_path, capsys):
     there = json.loads(capsys.readouterr().out)
     here.pop("seconds"), there.pop("seconds")
     assert here == there
+
+
+def test_client_for_a_commands_options():
+    """--workers N / --scheduler ADDRESS: neither is this process (None), both is refused, a
+    bad count is refused before any cluster starts."""
+    from relmap.distributed import client_for
+
+    with client_for() as client:
+        assert client is None
+    with pytest.raises(ParameterError, match="not both"), client_for(2, "tcp://127.0.0.1:1"):
+        pass
+    with pytest.raises(ParameterError, match="positive"), client_for(0):
+        pass

@@ -68,12 +68,12 @@ def _validate(args: argparse.Namespace) -> int:
             if args.workers is not None or args.scheduler is not None:
                 from relmap import distributed
 
-                if args.scheduler is not None:
-                    client = stack.enter_context(distributed.connect(args.scheduler))
-                    where = f"on the Dask cluster at {args.scheduler}"
-                else:
-                    client = stack.enter_context(distributed.local_client(args.workers))
-                    where = f"on a local Dask cluster of {args.workers} processes"
+                client = stack.enter_context(distributed.client_for(args.workers, args.scheduler))
+                where = (
+                    f"on the Dask cluster at {args.scheduler}"
+                    if args.scheduler is not None
+                    else f"on a local Dask cluster of {args.workers} processes"
+                )
                 workers = distributed.workers_of(client)
             guess = p.expected_seconds(args.n, workers)
             print(

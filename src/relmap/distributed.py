@@ -26,7 +26,7 @@ from typing import Any, NamedTuple
 
 from relmap.errors import ChunkError, ClusterError, ParameterError
 
-__all__ = ["CHUNK_SECONDS", "CONNECT_SECONDS", "Work", "check_workers", "connect",
+__all__ = ["CHUNK_SECONDS", "CONNECT_SECONDS", "Work", "check_workers", "client_for", "connect",
            "local_client", "map_blocks", "workers_of"]  # fmt: skip
 
 #: Target seconds of work per chunk (task).
@@ -115,6 +115,27 @@ def local_client(workers: int) -> Iterator[Client]:
             yield client
     finally:
         cluster.close()
+
+
+@contextlib.contextmanager
+def client_for(workers: int | None = None, scheduler: str | None = None) -> Iterator[Client | None]:
+    """The client a command's ``--workers N`` or ``--scheduler ADDRESS`` asks for: a local
+    cluster of N processes (:func:`local_client`), the cluster at ADDRESS (:func:`connect`),
+    or None (this process) when neither is given; closed on exit. Both at once is a
+    :class:`relmap.errors.ParameterError`."""
+    if workers is not None and scheduler is not None:
+        raise ParameterError("give the number of local workers or a scheduler address, not both")
+    if scheduler is not None:
+        client = connect(scheduler)
+        try:
+            yield client
+        finally:
+            client.close()
+    elif workers is not None:
+        with local_client(workers) as client:
+            yield client
+    else:
+        yield None
 
 
 def _probe_factory() -> Callable[[], dict[str, str | None]]:
