@@ -664,8 +664,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="EKF localization with a known map on an MRCLAM or CMU Plaza folder",
         description="Run an EKF (odometry + landmark readings, lecture Eqs. 13-28) over a "
         "dataset folder (UTIAS MRCLAM or CMU Plaza, recognised by its files) and score it, and "
-        "dead reckoning, against the ground truth. Noise comes from data the run is not scored "
-        "on (MRCLAM: the next robot; Plaza: the first half, scored on the second).",
+        "dead reckoning, against the ground truth. The noise comes from the run's own innovations "
+        "(no ground truth), or with --calibrate from-run N from another MRCLAM robot's run "
+        "against its ground truth; Plaza runs and is scored on the second half of its run.",
     )
     loc.add_argument("dataset", metavar="DATASET", help="MRCLAM or CMU Plaza dataset folder")
     loc.add_argument(
