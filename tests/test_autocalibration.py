@@ -111,7 +111,9 @@ def test_loglik_is_the_student_t_and_gaussian_density_of_every_paired_reading() 
     trace = _trace(y, S, status=status)
     paired = [0, 1, 2]
     want_g = sum(stats.multivariate_normal(np.zeros(2), S[i]).logpdf(y[i]) for i in paired)
-    want_t = sum(stats.multivariate_t(np.zeros(2), S[i], df=4.0).logpdf(y[i]) for i in paired)
+    # the t of covariance S: scale S (ν - 2)/ν
+    t4 = [stats.multivariate_t(np.zeros(2), S[i] * 2.0 / 4.0, df=4.0) for i in paired]
+    want_t = sum(t.logpdf(y[i]) for t, i in zip(t4, paired, strict=True))
     assert float(ac.loglik(trace, np.inf)) == pytest.approx(want_g, rel=1e-12)
     assert float(ac.loglik(trace, 4.0)) == pytest.approx(want_t, rel=1e-12)
 
@@ -146,9 +148,10 @@ def test_variance_factor_is_the_sum_of_the_autocorrelations() -> None:
     assert ac.variance_factor(0.05, 0.049, 1000) == 1.0
 
 
-def test_logpdf_is_scipys_student_t_and_normal() -> None:
+def test_logpdf_is_scipys_student_t_of_unit_variance_and_normal() -> None:
     x = np.linspace(-5, 5, 11)
     for nu in (3.0, 8.5):
-        want = stats.t(df=nu).logpdf(x)
-        assert np.allclose(ac.logpdf(x * x, 0.0, 1, nu), want, rtol=1e-12, atol=0)
+        t = stats.t(df=nu, scale=np.sqrt((nu - 2) / nu))
+        assert t.var() == pytest.approx(1.0, rel=1e-12)
+        assert np.allclose(ac.logpdf(x * x, 0.0, 1, nu), t.logpdf(x), rtol=1e-12, atol=0)
     assert np.allclose(ac.logpdf(x * x, 0.0, 1, np.inf), stats.norm.logpdf(x), rtol=1e-12)

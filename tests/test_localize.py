@@ -117,12 +117,13 @@ def test_signature_ekf_beats_dead_reckoning_on_every_robot(signature_runs):
 
 
 def test_signature_ekf_consistency_is_reported_within_broad_bands(signature_runs):
-    """Measured coverage_90 0.69-0.95 and ANEES 0.86-3.0 (the noise from-run gave 0.24-0.47
-    and 3.6-21): the bands hold the measured values and fail on a return to the latter."""
+    """Measured coverage_90 0.82-1.00 and ANEES 0.50-1.71 (the noise from-run gave 0.24-0.47
+    and 3.6-21; the Student-t scale as the filter's R 0.69-0.95 and 0.86-3.0): the bands hold
+    the measured values and fail on a return to either."""
     for k, run in signature_runs.items():
         s = run.score
-        assert 0.65 < s.coverage_90 <= 1.0, k
-        assert 0.5 < s.anees < 4.0, k
+        assert 0.78 < s.coverage_90 <= 1.0, k
+        assert 0.4 < s.anees < 2.0, k
         used = run.readings["used"]
         r = run.readings
         assert s.rejected == r["gated"] + r["lost"] + r["degenerate"]
@@ -138,7 +139,8 @@ def test_signature_ekf_consistency_is_reported_within_broad_bands(signature_runs
 
 def test_noise_comes_from_the_runs_own_innovations(signature_runs):
     """No ground truth: the odometry clock offset (measured 0.2-0.25 s), a whitening factor for
-    the correlated readings (×2.8-5.8, ρ 0.47-0.90 before it), Student-t readings."""
+    the correlated readings (×3.3-6.2, ρ 0.56-0.91 before it), Student-t readings (ν 3.0-3.3)
+    of the fitted σ filtered by the linear filter."""
     from relmap.autocalibration import Calibrated
 
     for k, run in signature_runs.items():
@@ -149,12 +151,14 @@ def test_noise_comes_from_the_runs_own_innovations(signature_runs):
         assert cal.inflation > 2.0 and cal.correlation[0] > 0.3, k
         p = cal.parameters
         assert 0.05 < float(p.sigma_r) < 1.5 and 0.005 < float(p.sigma_b) < 0.1, k
+        assert np.isinf(p.nu) and 3.0 <= cal.nu < 10.0, k
         assert run.summary()["calibration"]["method"] == "auto"
 
 
 def test_mahalanobis_association_stays_near_signatures_on_robots_1_and_5(mrclam, signature_runs):
-    """Measured position RMSE 1.24x (robot 1) and 0.99x (robot 5) the signature filter's,
-    coverage_90 0.69 and 0.97. Robots 2 and 4 reach 1.77x and 1.24x (module docstring)."""
+    """Measured position RMSE 1.02x (robot 1) and 1.17x (robot 5) the signature filter's,
+    coverage_90 0.80 and 0.97. Robots 2, 3 and 4 reached 2.0x, 2.6x and 1.16x
+    (benchmarks/bench_localize.py)."""
     from relmap.localize import localize_mrclam
 
     for k in (1, 5):
@@ -162,7 +166,7 @@ def test_mahalanobis_association_stays_near_signatures_on_robots_1_and_5(mrclam,
         mah = localize_mrclam(mrclam, k, associate="mahalanobis")
         assert mah.associate == "mahalanobis"
         assert mah.score.rmse_position < 1.3 * sig.score.rmse_position, k
-        assert mah.score.coverage_90 > 0.6, k
+        assert mah.score.coverage_90 > 0.75, k
         assert mah.baseline.rmse_position > 5 * mah.score.rmse_position
 
 
@@ -457,7 +461,7 @@ def test_calibrate_from_run(mrclam_dir, mrclam, signature_runs, capsys):
     other = localize(mrclam_dir, robot=1, calibrate_from=3)
     assert other.calibration.trained_on == "robot 3"
     wide = localize(mrclam_dir, robot=1, calibrate_from=2, gate=0.999999)  # the gate is used
-    assert wide.readings["gated"] < signature_runs[1].readings["gated"]
+    assert wide.readings["gated"] < run.readings["gated"]
     with pytest.raises(ParameterError, match="another robot"):
         localize(mrclam_dir, robot=1, calibrate_from=1)
     code, out, err = _cli(capsys, mrclam_dir, "--robot", "1", "--calibrate", "from-run", "3",

@@ -6,10 +6,16 @@ The paper's §8 ("revise the error models … a form of autocalibration"). A run
 innovations ``y`` (reading minus prediction) and their covariances ``S`` say. Ground truth is
 never read. Three stages, each a standard tool of filter tuning:
 
-1. **Maximum likelihood** of the innovation sequence (Mehra 1970; Student-t readings with scale
-   ``S``, dof ``nu``, so a few wild readings do not inflate the σ of all). Every paired reading
-   counts, the gated ones too (:func:`loglik`): a filter that lost its way and gates most of
-   its readings must not look likely for having few terms. Fitted: the odometry's ``k_s,
+1. **Maximum likelihood** of the innovation sequence (Mehra 1970). The readings are Student-t
+   with dof ``nu`` and standard deviations ``sigma_r``, ``sigma_b`` (the t of that variance, so
+   a few wild readings do not inflate the σ of all), and the filter is the linear one (``nu``
+   inf in :func:`relmap.ekf.run`): the Kalman filter is the best linear estimator for any noise
+   of given second moments, and its ``P`` is then the covariance of its error, heavy tails or
+   not. (relmap.ekf's robust reweighting would instead give a reading near its prediction the
+   t's *scale*, ``(ν - 2)/ν`` of its variance: on MRCLAM, where ν comes out near 3, a reading
+   covariance about three times too small.) The innovations' likelihood is the t with covariance ``S``. Every paired
+   reading counts, the gated ones too (:func:`loglik`): a filter that lost its way and gates
+   most of its readings must not look likely for having few terms. Fitted: the odometry's ``k_s,
    k_theta, k_theta_s`` (:class:`relmap.robot.DistanceNoise`), the readings' ``sigma_r,
    sigma_b`` and ``nu``. (Reading biases are not fitted: on MRCLAM their maximum-likelihood values
    disagreed in sign with the ground-truth residuals and lowered coverage.) Found first by
@@ -135,8 +141,11 @@ class Recording(NamedTuple):
 class Calibrated(NamedTuple):
     """What :func:`calibrate` found."""
 
-    #: The filter's noise, whitening included: pass it to :func:`relmap.ekf.run`.
+    #: The filter's noise, whitening included: pass it to :func:`relmap.ekf.run`. Its σ are
+    #: the readings' standard deviations and its ``nu`` is inf: the filter is the linear one.
     parameters: ekf.NoiseParameters
+    #: The readings' Student-t dof (with the σ of ``parameters`` as standard deviations).
+    nu: float
     #: Odometry clock offset (s): build the log with ``recording.log(delay, scale)``.
     delay: float
     #: Range scale (1 for range-bearing sensors).
@@ -155,6 +164,7 @@ class Calibrated(NamedTuple):
         c0, c1 = self.correlation
         return {
             **self.parameters.as_dict(),
+            "nu": self.nu if np.isfinite(self.nu) else None,
             "delay": self.delay,
             "range_scale": self.scale,
             "inflation": self.inflation,
@@ -207,20 +217,21 @@ def variance_factor(rho1: float, rho2: float, pairs: int) -> float:
 
 def logpdf(d2: ArrayLike, logdet: ArrayLike, d: int, nu: ArrayLike) -> FloatArray:
     """Log-density of a ``d``-dimensional reading model at an innovation with Mahalanobis
-    ``d2 = yᵀS⁻¹y`` and ``logdet = log det S``: Student-t with dof ``nu`` and scale ``S``, or
-    the normal for ``nu`` inf (all broadcast together)."""
+    ``d2 = yᵀS⁻¹y`` and ``logdet = log det S``: Student-t with dof ``nu`` > 2 and *covariance*
+    ``S`` (scale ``S (ν - 2)/ν``), or the normal for ``nu`` inf (all broadcast together)."""
     d2, v = np.asarray(d2, dtype=np.float64), np.asarray(nu, dtype=np.float64)
     gauss = -0.5 * (d2 + d * np.log(2 * np.pi))
     with np.errstate(invalid="ignore", divide="ignore"):
-        vv = np.where(np.isinf(v), 1.0, v)
-        student = (gammaln((vv + d) / 2) - gammaln(vv / 2) - 0.5 * d * np.log(vv * np.pi)
-                   - 0.5 * (vv + d) * np.log1p(d2 / vv))  # fmt: skip
+        vv = np.where(np.isinf(v), 3.0, v)
+        m = vv - 2.0  # d2 / m = d2_scale / ν: the Mahalanobis distance in the scale's metric
+        student = (gammaln((vv + d) / 2) - gammaln(vv / 2) - 0.5 * d * np.log(m * np.pi)
+                   - 0.5 * (vv + d) * np.log1p(d2 / m))  # fmt: skip
     return np.where(np.isinf(v), gauss, student) - 0.5 * np.asarray(logdet)
 
 
 def loglik(trace: ekf.Trace, nu: ArrayLike) -> FloatArray:
     """Log-likelihood (*batch) of every paired reading's innovation, used or gated: Student-t
-    with dof ``nu`` (*batch; inf: Gaussian) and scale ``S`` (the trace must keep its
+    with dof ``nu`` (*batch; inf: Gaussian) and covariance ``S`` (the trace must keep its
     readings)."""
     y, S = np.asarray(trace.y), np.asarray(trace.S)
     if y.ndim == S.ndim:  # range-only: (..., M) and (..., M)
@@ -367,7 +378,8 @@ def calibrate(
 
     def run(log: ekf.Log, p: ekf.NoiseParameters) -> ekf.Trace:
         trace = ekf.run(
-            log, lm, p, start=start(float(log.t[0])), keep="summary", association=association,
+            log, lm, p._replace(nu=np.inf), start=start(float(log.t[0])), keep="summary",
+            association=association,
             landmark_signatures=landmark_signatures, gate=gate, sensor=kind,
         )  # fmt: skip
         return trace._replace(loglik=loglik(trace, p.nu))
@@ -394,4 +406,5 @@ def calibrate(
     trace = run(log, q)
     tick(4, 4)
     rho = innovation_correlation(trace, t)[0]
-    return Calibrated(q, delay, scale, factor, (rho0, rho), fitted, trace)
+    return Calibrated(q._replace(nu=np.inf), float(p.nu), delay, scale, factor, (rho0, rho),
+                      fitted, trace)  # fmt: skip

@@ -413,8 +413,8 @@ def _localize(args: argparse.Namespace) -> int:
     sensor = f"σ range {float(p.sigma_r):.3g} m"
     if not ranges_only:
         sensor += f", σ bearing {float(p.sigma_b):.3g} rad"
-    if np.isfinite(float(p.nu)):
-        sensor += f", Student-t ν {float(p.nu):.3g}"
+    if np.isfinite(cal.nu):
+        sensor += f", Student-t ν {cal.nu:.3g}"
     auto = isinstance(cal, Calibrated)
     if auto:
         source = (

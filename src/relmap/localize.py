@@ -153,6 +153,9 @@ class Calibration(NamedTuple):
     #: The filter divides readings by it before use.
     range_scale: float = 1.0
 
+    #: The readings' Student-t dof: Gaussian (the σ are robust standard deviations).
+    nu = float("inf")
+
     @property
     def parameters(self) -> ekf.NoiseParameters:
         """The filter's noise parameters (Gaussian readings, no bias correction, no mount)."""

@@ -106,14 +106,14 @@ def figure(run: Localization, *, ellipses: int = 12) -> Figure:
     if y.ndim == 1:  # range only
         y, S = y[:, None], S[:, None, None]
     d = y.shape[-1]
-    nu = float(np.asarray(run.calibration.parameters.nu))
+    nu = float(run.calibration.nu)
     for i, name in enumerate(("range", "bearing")[:d]):
         w = y[used, i] / np.sqrt(S[used, i, i])
         ax_hist.hist(np.clip(w, -6, 6), bins=60, range=(-6, 6), density=True, histtype="step",
                      color=f"C{i}", label=f"{name} (used)")  # fmt: skip
     x = np.linspace(-6, 6, 400)
     model = "model" + (f" (Student-t, ν={nu:.3g})" if math.isfinite(nu) else "")
-    density = np.exp(autocalibration.logpdf(x * x, 0.0, 1, nu))  # unit scale
+    density = np.exp(autocalibration.logpdf(x * x, 0.0, 1, nu))  # unit variance
     ax_hist.plot(x, density, color="k", linewidth=1.0, label=model)
     ax_hist.set_yscale("log")
     ax_hist.set_ylim(1e-4, 1.0)
