@@ -13,12 +13,13 @@ never read. Three stages, each a standard tool of filter tuning:
    of given second moments, and its ``P`` is then the covariance of its error, heavy tails or
    not. (relmap.ekf's robust reweighting would instead give a reading near its prediction the
    t's *scale*, ``(ν - 2)/ν`` of its variance: on MRCLAM, where ν comes out near 3, a reading
-   covariance about three times too small.) The innovations' likelihood is the t with covariance ``S``. Every paired
-   reading counts, the gated ones too (:func:`loglik`): a filter that lost its way and gates
-   most of its readings must not look likely for having few terms. Fitted: the odometry's ``k_s,
-   k_theta, k_theta_s`` (:class:`relmap.robot.DistanceNoise`), the readings' ``sigma_r,
-   sigma_b`` and ``nu``. (Reading biases are not fitted: on MRCLAM their maximum-likelihood values
-   disagreed in sign with the ground-truth residuals and lowered coverage.) Found first by
+   covariance about three times too small.) The innovations' likelihood is the t with
+   covariance ``S``. Every paired reading counts, the gated ones too (:func:`loglik`): a filter
+   that lost its way and gates most of its readings must not look likely for having few terms.
+   Fitted: the odometry's ``k_s, k_theta, k_theta_s`` (:class:`relmap.robot.DistanceNoise`),
+   the readings' ``sigma_r, sigma_b`` and ``nu``. (Reading biases are not fitted: on MRCLAM
+   their maximum-likelihood values disagreed in sign with the ground-truth residuals and
+   lowered coverage.) Found first by
    batched coordinate ascent from a cautious :data:`START` (every candidate move of every
    parameter one filter of one batch of :func:`relmap.ekf.run`; the step halves when no move
    gains; coarse, to :data:`COARSE`), then, once the clock is set, refined by L-BFGS-B with
