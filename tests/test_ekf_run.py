@@ -296,6 +296,46 @@ def test_loglik_is_the_gaussian_or_student_t_density_of_the_stacked_innovation()
     np.testing.assert_allclose(robust.cov[0], I_KH @ state.cov @ I_KH.T + K @ Rw @ K.T, atol=1e-13)
 
 
+def test_inflation_scales_the_update_but_not_the_gate_nor_the_likelihood():
+    """``inflation`` c: the gain and the Joseph covariance with c²R, S, d², NIS and the
+    likelihood with R (the textbook update, Eqs. 26-28, written out)."""
+    from scipy import stats
+
+    rng = np.random.default_rng(9)
+    state = rm.AT([0.2, 0.1, 0.3], np.diag([0.05, 0.04, 0.01]))
+    z = SENSOR.predict(state.mean, LANDMARKS[:3]) + rng.normal(size=(3, 2)) * [0.3, 0.05]
+    log = ekf.Log(np.array([0.0]), np.zeros((0, 2)), np.zeros(3, np.int64), z, np.arange(3))
+    h, H, _ = SENSOR.predict(state.mean, LANDMARKS[:3], jacobians=True)
+    y = (z - h).reshape(-1)
+    y[1::2] = se2.wrap_angle(y[1::2])
+    Hs = H.reshape(-1, 3)
+    R = np.diag(np.tile([SENSOR.sigma_range**2, SENSOR.sigma_bearing**2], 3))
+    S = Hs @ state.cov @ Hs.T + R
+    c = 2.5
+    tr = ekf.run(log, LANDMARKS, params_of()._replace(inflation=c), start=state, gate=0.999999)
+    assert (tr.status == ekf.Status.USED).all()
+    assert tr.loglik == pytest.approx(stats.multivariate_normal(np.zeros(6), S).logpdf(y),
+                                      rel=1e-10)  # fmt: skip
+    assert tr.nis == pytest.approx(y @ np.linalg.solve(S, y), rel=1e-10)
+    for k in range(3):
+        Sk = S[2 * k : 2 * k + 2, 2 * k : 2 * k + 2]
+        np.testing.assert_allclose(tr.S[k], Sk, rtol=1e-12)
+        yk = y[2 * k : 2 * k + 2]
+        assert tr.mahalanobis2[k] == pytest.approx(yk @ np.linalg.solve(Sk, yk), rel=1e-10)
+    K = state.cov @ Hs.T @ np.linalg.inv(Hs @ state.cov @ Hs.T + c * c * R)
+    I_KH = np.eye(3) - K @ Hs
+    np.testing.assert_allclose(tr.mean[0], se2.plus(state.mean, K @ y), atol=1e-12)
+    want = I_KH @ state.cov @ I_KH.T + K @ (c * c * R) @ K.T
+    np.testing.assert_allclose(tr.cov[0], want, atol=1e-13)
+    # c = 1 is the plain filter, and c must be positive
+    plain = ekf.run(log, LANDMARKS, params_of(), start=state, gate=0.999999)
+    one = ekf.run(log, LANDMARKS, params_of()._replace(inflation=1.0), start=state,
+                  gate=0.999999)  # fmt: skip
+    np.testing.assert_array_equal(plain.cov, one.cov)
+    with pytest.raises(ParameterError, match="inflation"):
+        ekf.run(log, LANDMARKS, params_of()._replace(inflation=0.0), start=state)
+
+
 # ------------------------------------------------------------------------------------ JCBB
 def brute_force_jcbb(state, z, sensor, lm, gate):
     """All one-to-one sets of individually compatible pairs: the largest jointly compatible

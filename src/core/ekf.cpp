@@ -559,24 +559,28 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
         const int D = d * static_cast<int>(update.size());
         std::vector<double> y(D), H(D * 3), R(D * D, 0.0), Ru;
         const bool robust = std::isfinite(p[NU]);
-        if (robust) Ru.assign(D * D, 0.0);
+        const bool inflated = p[INFLATION] != 1.0;
+        if (robust || inflated) Ru.assign(D * D, 0.0);
         for (size_t k = 0; k < update.size(); ++k) {
             const Pair* q = update[k];
             const Predicted& pr = pred[q->l];
             // Student-t readings: the reading's weight (ν + d)/(ν + d²) scales R by its inverse
             const double wgt = robust ? (p[NU] + d) / (p[NU] + q->d2) : 1.0;
+            // correlated readings carry less information than their spread says: the update's
+            // R is inflated, the association, gate and likelihood keep the readings' R
+            const double update_factor = p[INFLATION] * p[INFLATION] / wgt;
             for (int a = 0; a < d; ++a) {
                 const int r = static_cast<int>(k) * d + a;
                 y[r] = q->v[a];
                 for (int j = 0; j < 3; ++j) H[r * 3 + j] = pr.H[a * 3 + j];
                 R[r * D + r] = pr.R[a];
-                if (robust) Ru[r * D + r] = pr.R[a] / wgt;
+                if (robust || inflated) Ru[r * D + r] = pr.R[a] * update_factor;
             }
         }
         double nis = 0.0, logdet = 0.0;
         double x_new[3] = {x[0], x[1], x[2]};
         const bool ok = kalman_update(3, D, x_new, P, y.data(), H.data(), R.data(),
-                                      robust ? Ru.data() : nullptr, nullptr, &nis, &logdet);
+                                      Ru.empty() ? nullptr : Ru.data(), nullptr, &nis, &logdet);
         if (ok) {
             x[0] = x_new[0];
             x[1] = x_new[1];

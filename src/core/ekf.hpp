@@ -36,6 +36,7 @@ enum Param {
     MOUNT_Y,
     MOUNT_THETA,  // sensor heading on the robot (rad)
     NU,           // Student-t degrees of freedom of the readings (inf: Gaussian)
+    INFLATION,    // σ factor of the update for readings whose errors repeat (1: none)
     N_PARAMS
 };
 

@@ -35,10 +35,14 @@ never read. Three stages, each a standard tool of filter tuning:
    again and again and makes the filter overconfident, which the likelihood of stage 1 cannot
    see. The correlations ``ρ1``, ``ρ2`` of normalized range innovations of one landmark one and
    two readings apart (at most :data:`PAIR_GAP` s per reading, :func:`innovation_correlation`)
-   are measured and the reading covariance multiplied by the variance factor of the mean of such
-   a sequence (:func:`variance_factor`: ``(1 + ρ)/(1 - ρ)`` for AR(1)); repeated
+   are measured, and the filter's update counts each reading as the variance factor of the mean
+   of such a sequence says (:func:`variance_factor`: ``(1 + ρ)/(1 - ρ)`` for AR(1)): its gain
+   and covariance use ``(inflation σ)²`` (:class:`relmap.ekf.NoiseParameters`' ``inflation``,
+   the factor's square root), while association, gate and likelihood keep ``σ²``, the spread of
+   one reading, which the correlation does not change (inflating ``σ`` itself made the
+   Mahalanobis association pair neighbouring landmarks wrongly). Repeated
    :data:`WHITENING_PASSES` times as the factor settles. White reading errors give ``ρ ≈ 0``
-   and keep their σ.
+   and an inflation of 1.
 
 Every constant of the method is fixed here, once, for all runs (:data:`START`, :data:`DELAYS`,
 :data:`SCALES`, :data:`PAIR_GAP`, :data:`WHITENING_PASSES`, :data:`ITERATIONS`,
@@ -151,7 +155,8 @@ class Calibrated(NamedTuple):
     delay: float
     #: Range scale (1 for range-bearing sensors).
     scale: float
-    #: The reading σ factor of the whiteness stage (√ of the covariance factor).
+    #: The update's reading σ factor of the whiteness stage (√ of the variance factor; also
+    #: ``parameters.inflation``).
     inflation: float
     #: Lag-one correlation of consecutive range innovations, before whitening and after.
     correlation: tuple[float, float]
@@ -397,13 +402,12 @@ def calibrate(
     t = log.t[log.reading_index]
     factor, rho0 = 1.0, float("nan")
     for k in range(WHITENING_PASSES):
-        q = p._replace(sigma_r=p.sigma_r * factor, sigma_b=p.sigma_b * factor)
-        tr = run(log, q)
+        tr = run(log, p._replace(inflation=factor))
         (r1, n1), (r2, _) = (innovation_correlation(tr, t, lag=j) for j in (1, 2))
         rho0 = r1 if k == 0 else rho0
         factor = float(np.sqrt(variance_factor(r1, r2, n1)))
     tick(3, 4)
-    q = p._replace(sigma_r=p.sigma_r * factor, sigma_b=p.sigma_b * factor)
+    q = p._replace(inflation=factor)
     trace = run(log, q)
     tick(4, 4)
     rho = innovation_correlation(trace, t)[0]

@@ -47,7 +47,14 @@ parameter sets in one call.
 Mahalanobis distance d² enters the update with weight ``w = (ν + d)/(ν + d²)``, i.e. with
 noise ``R / w`` (the EM weight of a Student-t reading: a far reading counts less); the
 likelihood of the stacked innovation is then the multivariate Student-t with scale S (not
-reweighted) and ν dof, otherwise the Gaussian ``N(0, S)``.
+reweighted) and ν dof, otherwise the Gaussian ``N(0, S)``. (The covariance then counts a reading
+near its prediction as more precise than the t's variance; :mod:`relmap.autocalibration`
+filters linearly with the readings' standard deviations instead.)
+
+**Correlated readings.** ``inflation`` c (:class:`NoiseParameters`) multiplies the σ of the
+update only: the gain and the Joseph covariance use ``c² R`` (readings whose errors repeat carry
+less information than their spread says), while the association, the gate, ``S``, the NIS and
+the likelihood use ``R``.
 """
 
 from __future__ import annotations
@@ -243,9 +250,10 @@ def _ones(B: int, m: int) -> np.ndarray:
 
 @functools.lru_cache(maxsize=64)
 def _odometry_params(k_s: float, k_theta: float, k_theta_s: float) -> FloatArray:
-    """The core's parameter row (1, 11) of an odometry noise (read-only, cached)."""
+    """The core's parameter row (1, 12) of an odometry noise (read-only, cached)."""
     p = np.zeros((1, _N_PARAMS))
     p[0, :3] = (k_s, k_theta, k_theta_s)
+    p[0, 11] = 1.0
     p.flags.writeable = False
     return p
 
@@ -254,11 +262,12 @@ def _odometry_params(k_s: float, k_theta: float, k_theta_s: float) -> FloatArray
 def _sensor_params(
     sigma_r: float, sigma_b: float, mount: tuple[float, ...], nu: float
 ) -> FloatArray:
-    """The core's parameter row (1, 11) of a sensor (read-only, cached)."""
+    """The core's parameter row (1, 12) of a sensor (read-only, cached)."""
     p = np.zeros((1, _N_PARAMS))
     p[0, 3:5] = (sigma_r, sigma_b)
     p[0, 7:10] = mount
     p[0, 10] = nu
+    p[0, 11] = 1.0
     p.flags.writeable = False
     return p
 
@@ -384,7 +393,7 @@ def correct_pose(state: AT, reading: AT, *, gate: float | None = 0.999) -> PoseU
 
 # ------------------------------------------------------------------------ noise parameters
 _FIELDS = ("k_s", "k_theta", "k_theta_s", "sigma_r", "sigma_b", "b_r", "b_b", "mx", "my",
-           "mtheta", "nu")  # fmt: skip
+           "mtheta", "nu", "inflation")  # fmt: skip
 _N_PARAMS = len(_FIELDS)
 
 
@@ -397,6 +406,9 @@ class NoiseParameters(NamedTuple):
     (m) and bearing ``sigma_b`` (rad), biases ``b_r`` (m), ``b_b`` (rad) subtracted from the
     readings, the sensor's mount ``(mx, my)`` (m) and heading ``mtheta`` (rad) on the robot,
     and the Student-t dof ``nu`` of the readings (inf: Gaussian; see the module notes).
+    ``inflation``: the σ factor of the update for readings whose errors repeat from one reading
+    to the next (:mod:`relmap.autocalibration`'s whitening): the gain and the covariance use
+    ``(inflation σ)²``, the association, the gate and the likelihood the readings' ``σ²``.
     """
 
     k_s: ArrayLike
@@ -410,6 +422,7 @@ class NoiseParameters(NamedTuple):
     my: ArrayLike = 0.0
     mtheta: ArrayLike = 0.0
     nu: ArrayLike = np.inf
+    inflation: ArrayLike = 1.0
 
     @classmethod
     def of(cls, odometry: DistanceNoise, sensor: RangeBearingSensor, *, nu: float = np.inf,
@@ -424,17 +437,19 @@ class NoiseParameters(NamedTuple):
         return np.broadcast_shapes(*(np.shape(v) for v in self))
 
     def array(self) -> FloatArray:
-        """``(B, 11)`` the fields in order, the batch flattened (checked)."""
+        """``(B, 12)`` the fields in order, the batch flattened (checked)."""
         batch = self.batch_shape
         cols = [np.broadcast_to(np.asarray(v, dtype=np.float64), batch).reshape(-1) for v in self]
         a = np.column_stack(cols) if cols[0].size else np.zeros((0, _N_PARAMS))
-        finite = np.isfinite(a[:, :10]).all(axis=1)
+        finite = np.isfinite(a[:, [*range(10), 11]]).all(axis=1)
         if not finite.all():
             raise NonFiniteError("noise parameters must be finite (nu may be inf)")
         if (a[:, [0, 1, 2, 3, 4]] < 0).any():
             raise ParameterError("odometry coefficients and sensor σ must be non-negative")
         if not (a[:, 10] > 0).all():
             raise ParameterError("the Student-t dof nu must be positive (inf: Gaussian)")
+        if not (a[:, 11] > 0).all():
+            raise ParameterError("the update's σ inflation must be positive (1: none)")
         return np.ascontiguousarray(a)
 
     def as_dict(self) -> dict[str, float | list[float] | None]:
