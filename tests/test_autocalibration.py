@@ -25,9 +25,10 @@ def simulate(seed: int, steps: int = 3000, dt: float = 0.1, every: int = 5):
     """A robot weaving among 9 landmarks (speed 0.1-0.5 m/s, turn rate switching between 0.4
     and -0.2 rad/s, so that turning and driving noise can be told apart): odometry velocities
     at 10 Hz with DistanceNoise NOISE (the logged step is the commanded one, the robot's true
-    step noisy), range-bearing readings of every landmark within 8 m each ``every`` steps with
-    white noise (SIGMA_R, SIGMA_B). Returns the recording and the true poses at the odometry
-    times."""
+    step noisy), range-bearing readings of every landmark between 1 m and 8 m each ``every``
+    steps with white noise (SIGMA_R, SIGMA_B). Returns the recording and the true poses at the
+    odometry times. (Closer than 1 m the bearing is too nonlinear for the EKF's S: with
+    readings down to 0.2 m the likelihood at the simulated noise peaked at σ_b 10% too high.)"""
     rng = np.random.default_rng(seed)
     t = np.arange(steps + 1) * dt
     v = 0.3 + 0.2 * np.sin(2 * np.pi * t / 37.0)
@@ -42,7 +43,7 @@ def simulate(seed: int, steps: int = 3000, dt: float = 0.1, every: int = 5):
     rt, z, sig = [], [], []
     for k in range(every, steps + 1, every):
         zz = sensor.predict(truth[k], LANDMARKS)
-        seen = np.flatnonzero(zz[:, 0] < 8.0)
+        seen = np.flatnonzero((zz[:, 0] > 1.0) & (zz[:, 0] < 8.0))
         noisy = zz[seen] + rng.normal(size=(len(seen), 2)) * [SIGMA_R, SIGMA_B]
         rt += [t[k]] * len(seen)
         z.append(noisy)

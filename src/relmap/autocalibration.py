@@ -22,8 +22,9 @@ never read. Three stages, each a standard tool of filter tuning:
    lowered coverage.) Found first by
    batched coordinate ascent from a cautious :data:`START` (every candidate move of every
    parameter one filter of one batch of :func:`relmap.ekf.run`; the step halves when no move
-   gains; coarse, to :data:`COARSE`), then, once the clock is set, refined by L-BFGS-B with
-   each gradient from one batch (central differences).
+   gains; coarse, to :data:`COARSE`), then, once the clock is set, refined by Newton steps
+   whose gradient and Hessian come from one batch of finite differences, and polished by the
+   coordinate ascent again, to :data:`FINE` (where the differences meet the likelihood's kinks).
 2. **The clock.** The odometry's time stamps may be offset from the readings' (MRCLAM's
    velocities are commands, executed about 0.2 s later). The offset ``delay`` is the
    maximum-likelihood one over :data:`DELAYS` (the motion stamped ``s`` happened at
@@ -46,7 +47,7 @@ never read. Three stages, each a standard tool of filter tuning:
 
 Every constant of the method is fixed here, once, for all runs (:data:`START`, :data:`DELAYS`,
 :data:`SCALES`, :data:`PAIR_GAP`, :data:`WHITENING_PASSES`, :data:`ITERATIONS`,
-:data:`COARSE`, :data:`REFINE_EVALUATIONS`).
+:data:`COARSE`, :data:`REFINE_STEPS`, :data:`FINE`, :data:`MEMORY_SPAN`).
 """
 
 from __future__ import annotations
@@ -65,11 +66,13 @@ from relmap.typing import ArrayLike, FloatArray, IntArray
 __all__ = [
     "COARSE",
     "DELAYS",
+    "FINE",
     "ITERATIONS",
+    "MEMORY_SPAN",
     "NU_MAX",
     "NU_MIN",
     "PAIR_GAP",
-    "REFINE_EVALUATIONS",
+    "REFINE_STEPS",
     "SCALES",
     "START",
     "WHITENING_PASSES",
@@ -79,6 +82,7 @@ __all__ = [
     "innovation_correlation",
     "loglik",
     "logpdf",
+    "memory_time",
     "variance_factor",
 ]
 
@@ -88,7 +92,7 @@ START = ekf.NoiseParameters(0.05, 0.02, 0.005, 0.5, 0.05, nu=4.0)
 #: The smallest Student-t dof searched: below it the likelihood of a heavy-tailed reading
 #: model with a vanishing scale grows without bound.
 NU_MIN = 3.0
-#: The largest dof the refining fit tries: readings this close to Gaussian are Gaussian.
+#: The largest dof searched: readings this close to Gaussian are Gaussian.
 NU_MAX = 1000.0
 #: Odometry clock offsets searched (s): the motion stamped ``s`` happened at ``s + delay``.
 DELAYS = tuple(round(0.05 * k, 2) for k in range(9))
@@ -98,16 +102,24 @@ SCALES = tuple(round(0.9 + 0.01 * k, 2) for k in range(31))
 PAIR_GAP = 1.0
 #: Rounds of the whiteness stage.
 WHITENING_PASSES = 3
+#: Readings of one landmark further apart than this many memory times are not paired.
+MEMORY_SPAN = 5.0
 #: At most this many rounds of coordinate ascent.
 ITERATIONS = 40
 #: The coarse fit stops when its log-scale step falls below this (a factor of 1.1).
 COARSE = float(np.log(1.1))
+#: The polish after the Newton steps (coordinate ascent again) stops at this log-scale step.
+FINE = float(np.log(1.005))
 #: The log-scale step of the coarse fit's first round (×2 per move); it halves when no move
 #: gains.
 _STEP = float(np.log(2.0))
-#: The log-scale step of the refining fit's central differences, and its budget of gradients.
-_DIFF = 1e-3
-REFINE_EVALUATIONS = 25
+#: The refining fit's Newton steps at most; its log-scale difference step (2%: wider than the
+#: kinks of the likelihood where a reading crosses the gate); the largest move of a field in
+#: one step (log scale: a factor 1.65); the fractions of the Newton step it tries.
+REFINE_STEPS = 12
+_DIFF = 0.02
+_MAX_STEP = 0.5
+_LINE = (0.25, 0.5, 1.0, 1.5)
 
 Progress = Callable[[int, int], None]
 Runner = Callable[..., ekf.Trace]
@@ -158,6 +170,8 @@ class Calibrated(NamedTuple):
     #: The update's reading σ factor of the whiteness stage (√ of the variance factor; also
     #: ``parameters.inflation``).
     inflation: float
+    #: The filter's memory (s) the whitening's factor was computed for (:func:`memory_time`).
+    memory: float
     #: Lag-one correlation of consecutive range innovations, before whitening and after.
     correlation: tuple[float, float]
     #: Log-likelihood of the innovations at the stage-1/2 parameters (before whitening).
@@ -174,6 +188,7 @@ class Calibrated(NamedTuple):
             "delay": self.delay,
             "range_scale": self.scale,
             "inflation": self.inflation,
+            "memory": self.memory if np.isfinite(self.memory) else None,
             "correlation_before": c0 if np.isfinite(c0) else None,
             "correlation_after": c1 if np.isfinite(c1) else None,
             "loglik": self.loglik,
@@ -208,17 +223,53 @@ def innovation_correlation(
     return float((a * b).mean() / np.sqrt((a * a).mean() * (b * b).mean())), n
 
 
-def variance_factor(rho1: float, rho2: float, pairs: int) -> float:
-    """The variance factor ``1 + 2 Σ_k ρ_k`` of the mean of a correlated sequence whose
-    autocorrelation is ``ρ1`` at lag one and decays geometrically from there by ``φ = ρ2/ρ1``
-    (an ARMA(1,1) autocorrelation; φ kept in [ρ1, 0.99]): ``1 + 2ρ1/(1 - φ)``. For an AR(1)
-    sequence (``ρ2 = ρ1²``) it is ``(1 + ρ1)/(1 - ρ1)``. 1 (white) unless ``ρ1`` is
-    significant: above 3/√pairs, three standard errors of a correlation of ``pairs`` pairs."""
-    if not np.isfinite(rho1) or rho1 <= 3.0 / np.sqrt(max(pairs, 1)):
+def memory_time(trace: ekf.Trace) -> float:
+    """The filter's memory ``T`` (s): the time in which its odometry alone would add as much
+    position variance as it holds, the median over the steps where the position variance grows
+    (predictions) of ``tr P_xy / (d tr P_xy / dt)`` (one filter's trace kept at every time). A
+    reading of age ``τ`` weighs in the estimate about as ``e^(-τ/T)``."""
+    P = trace.cov[..., 0, 0] + trace.cov[..., 1, 1]
+    dP, dt = np.diff(P), np.diff(trace.t)
+    grows = dP > 0
+    if not grows.any():
+        return float("inf")
+    return float(np.median(P[:-1][grows] * dt[grows] / dP[grows]))
+
+
+def variance_factor(trace: ekf.Trace, t: ArrayLike, memory: float) -> float:
+    """The variance factor of the filter's estimate from one landmark's correlated readings:
+    ``1 + 2 Σ_(i<j) w_ij c_i c_j / Σ c_i²``, over the used readings of one landmark with weights
+    ``w_ij = e^(-|t_i - t_j|/T)`` of the filter's memory ``T`` (:func:`memory_time`; pairs
+    within :data:`MEMORY_SPAN` ``T``), ``c`` the normalized range innovations ``y_r/√S_rr``
+    clipped to ±3 robust σ and centred. That is the variance factor of a mean weighted
+    ``e^(-τ/T)`` by age (for a plain mean of a sequence of autocorrelation ``ρ_k``,
+    ``1 + 2 Σ_k ρ_k``). 1 (white) unless the sum exceeds three of its standard errors under
+    whiteness (``2 √(Σ w²) / N``). ``t`` (M,) the readings' times."""
+    y, S = np.asarray(trace.y), np.asarray(trace.S)
+    yr, sr = (y, S) if y.ndim == 1 else (y[:, 0], S[:, 0, 0])
+    idx = np.flatnonzero(np.asarray(trace.status) == ekf.Status.USED)
+    if len(idx) < 10 or not np.isfinite(memory) or memory <= 0:
         return 1.0
-    r1 = min(rho1, 0.99)
-    phi = min(max(rho2 / r1, r1), 0.99) if np.isfinite(rho2) else r1
-    return 1.0 + 2.0 * r1 / (1.0 - phi)
+    tt, lm = np.asarray(t, dtype=np.float64)[idx], np.asarray(trace.landmark)[idx]
+    u = yr[idx] / np.sqrt(sr[idx])
+    order = np.lexsort((tt, lm))  # by landmark, then time
+    u, tt, lm = u[order], tt[order], lm[order]
+    s = 1.4826 * np.median(np.abs(u - np.median(u)))
+    c = np.clip(u / s, -3.0, 3.0)
+    c = c - c.mean()
+    total, weight2 = 0.0, 0.0
+    for k in range(1, len(c)):
+        dt = tt[k:] - tt[:-k]
+        near = (lm[k:] == lm[:-k]) & (dt <= MEMORY_SPAN * memory)
+        if not near.any():
+            break
+        w = np.exp(-dt[near] / memory)
+        total += float((w * c[k:][near] * c[:-k][near]).sum())
+        weight2 += float((w * w).sum())
+    n, energy = len(c), float((c * c).sum())
+    if energy <= 0 or total <= 3.0 * np.sqrt(weight2) * energy / n:
+        return 1.0
+    return 1.0 + 2.0 * total / energy
 
 
 def logpdf(d2: ArrayLike, logdet: ArrayLike, d: int, nu: ArrayLike) -> FloatArray:
@@ -286,7 +337,8 @@ def _fit(
             break
         batch = _moves(p, free, step)
         ll = np.asarray(run(log, batch).loglik, dtype=np.float64)
-        ll = np.where(np.isfinite(ll) & (np.asarray(batch.nu) >= NU_MIN), ll, -np.inf)
+        nu = np.asarray(batch.nu)
+        ll = np.where(np.isfinite(ll) & (nu >= NU_MIN) & (nu <= NU_MAX), ll, -np.inf)
         moved = ll.reshape(len(free), 2)
         # every field to its better move where that gains; keep the best of that and the best move
         combined = p._asdict()
@@ -309,39 +361,54 @@ def _fit(
 def _refine(
     log: ekf.Log, p: ekf.NoiseParameters, free: tuple[str, ...], run: Runner
 ) -> tuple[ekf.NoiseParameters, float]:
-    """Quasi-Newton ascent (L-BFGS-B) of the log-likelihood over the free fields' logarithms
-    from ``p``, at most :data:`REFINE_EVALUATIONS` gradients, each by central differences from
-    one batch of ``2 × len(free)`` filters plus the point itself (coordinate ascent stalls on
-    the ridges where two noises trade, such as turning noise against bearing σ). ``nu`` stays in
+    """Newton ascent of the log-likelihood over the free fields' logarithms from ``p``
+    (coordinate ascent stalls on the ridges where two noises trade, such as driving noise
+    against range σ), at most :data:`REFINE_STEPS` steps. Each step: the gradient and the
+    Hessian by finite differences of :data:`_DIFF` (central for the gradient and the diagonal,
+    crossed for the rest) from one batch of ``1 + 2n + n(n-1)/2`` filters; the Hessian's
+    eigenvalues made negative (``-|λ|``, at most ``-1e-6·max|λ|``: a saddle is climbed out of,
+    not into); the Newton step, each component within ±:data:`_MAX_STEP`, tried at the lengths
+    :data:`_LINE` in a second batch. It stops when no length gains. ``nu`` stays in
     [:data:`NU_MIN`, :data:`NU_MAX`], the others within a factor 100 of ``p``."""
-    from scipy.optimize import minimize
-
-    x0 = np.log([float(getattr(p, k)) for k in free])
+    x = np.log([float(getattr(p, k)) for k in free])
     n, h = len(free), _DIFF
     # each field within ×/÷ 100 of where the coarse fit left it; nu in [NU_MIN, NU_MAX]
-    bounds = [(np.log(NU_MIN), np.log(NU_MAX)) if k == "nu" else (v - np.log(100), v + np.log(100))
-              for k, v in zip(free, x0, strict=True)]  # fmt: skip
-    x0 = np.clip(x0, [b[0] for b in bounds], [b[1] for b in bounds])
+    nu = np.array([k == "nu" for k in free])
+    lo = np.where(nu, np.log(NU_MIN), x - np.log(100))
+    hi = np.where(nu, np.log(NU_MAX), x + np.log(100))
+    x = np.clip(x, lo + h, hi - h)
+    pairs = [(i, j) for i in range(n) for j in range(i)]
+    eye = np.eye(n)
 
-    def batch(x: FloatArray) -> ekf.NoiseParameters:
-        cols = {k: np.full(2 * n + 1, float(v)) for k, v in p._asdict().items()}
+    def loglik_at(points: FloatArray) -> FloatArray:
+        cols = {k: np.full(len(points), float(v)) for k, v in p._asdict().items()}
         for j, name in enumerate(free):
-            v = np.full(2 * n + 1, x[j])
-            v[1 + 2 * j] -= h
-            v[2 + 2 * j] += h
-            cols[name] = np.exp(v)
-        return ekf.NoiseParameters(**cols)
+            cols[name] = np.exp(points[:, j])
+        ll = np.asarray(run(log, ekf.NoiseParameters(**cols)).loglik, dtype=np.float64)
+        return np.where(np.isfinite(ll), ll, -np.inf)
 
-    def negative(x: FloatArray) -> tuple[float, FloatArray]:
-        ll = np.asarray(run(log, batch(x)).loglik, dtype=np.float64)
-        if not np.isfinite(ll).all():
-            return float("inf"), np.zeros(n)
-        return -float(ll[0]), -(ll[2::2] - ll[1::2]) / (2 * h)
-
-    res = minimize(negative, x0, jac=True, method="L-BFGS-B", bounds=bounds,
-                   options={"maxfun": REFINE_EVALUATIONS})  # fmt: skip
-    best = p._replace(**{k: float(np.exp(v)) for k, v in zip(free, res.x, strict=True)})
-    return best, -float(res.fun)
+    best = float(loglik_at(x[None])[0])
+    for _ in range(REFINE_STEPS):
+        stencil = np.concatenate([x - h * eye, x + h * eye,
+                                  [x + h * (eye[i] + eye[j]) for i, j in pairs]])  # fmt: skip
+        f = loglik_at(stencil)
+        if not np.isfinite(f).all():
+            break
+        minus, plus, cross = f[:n], f[n : 2 * n], f[2 * n :]
+        g = (plus - minus) / (2 * h)
+        H = np.diag((plus - 2 * best + minus) / h**2)
+        for (i, j), fij in zip(pairs, cross, strict=True):
+            H[i, j] = H[j, i] = (fij - plus[i] - plus[j] + best) / h**2
+        lam, V = np.linalg.eigh(H)
+        lam = np.minimum(-np.abs(lam), -1e-6 * max(np.abs(lam).max(), 1e-12))
+        step = np.clip(-V @ ((V.T @ g) / lam), -_MAX_STEP, _MAX_STEP)
+        trial = np.clip(x + np.multiply.outer(_LINE, step), lo, hi)
+        ll = loglik_at(trial)
+        k = int(np.argmax(ll))
+        if ll[k] <= best + 1e-6:
+            break
+        x, best = trial[k], float(ll[k])
+    return p._replace(**{k: float(np.exp(v)) for k, v in zip(free, x, strict=True)}), best
 
 
 def _clock(
@@ -382,11 +449,11 @@ def calibrate(
     if not len(recording.reading_t):
         raise ParameterError("cannot calibrate from innovations: the run has no readings")
 
-    def run(log: ekf.Log, p: ekf.NoiseParameters) -> ekf.Trace:
+    def run(log: ekf.Log, p: ekf.NoiseParameters, keep: str = "summary") -> ekf.Trace:
         trace = ekf.run(
-            log, lm, p._replace(nu=np.inf), start=start(float(log.t[0])), keep="summary",
-            association=association,
-            landmark_signatures=landmark_signatures, gate=gate, sensor=kind,
+            log, lm, p._replace(nu=np.inf), start=start(float(log.t[0])), keep=keep,
+            association=association, landmark_signatures=landmark_signatures, gate=gate,
+            sensor=kind,
         )  # fmt: skip
         return trace._replace(loglik=loglik(trace, p.nu))
 
@@ -397,19 +464,20 @@ def calibrate(
     tick(1, 4)
     delay, scale = _clock(recording, p, run, kind)
     log = recording.log(delay, scale)
-    p, fitted = _refine(log, p, free, run)
+    p, _ = _refine(log, p, free, run)
+    p, fitted = _fit(log, p, free, run, COARSE / 2, FINE)  # where Newton meets noise
     tick(2, 4)
     t = log.t[log.reading_index]
-    factor, rho0 = 1.0, float("nan")
+    factor, rho0, memory = 1.0, float("nan"), float("nan")
     for k in range(WHITENING_PASSES):
-        tr = run(log, p._replace(inflation=factor))
-        (r1, n1), (r2, _) = (innovation_correlation(tr, t, lag=j) for j in (1, 2))
-        rho0 = r1 if k == 0 else rho0
-        factor = float(np.sqrt(variance_factor(r1, r2, n1)))
+        tr = run(log, p._replace(inflation=factor), keep="all")
+        rho0 = innovation_correlation(tr, t)[0] if k == 0 else rho0
+        memory = memory_time(tr)
+        factor = float(np.sqrt(variance_factor(tr, t, memory)))
     tick(3, 4)
     q = p._replace(inflation=factor)
     trace = run(log, q)
     tick(4, 4)
     rho = innovation_correlation(trace, t)[0]
-    return Calibrated(q._replace(nu=np.inf), float(p.nu), delay, scale, factor, (rho0, rho),
-                      fitted, trace)  # fmt: skip
+    return Calibrated(q._replace(nu=np.inf), float(p.nu), delay, scale, factor, memory,
+                      (rho0, rho), fitted, trace)  # fmt: skip
