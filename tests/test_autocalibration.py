@@ -141,38 +141,16 @@ def _ar1(rng: np.random.Generator, rho: float, n: int) -> np.ndarray:
     return e
 
 
-def test_variance_factor_of_an_ar1_sequence_in_an_exponential_memory() -> None:
-    """Readings every Δ of one landmark with AR(1) errors ρ per reading, a memory T: the
-    factor ``1 + 2 Σ_k ρ^k e^(-kΔ/T) = 1 + 2q/(1 - q)``, ``q = ρ e^(-Δ/T)``; white errors: 1."""
-    rng = np.random.default_rng(11)
-    n, dt = 40_000, 0.5
-    for rho, memory in ((0.8, 2.0), (0.9, 10.0), (0.5, 1.0)):
-        trace = _trace(_ar1(rng, rho, n) * 0.3, np.full(n, 0.09))
-        q = rho * np.exp(-dt / memory)
-        want = 1 + 2 * q / (1 - q)
-        got = ac.variance_factor(trace, np.arange(n) * dt, memory)
-        assert got == pytest.approx(want, rel=0.08), (rho, memory)
-    white = _trace(rng.normal(size=n) * 0.3, np.full(n, 0.09))
-    assert ac.variance_factor(white, np.arange(n) * dt, 5.0) == 1.0
-    assert ac.variance_factor(white, np.arange(n) * dt, np.inf) == 1.0
-
-
-def test_memory_time_is_held_variance_over_its_growth_rate() -> None:
-    """A filter whose position variance grows at 0.02 m²/s between corrections that take it
-    back to 0.01 m²: T is the median over the growing steps of tr P / rate."""
-    t = np.arange(101) * 0.1
-    P = 0.01 + 0.02 * (t % 1.0)  # a correction each second
-    cov = np.zeros((len(t), 3, 3))
-    cov[:, 0, 0] = cov[:, 1, 1] = P / 2
-    z = np.zeros(0)
-    trace = ekf.Trace(t, np.zeros((len(t), 3)), cov, z, z, z, z, z, np.float64(0),
-                      np.float64(0), np.int64(0), np.int64(0), np.zeros(7, np.int64))  # fmt: skip
-    grows = np.diff(P) > 0
-    want = np.median(P[:-1][grows] / 0.02)
-    assert ac.memory_time(trace) == pytest.approx(want, rel=1e-6)
-    assert 0.5 < want < 1.0  # between 0.5 s (0.01/0.02) and 0.5 + 0.45 s
-    still = trace._replace(cov=np.broadcast_to(np.eye(3), cov.shape))
-    assert ac.memory_time(still) == np.inf
+def test_variance_factor_is_the_sum_of_the_autocorrelations() -> None:
+    """1 + 2 Σ ρ_k for ρ_k = ρ1 φ^(k-1), summed out to 10 000 lags; AR(1) and white cases."""
+    for r1, r2 in ((0.5, 0.25), (0.8, 0.7), (0.3, 0.25)):
+        phi = r2 / r1
+        want = 1 + 2 * sum(r1 * phi ** (k - 1) for k in range(1, 10_000))
+        assert ac.variance_factor(r1, r2, 1000) == pytest.approx(want, rel=1e-9)
+    assert ac.variance_factor(0.5, 0.25, 1000) == pytest.approx(1.5 / 0.5)  # AR(1)
+    assert ac.variance_factor(-0.2, 0.1, 1000) == 1.0 and ac.variance_factor(np.nan, 0, 0) == 1.0
+    # a correlation within three standard errors of 0 is white: 0.05 of 1000 pairs (σ 0.032)
+    assert ac.variance_factor(0.05, 0.049, 1000) == 1.0
 
 
 def test_logpdf_is_scipys_student_t_of_unit_variance_and_normal() -> None:

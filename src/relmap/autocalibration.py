@@ -47,7 +47,7 @@ never read. Three stages, each a standard tool of filter tuning:
 
 Every constant of the method is fixed here, once, for all runs (:data:`START`, :data:`DELAYS`,
 :data:`SCALES`, :data:`PAIR_GAP`, :data:`WHITENING_PASSES`, :data:`ITERATIONS`,
-:data:`COARSE`, :data:`REFINE_STEPS`, :data:`FINE`, :data:`MEMORY_SPAN`).
+:data:`COARSE`, :data:`REFINE_STEPS`, :data:`FINE`).
 """
 
 from __future__ import annotations
@@ -68,7 +68,6 @@ __all__ = [
     "DELAYS",
     "FINE",
     "ITERATIONS",
-    "MEMORY_SPAN",
     "NU_MAX",
     "NU_MIN",
     "PAIR_GAP",
@@ -82,7 +81,6 @@ __all__ = [
     "innovation_correlation",
     "loglik",
     "logpdf",
-    "memory_time",
     "variance_factor",
 ]
 
@@ -102,8 +100,6 @@ SCALES = tuple(round(0.9 + 0.01 * k, 2) for k in range(31))
 PAIR_GAP = 1.0
 #: Rounds of the whiteness stage.
 WHITENING_PASSES = 3
-#: Readings of one landmark further apart than this many memory times are not paired.
-MEMORY_SPAN = 5.0
 #: At most this many rounds of coordinate ascent.
 ITERATIONS = 40
 #: The coarse fit stops when its log-scale step falls below this (a factor of 1.1).
@@ -170,8 +166,6 @@ class Calibrated(NamedTuple):
     #: The update's reading σ factor of the whiteness stage (√ of the variance factor; also
     #: ``parameters.inflation``).
     inflation: float
-    #: The filter's memory (s) the whitening's factor was computed for (:func:`memory_time`).
-    memory: float
     #: Lag-one correlation of consecutive range innovations, before whitening and after.
     correlation: tuple[float, float]
     #: Log-likelihood of the innovations at the stage-1/2 parameters (before whitening).
@@ -188,7 +182,6 @@ class Calibrated(NamedTuple):
             "delay": self.delay,
             "range_scale": self.scale,
             "inflation": self.inflation,
-            "memory": self.memory if np.isfinite(self.memory) else None,
             "correlation_before": c0 if np.isfinite(c0) else None,
             "correlation_after": c1 if np.isfinite(c1) else None,
             "loglik": self.loglik,
@@ -223,53 +216,17 @@ def innovation_correlation(
     return float((a * b).mean() / np.sqrt((a * a).mean() * (b * b).mean())), n
 
 
-def memory_time(trace: ekf.Trace) -> float:
-    """The filter's memory ``T`` (s): the time in which its odometry alone would add as much
-    position variance as it holds, the median over the steps where the position variance grows
-    (predictions) of ``tr P_xy / (d tr P_xy / dt)`` (one filter's trace kept at every time). A
-    reading of age ``τ`` weighs in the estimate about as ``e^(-τ/T)``."""
-    P = trace.cov[..., 0, 0] + trace.cov[..., 1, 1]
-    dP, dt = np.diff(P), np.diff(trace.t)
-    grows = dP > 0
-    if not grows.any():
-        return float("inf")
-    return float(np.median(P[:-1][grows] * dt[grows] / dP[grows]))
-
-
-def variance_factor(trace: ekf.Trace, t: ArrayLike, memory: float) -> float:
-    """The variance factor of the filter's estimate from one landmark's correlated readings:
-    ``1 + 2 Σ_(i<j) w_ij c_i c_j / Σ c_i²``, over the used readings of one landmark with weights
-    ``w_ij = e^(-|t_i - t_j|/T)`` of the filter's memory ``T`` (:func:`memory_time`; pairs
-    within :data:`MEMORY_SPAN` ``T``), ``c`` the normalized range innovations ``y_r/√S_rr``
-    clipped to ±3 robust σ and centred. That is the variance factor of a mean weighted
-    ``e^(-τ/T)`` by age (for a plain mean of a sequence of autocorrelation ``ρ_k``,
-    ``1 + 2 Σ_k ρ_k``). 1 (white) unless the sum exceeds three of its standard errors under
-    whiteness (``2 √(Σ w²) / N``). ``t`` (M,) the readings' times."""
-    y, S = np.asarray(trace.y), np.asarray(trace.S)
-    yr, sr = (y, S) if y.ndim == 1 else (y[:, 0], S[:, 0, 0])
-    idx = np.flatnonzero(np.asarray(trace.status) == ekf.Status.USED)
-    if len(idx) < 10 or not np.isfinite(memory) or memory <= 0:
+def variance_factor(rho1: float, rho2: float, pairs: int) -> float:
+    """The variance factor ``1 + 2 Σ_k ρ_k`` of the mean of a correlated sequence whose
+    autocorrelation is ``ρ1`` at lag one and decays geometrically from there by ``φ = ρ2/ρ1``
+    (an ARMA(1,1) autocorrelation; φ kept in [ρ1, 0.99]): ``1 + 2ρ1/(1 - φ)``. For an AR(1)
+    sequence (``ρ2 = ρ1²``) it is ``(1 + ρ1)/(1 - ρ1)``. 1 (white) unless ``ρ1`` is
+    significant: above 3/√pairs, three standard errors of a correlation of ``pairs`` pairs."""
+    if not np.isfinite(rho1) or rho1 <= 3.0 / np.sqrt(max(pairs, 1)):
         return 1.0
-    tt, lm = np.asarray(t, dtype=np.float64)[idx], np.asarray(trace.landmark)[idx]
-    u = yr[idx] / np.sqrt(sr[idx])
-    order = np.lexsort((tt, lm))  # by landmark, then time
-    u, tt, lm = u[order], tt[order], lm[order]
-    s = 1.4826 * np.median(np.abs(u - np.median(u)))
-    c = np.clip(u / s, -3.0, 3.0)
-    c = c - c.mean()
-    total, weight2 = 0.0, 0.0
-    for k in range(1, len(c)):
-        dt = tt[k:] - tt[:-k]
-        near = (lm[k:] == lm[:-k]) & (dt <= MEMORY_SPAN * memory)
-        if not near.any():
-            break
-        w = np.exp(-dt[near] / memory)
-        total += float((w * c[k:][near] * c[:-k][near]).sum())
-        weight2 += float((w * w).sum())
-    n, energy = len(c), float((c * c).sum())
-    if energy <= 0 or total <= 3.0 * np.sqrt(weight2) * energy / n:
-        return 1.0
-    return 1.0 + 2.0 * total / energy
+    r1 = min(rho1, 0.99)
+    phi = min(max(rho2 / r1, r1), 0.99) if np.isfinite(rho2) else r1
+    return 1.0 + 2.0 * r1 / (1.0 - phi)
 
 
 def logpdf(d2: ArrayLike, logdet: ArrayLike, d: int, nu: ArrayLike) -> FloatArray:
@@ -449,9 +406,9 @@ def calibrate(
     if not len(recording.reading_t):
         raise ParameterError("cannot calibrate from innovations: the run has no readings")
 
-    def run(log: ekf.Log, p: ekf.NoiseParameters, keep: str = "summary") -> ekf.Trace:
+    def run(log: ekf.Log, p: ekf.NoiseParameters) -> ekf.Trace:
         trace = ekf.run(
-            log, lm, p._replace(nu=np.inf), start=start(float(log.t[0])), keep=keep,
+            log, lm, p._replace(nu=np.inf), start=start(float(log.t[0])), keep="summary",
             association=association, landmark_signatures=landmark_signatures, gate=gate,
             sensor=kind,
         )  # fmt: skip
@@ -468,16 +425,16 @@ def calibrate(
     p, fitted = _fit(log, p, free, run, COARSE / 2, FINE)  # where Newton meets noise
     tick(2, 4)
     t = log.t[log.reading_index]
-    factor, rho0, memory = 1.0, float("nan"), float("nan")
+    factor, rho0 = 1.0, float("nan")
     for k in range(WHITENING_PASSES):
-        tr = run(log, p._replace(inflation=factor), keep="all")
-        rho0 = innovation_correlation(tr, t)[0] if k == 0 else rho0
-        memory = memory_time(tr)
-        factor = float(np.sqrt(variance_factor(tr, t, memory)))
+        tr = run(log, p._replace(inflation=factor))
+        (r1, n1), (r2, _) = (innovation_correlation(tr, t, lag=j) for j in (1, 2))
+        rho0 = r1 if k == 0 else rho0
+        factor = float(np.sqrt(variance_factor(r1, r2, n1)))
     tick(3, 4)
     q = p._replace(inflation=factor)
     trace = run(log, q)
     tick(4, 4)
     rho = innovation_correlation(trace, t)[0]
-    return Calibrated(q._replace(nu=np.inf), float(p.nu), delay, scale, factor, memory,
-                      (rho0, rho), fitted, trace)  # fmt: skip
+    return Calibrated(q._replace(nu=np.inf), float(p.nu), delay, scale, factor, (rho0, rho),
+                      fitted, trace)  # fmt: skip
