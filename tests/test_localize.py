@@ -159,8 +159,8 @@ def test_noise_comes_from_the_runs_own_innovations(signature_runs):
 
 
 def test_mahalanobis_association_stays_near_signatures_on_robots_1_and_4(mrclam, signature_runs):
-    """Measured position RMSE 1.15x (robot 1) and 1.12x (robot 4) the signature filter's,
-    coverage_90 0.90 and 0.96. Robots 2, 3 and 5 reached 3.6x, 1.19x and 2.5x
+    """Measured position RMSE 1.14x (robot 1) and 1.12x (robot 4) the signature filter's,
+    coverage_90 0.90 and 0.97. Robots 2, 3 and 5 reached 4.0x, 1.23x and 2.1x
     (benchmarks/bench_localize.py): this map's landmarks stand in clusters 18 cm apart."""
     from relmap.localize import localize_mrclam
 
