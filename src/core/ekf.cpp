@@ -68,19 +68,19 @@ bool cholesky(int D, const double* S, double* Lw) {
     return true;
 }
 
-// Solves L Lᵀ u = b in place (L from cholesky).
+// Solves L Lᵀ u = b in place (L from cholesky, inv its diagonal's reciprocals).
 template <int D_>
-void cholesky_solve(int D, const double* Lw, double* b) {
+void cholesky_solve(int D, const double* Lw, const double* inv, double* b) {
     if (D_ > 0) D = D_;
     for (int i = 0; i < D; ++i) {
         double sum = b[i];
         for (int k = 0; k < i; ++k) sum -= Lw[i * D + k] * b[k];
-        b[i] = sum / Lw[i * D + i];
+        b[i] = sum * inv[i];
     }
     for (int i = D - 1; i >= 0; --i) {
         double sum = b[i];
         for (int k = i + 1; k < D; ++k) sum -= Lw[k * D + i] * b[k];
-        b[i] = sum / Lw[i * D + i];
+        b[i] = sum * inv[i];
     }
 }
 
@@ -131,9 +131,9 @@ bool kalman_block(int n, int D, double* delta, double* P, const double* y, const
     Scratch<ND> PHt_(ND ? 0 : nD), K_(ND ? 0 : nD), KR_(ND ? 0 : nD);
     Scratch<DD> S_(DD ? 0 : dd), L_(DD ? 0 : dd);
     Scratch<NN> A_(NN ? 0 : nn), AP_(NN ? 0 : nn), Pn_(NN ? 0 : nn);
-    Scratch<D_ ? D_ : 0> u_(D_ ? 0 : D);
+    Scratch<D_ ? D_ : 0> u_(D_ ? 0 : D), inv_(D_ ? 0 : D);
     double *PHt = PHt_.data(), *K = K_.data(), *KR = KR_.data(), *S = S_.data(), *Lw = L_.data();
-    double *A = A_.data(), *AP = AP_.data(), *Pn = Pn_.data(), *u = u_.data();
+    double *A = A_.data(), *AP = AP_.data(), *Pn = Pn_.data(), *u = u_.data(), *inv = inv_.data();
     for (int i = 0; i < n; ++i)  // P Hᵀ
         for (int a = 0; a < D; ++a) {
             double s = 0.0;
@@ -148,6 +148,7 @@ bool kalman_block(int n, int D, double* delta, double* P, const double* y, const
         }
     if (S_out) std::copy(S, S + dd, S_out);
     if (!cholesky<D_>(D, S, Lw)) return false;
+    for (int a = 0; a < D; ++a) inv[a] = 1.0 / Lw[a * D + a];
     // y'ᵀ S⁻¹ y' = |L⁻¹ y'|², log det S = 2 log Π Lᵢᵢ (one log; the product is taken in
     // pieces that can neither overflow nor underflow)
     double q = 0.0, ld = 0.0, prod = 1.0;
@@ -155,7 +156,7 @@ bool kalman_block(int n, int D, double* delta, double* P, const double* y, const
         double s = y[a];
         for (int k = 0; k < n; ++k) s -= H[a * n + k] * delta[k];
         for (int k = 0; k < a; ++k) s -= Lw[a * D + k] * u[k];
-        u[a] = s / Lw[a * D + a];
+        u[a] = s * inv[a];
         q += u[a] * u[a];
         prod *= Lw[a * D + a];
         if (!(prod > 1e-150 && prod < 1e150)) ld += std::log(prod), prod = 1.0;
@@ -165,11 +166,11 @@ bool kalman_block(int n, int D, double* delta, double* P, const double* y, const
     for (int a = D - 1; a >= 0; --a) {  // u = S⁻¹ y' (Lᵀ u = L⁻¹ y')
         double s = u[a];
         for (int k = a + 1; k < D; ++k) s -= Lw[k * D + a] * u[k];
-        u[a] = s / Lw[a * D + a];
+        u[a] = s * inv[a];
     }
     for (int i = 0; i < n; ++i) {  // row i of K = P Hᵀ S⁻¹; δ += P Hᵀ S⁻¹ y'
         std::copy(PHt + i * D, PHt + (i + 1) * D, K + i * D);
-        cholesky_solve<D_>(D, Lw, K + i * D);
+        cholesky_solve<D_>(D, Lw, inv, K + i * D);
         double s = 0.0;
         for (int a = 0; a < D; ++a) s += PHt[i * D + a] * u[a];
         delta[i] += s;
