@@ -3,8 +3,9 @@
 The reference below is the plain algorithm written in numpy: predict every landmark's reading,
 the m×L innovations and Mahalanobis distances, greedy one-to-one pairing over the whole matrix
 (or Eq. 21), χ² gate, one stacked 2k×2k update in Joseph form. The core (the shortcut of
-distinct nearest landmarks, the sorted greedy, signature lookup by binary search, the Cholesky
-update) must give the same pairings and statuses exactly and the same states to rounding.
+distinct nearest landmarks, the sorted greedy, signature lookup by binary search, candidates
+pruned by a range-only bound on d², the stacked update done as k 2×2 blocks in turn) must give
+the same pairings and statuses exactly and the same states to rounding.
 """
 
 from __future__ import annotations

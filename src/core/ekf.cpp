@@ -5,8 +5,15 @@
 #include <cmath>
 #include <limits>
 #include <string>
+#include <type_traits>
 
 #include "arrays.hpp"
+
+#if defined(_MSC_VER)
+#define RELMAP_NOINLINE __declspec(noinline)
+#else
+#define RELMAP_NOINLINE __attribute__((noinline))
+#endif
 
 namespace relmap::ekf {
 
@@ -27,9 +34,26 @@ inline double wrap(double a) {
     return w;
 }
 
+// Scratch of SIZE doubles: on the stack when the size is known at compile time (SIZE > 0),
+// else a vector of the runtime size.
+template <int SIZE>
+struct Scratch {
+    double a[SIZE];
+    explicit Scratch(size_t) {}
+    double* data() { return a; }
+};
+template <>
+struct Scratch<0> {
+    std::vector<double> a;
+    explicit Scratch(size_t n) : a(n) {}
+    double* data() { return a.data(); }
+};
+
 // Lower Cholesky factor of the D × D matrix S (row-major) into Lw; false unless S is positive
-// definite with finite entries.
+// definite with finite entries. D_ > 0 fixes the size at compile time.
+template <int D_>
 bool cholesky(int D, const double* S, double* Lw) {
+    if (D_ > 0) D = D_;
     for (int i = 0; i < D; ++i)
         for (int j = 0; j <= i; ++j) {
             double sum = S[i * D + j];
@@ -44,46 +68,29 @@ bool cholesky(int D, const double* S, double* Lw) {
     return true;
 }
 
-// Solves L Lᵀ u = b in place (L from cholesky).
-void cholesky_solve(int D, const double* Lw, double* b) {
+// Solves L Lᵀ u = b in place (L from cholesky, inv its diagonal's reciprocals).
+template <int D_>
+void cholesky_solve(int D, const double* Lw, const double* inv, double* b) {
+    if (D_ > 0) D = D_;
     for (int i = 0; i < D; ++i) {
         double sum = b[i];
         for (int k = 0; k < i; ++k) sum -= Lw[i * D + k] * b[k];
-        b[i] = sum / Lw[i * D + i];
+        b[i] = sum * inv[i];
     }
     for (int i = D - 1; i >= 0; --i) {
         double sum = b[i];
         for (int k = i + 1; k < D; ++k) sum -= Lw[k * D + i] * b[k];
-        b[i] = sum / Lw[i * D + i];
+        b[i] = sum * inv[i];
     }
 }
 
-// Scratch space of kalman_update, reused between calls of one thread.
-struct Work {
-    std::vector<double> PHt, S, Lw, Lu, K, A, AP, KR, u;
-    void reserve(int n, int D) {
-        const size_t nD = static_cast<size_t>(n) * D, DD = static_cast<size_t>(D) * D;
-        if (PHt.size() < nD) PHt.resize(nD), K.resize(nD), KR.resize(nD);
-        if (S.size() < DD) S.resize(DD), Lw.resize(DD), Lu.resize(DD);
-        const size_t nn = static_cast<size_t>(n) * n;
-        if (A.size() < nn) A.resize(nn), AP.resize(nn);
-        if (u.size() < static_cast<size_t>(std::max(n, D))) u.resize(std::max(n, D));
-    }
-};
-
-thread_local Work work;
-
-}  // namespace
-
-void predict_covariance(int n, const double* F, const double* P, const double* Q, double* out) {
-    double FP[64], tmp[64];
-    std::vector<double> big;
-    double *fp = FP, *t = tmp;
-    if (n > 8) {
-        big.resize(2 * n * n);
-        fp = big.data();
-        t = big.data() + n * n;
-    }
+// P⁻ = F P Fᵀ + Q (n × n, row-major), symmetrized; out may alias P. N_ > 0 fixes n.
+template <int N_>
+void predict_cov(int n, const double* F, const double* P, const double* Q, double* out) {
+    if (N_ > 0) n = N_;
+    constexpr int NN = N_ * N_;
+    Scratch<NN> fp_(NN ? 0 : static_cast<size_t>(n) * n), t_(NN ? 0 : static_cast<size_t>(n) * n);
+    double *fp = fp_.data(), *t = t_.data();
     for (int i = 0; i < n; ++i)
         for (int j = 0; j < n; ++j) {
             double s = 0.0;
@@ -100,105 +107,129 @@ void predict_covariance(int n, const double* F, const double* P, const double* Q
         for (int j = 0; j < n; ++j) out[i * n + j] = 0.5 * (t[i * n + j] + t[j * n + i]);
 }
 
-bool kalman_update(int n, int D, double* x, double* P, const double* y, const double* H,
-                   const double* R, const double* R_update, double* S_out, double* nis,
-                   double* logdet) {
-    Work& w = work;
-    w.reserve(n, D);
-    double *PHt = w.PHt.data(), *S = w.S.data(), *Lw = w.Lw.data(), *K = w.K.data();
-    for (int i = 0; i < n; ++i)  // P⁻ Hᵀ
+// One block of a correction (Eqs. 26-28) on the running correction δ (n) of the prior mean
+// and the running covariance P (n × n), with the block's innovation y (D) at the prior, its
+// Jacobian H (D × n) and noise R (D × D):
+//   y' = y - H δ                  (what the blocks before did not explain: linear in δ)
+//   S = H P Hᵀ + R,  K = P Hᵀ S⁻¹,  δ ← δ + K y',
+//   P ← (I - KH) P (I - KH)ᵀ + K R Kᵀ   (Joseph form, see below)
+// and adds y'ᵀ S⁻¹ y' to nis and log det S to logdet. Blocks whose noises are independent (R
+// block diagonal) processed one after the other give exactly the stacked update of them all:
+// the stacked S factors into the blocks' S (its block Cholesky / Schur complements), so the
+// sums of nis and log det are the stacked yᵀS⁻¹y and log det S, and δ, P the stacked ones;
+// a 2k × 2k solve becomes k 2 × 2 ones. False (δ, P partly updated: the caller keeps copies)
+// when S is not positive definite (a 0/0), i.e. exactly when the stacked S is not.
+// S_out (D × D) if non-null. N_, D_ > 0 fix the sizes at compile time.
+template <int N_, int D_>
+bool kalman_block(int n, int D, double* delta, double* P, const double* y, const double* H,
+                  const double* R, double* S_out, double& nis, double& logdet) {
+    if (N_ > 0) n = N_;
+    if (D_ > 0) D = D_;
+    constexpr int ND = N_ * D_, DD = D_ * D_, NN = N_ * N_;
+    const size_t nD = static_cast<size_t>(n) * D, dd = static_cast<size_t>(D) * D,
+                 nn = static_cast<size_t>(n) * n;
+    Scratch<ND> PHt_(ND ? 0 : nD), K_(ND ? 0 : nD), KR_(ND ? 0 : nD);
+    Scratch<DD> S_(DD ? 0 : dd), L_(DD ? 0 : dd);
+    Scratch<NN> A_(NN ? 0 : nn), AP_(NN ? 0 : nn), Pn_(NN ? 0 : nn);
+    Scratch<D_ ? D_ : 0> u_(D_ ? 0 : D), inv_(D_ ? 0 : D);
+    double *PHt = PHt_.data(), *K = K_.data(), *KR = KR_.data(), *S = S_.data(), *Lw = L_.data();
+    double *A = A_.data(), *AP = AP_.data(), *Pn = Pn_.data(), *u = u_.data(), *inv = inv_.data();
+    for (int i = 0; i < n; ++i)  // P Hᵀ
         for (int a = 0; a < D; ++a) {
             double s = 0.0;
             for (int k = 0; k < n; ++k) s += P[i * n + k] * H[a * n + k];
             PHt[i * D + a] = s;
         }
-    auto innovation_covariance = [&](const double* Rm) {  // S = H P⁻ Hᵀ + R, symmetrized
-        for (int a = 0; a < D; ++a)
-            for (int b = 0; b <= a; ++b) {
-                double s = 0.0;
-                for (int k = 0; k < n; ++k) s += H[a * n + k] * PHt[k * D + b];
-                const double v = s + 0.5 * (Rm[a * D + b] + Rm[b * D + a]);
-                S[a * D + b] = S[b * D + a] = v;
-            }
-    };
-    innovation_covariance(R);
-    if (S_out) std::copy(S, S + D * D, S_out);
-    if (!cholesky(D, S, Lw)) return false;
-    double q = 0.0, ld = 0.0;  // yᵀ S⁻¹ y = |L⁻¹ y|², log det S = 2 Σ log Lᵢᵢ
-    for (int i = 0; i < D; ++i) {
-        double s = y[i];
-        for (int k = 0; k < i; ++k) s -= Lw[i * D + k] * w.u[k];
-        w.u[i] = s / Lw[i * D + i];
-        q += w.u[i] * w.u[i];
-        ld += 2.0 * std::log(Lw[i * D + i]);
+    for (int a = 0; a < D; ++a)  // S = H P Hᵀ + R, symmetrized
+        for (int b = 0; b <= a; ++b) {
+            double s = 0.0;
+            for (int k = 0; k < n; ++k) s += H[a * n + k] * PHt[k * D + b];
+            S[a * D + b] = S[b * D + a] = s + 0.5 * (R[a * D + b] + R[b * D + a]);
+        }
+    if (S_out) std::copy(S, S + dd, S_out);
+    if (!cholesky<D_>(D, S, Lw)) return false;
+    for (int a = 0; a < D; ++a) inv[a] = 1.0 / Lw[a * D + a];
+    // y'ᵀ S⁻¹ y' = |L⁻¹ y'|², log det S = 2 log Π Lᵢᵢ (one log; the product is taken in
+    // pieces that can neither overflow nor underflow)
+    double q = 0.0, ld = 0.0, prod = 1.0;
+    for (int a = 0; a < D; ++a) {
+        double s = y[a];
+        for (int k = 0; k < n; ++k) s -= H[a * n + k] * delta[k];
+        for (int k = 0; k < a; ++k) s -= Lw[a * D + k] * u[k];
+        u[a] = s * inv[a];
+        q += u[a] * u[a];
+        prod *= Lw[a * D + a];
+        if (!(prod > 1e-150 && prod < 1e150)) ld += std::log(prod), prod = 1.0;
     }
-    *nis = q;
-    *logdet = ld;
-    const double* Ru = R_update ? R_update : R;
-    double* L = Lw;
-    if (R_update) {
-        innovation_covariance(R_update);
-        if (!cholesky(D, S, w.Lu.data())) return false;
-        L = w.Lu.data();
+    nis += q;
+    logdet += 2.0 * (ld + std::log(prod));
+    for (int a = D - 1; a >= 0; --a) {  // u = S⁻¹ y' (Lᵀ u = L⁻¹ y')
+        double s = u[a];
+        for (int k = a + 1; k < D; ++k) s -= Lw[k * D + a] * u[k];
+        u[a] = s * inv[a];
     }
-    for (int i = 0; i < n; ++i) {  // row i of K = P⁻ Hᵀ S⁻¹: S⁻¹ (row i of P⁻ Hᵀ)
+    for (int i = 0; i < n; ++i) {  // row i of K = P Hᵀ S⁻¹; δ += P Hᵀ S⁻¹ y'
         std::copy(PHt + i * D, PHt + (i + 1) * D, K + i * D);
-        cholesky_solve(D, L, K + i * D);
-    }
-    double dx[16];
-    std::vector<double> dx_big;
-    double* d = dx;
-    if (n > 16) dx_big.resize(n), d = dx_big.data();
-    for (int i = 0; i < n; ++i) {
+        cholesky_solve<D_>(D, Lw, inv, K + i * D);
         double s = 0.0;
-        for (int a = 0; a < D; ++a) s += K[i * D + a] * y[a];
-        d[i] = s;
+        for (int a = 0; a < D; ++a) s += PHt[i * D + a] * u[a];
+        delta[i] += s;
     }
-    // Joseph form P = (I - KH) P⁻ (I - KH)ᵀ + K R Kᵀ rather than Eq. 28's P⁻ - K S Kᵀ: a sum of
+    // Joseph form P = (I - KH) P (I - KH)ᵀ + K R Kᵀ rather than Eq. 28's P - K S Kᵀ: a sum of
     // two congruences, so P stays symmetric positive semi-definite under rounding (and for any
     // gain, e.g. a robust filter's reweighted one), even after many updates or with a reading
     // far more precise than the prior, where the difference form can lose definiteness.
-    double *A = w.A.data(), *AP = w.AP.data(), *KR = w.KR.data();
+    // Evaluated without forming I - KH (P symmetric, so H P = (P Hᵀ)ᵀ):
+    //   AP = (I - KH) P = P - K (P Hᵀ)ᵀ,   AP (I - KH)ᵀ + K R Kᵀ = AP - (AP Hᵀ - K R) Kᵀ.
     for (int i = 0; i < n; ++i)
         for (int j = 0; j < n; ++j) {
-            double s = (i == j) ? 1.0 : 0.0;
-            for (int a = 0; a < D; ++a) s -= K[i * D + a] * H[a * n + j];
-            A[i * n + j] = s;
-        }
-    for (int i = 0; i < n; ++i)
-        for (int j = 0; j < n; ++j) {
-            double s = 0.0;
-            for (int k = 0; k < n; ++k) s += A[i * n + k] * P[k * n + j];
+            double s = P[i * n + j];
+            for (int a = 0; a < D; ++a) s -= K[i * D + a] * PHt[j * D + a];
             AP[i * n + j] = s;
         }
-    for (int i = 0; i < n * D; ++i) KR[i] = 0.0;
-    for (int a = 0; a < D; ++a)  // K R, skipping R's zeros (R is often diagonal)
+    for (int i = 0; i < n; ++i)  // KR ← AP Hᵀ - K R
         for (int b = 0; b < D; ++b) {
-            const double r = Ru[a * D + b];
-            if (r == 0.0) continue;
-            for (int i = 0; i < n; ++i) KR[i * D + b] += K[i * D + a] * r;
+            double s = 0.0;
+            for (int k = 0; k < n; ++k) s += AP[i * n + k] * H[b * n + k];
+            for (int a = 0; a < D; ++a) s -= K[i * D + a] * R[a * D + b];
+            KR[i * D + b] = s;
         }
-    double Pn[64];
-    std::vector<double> Pn_big;
-    double* pn = Pn;
-    if (n > 8) Pn_big.resize(n * n), pn = Pn_big.data();
-    bool finite = true;
     for (int i = 0; i < n; ++i)
         for (int j = 0; j < n; ++j) {
-            double s = 0.0;
-            for (int k = 0; k < n; ++k) s += AP[i * n + k] * A[j * n + k];
-            for (int b = 0; b < D; ++b) s += KR[i * D + b] * K[j * D + b];
-            pn[i * n + j] = s;
+            double s = AP[i * n + j];
+            for (int b = 0; b < D; ++b) s -= KR[i * D + b] * K[j * D + b];
+            A[i * n + j] = s;
         }
     for (int i = 0; i < n; ++i)  // symmetrized
-        for (int j = 0; j <= i; ++j) {
-            pn[i * n + j] = pn[j * n + i] = 0.5 * (pn[i * n + j] + pn[j * n + i]);
-            finite = finite && std::isfinite(pn[i * n + j]);
-        }
-    for (int i = 0; i < n; ++i) finite = finite && std::isfinite(d[i]);
+        for (int j = 0; j < n; ++j) Pn[i * n + j] = 0.5 * (A[i * n + j] + A[j * n + i]);
+    std::copy(Pn, Pn + nn, P);
+    return true;
+}
+
+}  // namespace
+
+void predict_covariance(int n, const double* F, const double* P, const double* Q, double* out) {
+    if (n == 3)
+        predict_cov<3>(3, F, P, Q, out);
+    else
+        predict_cov<0>(n, F, P, Q, out);
+}
+
+bool kalman_update(int n, int D, double* x, double* P, const double* y, const double* H,
+                   const double* R, double* S, double* nis, double* logdet) {
+    thread_local std::vector<double> delta, Pw;
+    delta.assign(n, 0.0);
+    Pw.assign(P, P + static_cast<size_t>(n) * n);
+    double q = 0.0, ld = 0.0;
+    if (!kalman_block<0, 0>(n, D, delta.data(), Pw.data(), y, H, R, S, q, ld)) return false;
+    bool finite = true;
+    for (double v : Pw) finite = finite && std::isfinite(v);
+    for (double v : delta) finite = finite && std::isfinite(v);
     if (!finite) return false;
-    for (int i = 0; i < n; ++i) x[i] += d[i];
-    std::copy(pn, pn + n * n, P);
+    for (int i = 0; i < n; ++i) x[i] += delta[i];
+    std::copy(Pw.begin(), Pw.end(), P);
+    *nis = q;
+    *logdet = ld;
     return true;
 }
 
@@ -232,10 +263,29 @@ inline void predict_step(double* x, double* P, const Step& st, const double* p) 
     const double Q[9] = {g00 * c - g01 * s, g00 * s + g01 * c, g02,
                          g10 * c - g11 * s, g10 * s + g11 * c, g12,
                          g02,               g12,               s11};
-    predict_covariance(3, F, P, Q, P);
+    predict_cov<3>(3, F, P, Q, P);
     x[0] += dx;
     x[1] += dy;
     x[2] = wrap(x[2] + st.dth);
+}
+
+// The sensor's pose for one filter state at one time stamp (shared by its landmarks).
+struct SensorPose {
+    double x, y, heading, ox, oy;  // position, heading; (ox, oy) the mount in the world frame
+};
+
+inline SensorPose sensor_pose(const double* x, const double* p) {
+    const double c = std::cos(x[2]), s = std::sin(x[2]);
+    const double ox = c * p[MOUNT_X] - s * p[MOUNT_Y], oy = s * p[MOUNT_X] + c * p[MOUNT_Y];
+    return {x[0] + ox, x[1] + oy, x[2] + p[MOUNT_THETA], ox, oy};
+}
+
+// The range noise variance of a reading at range r (the sensor's noise model).
+inline double range_variance(double r, const double* p, const Options& opt) {
+    const double scale = opt.noise_model == PROPORTIONAL ? r
+                         : opt.noise_model == QUADRATIC  ? r * r
+                                                         : 1.0;
+    return (p[SIGMA_R] * scale) * (p[SIGMA_R] * scale);
 }
 
 // A landmark's predicted reading from the filter's sensor pose: h (d), H (d × 3), S (d × d),
@@ -251,11 +301,9 @@ struct Pair {
     int64_t i, l;
 };
 
-void predict_landmark(const double* x, const double* P, const double* lm, const double* p,
+void predict_landmark(const SensorPose& sp, const double* P, const double* lm, const double* p,
                       const Options& opt, int d, Predicted& out) {
-    const double c = std::cos(x[2]), s = std::sin(x[2]);
-    const double ox = c * p[MOUNT_X] - s * p[MOUNT_Y], oy = s * p[MOUNT_X] + c * p[MOUNT_Y];
-    const double dx = lm[0] - (x[0] + ox), dy = lm[1] - (x[1] + oy);
+    const double dx = lm[0] - sp.x, dy = lm[1] - sp.y, ox = sp.ox, oy = sp.oy;
     const double q = dx * dx + dy * dy, r = std::sqrt(q);
     out.ok = q > 0.0 && std::isfinite(q);
     if (!out.ok) return;
@@ -266,28 +314,25 @@ void predict_landmark(const double* x, const double* P, const double* lm, const 
     out.H[0] = -dx / r;
     out.H[1] = -dy / r;
     out.H[2] = (dx * oy - dy * ox) / r;  // through the mount: ∂sensor/∂θ = (-oy, ox)
-    out.R[0] = (p[SIGMA_R] * scale) * (p[SIGMA_R] * scale);
+    out.R[0] = range_variance(r, p, opt);
     if (d == 2) {
-        out.h[1] = wrap(wrap(std::atan2(dy, dx) - (x[2] + p[MOUNT_THETA])));
+        out.h[1] = wrap(wrap(std::atan2(dy, dx) - sp.heading));
         out.H[3] = dy / q;
         out.H[4] = -dx / q;
         out.H[5] = -(dy * oy + dx * ox) / q - 1.0;
         out.R[1] = (p[SIGMA_B] * scale) * (p[SIGMA_B] * scale);
     }
+    double HP[6];
     for (int a = 0; a < d; ++a)
-        for (int b = 0; b < d; ++b) {
-            double sum = (a == b) ? out.R[a] : 0.0;
-            for (int i = 0; i < 3; ++i)
-                for (int j = 0; j < 3; ++j) sum += out.H[a * 3 + i] * P[i * 3 + j] * out.H[b * 3 + j];
-            out.S[a * d + b] = sum;
-        }
-    if (d == 2) {
-        const double off = 0.5 * (out.S[1] + out.S[2]);
-        out.S[1] = out.S[2] = off;
-        out.det = out.S[0] * out.S[3] - off * off;
-    } else {
-        out.det = out.S[0];
-    }
+        for (int j = 0; j < 3; ++j)
+            HP[a * 3 + j] = out.H[a * 3] * P[j] + out.H[a * 3 + 1] * P[3 + j] +
+                            out.H[a * 3 + 2] * P[6 + j];
+    for (int a = 0; a < d; ++a)
+        for (int b = 0; b <= a; ++b)
+            out.S[a * d + b] = out.S[b * d + a] = (a == b ? out.R[a] : 0.0) +
+                HP[a * 3] * out.H[b * 3] + HP[a * 3 + 1] * out.H[b * 3 + 1] +
+                HP[a * 3 + 2] * out.H[b * 3 + 2];
+    out.det = d == 2 ? out.S[0] * out.S[3] - out.S[1] * out.S[1] : out.S[0];
     out.ok = out.det > 0.0 && std::isfinite(out.det) && out.S[0] > 0.0;
 }
 
@@ -296,33 +341,22 @@ inline double mahalanobis2(const Predicted& pr, const double* v, int d) {
     return (v[0] * v[0] * pr.S[3] - 2.0 * v[0] * v[1] * pr.S[1] + v[1] * v[1] * pr.S[0]) / pr.det;
 }
 
-// The joint d² of a set of pairs: the stacked innovation against its stacked S.
-double joint_d2(const std::vector<const Pair*>& pairs, const std::vector<Predicted>& pred,
-                const double* P, int d, std::vector<double>& scratch) {
-    const int D = d * static_cast<int>(pairs.size());
-    scratch.assign(3 * D * D + 4 * D, 0.0);
-    double *S = scratch.data(), *Lw = S + D * D, *Hs = Lw + D * D, *y = Hs + 3 * D;
-    for (size_t k = 0; k < pairs.size(); ++k) {
-        const Predicted& pr = pred[pairs[k]->l];
-        for (int a = 0; a < d; ++a) {
-            y[k * d + a] = pairs[k]->v[a];
-            for (int j = 0; j < 3; ++j) Hs[(k * d + a) * 3 + j] = pr.H[a * 3 + j];
-        }
-    }
-    for (int a = 0; a < D; ++a)
-        for (int b = 0; b < D; ++b) {
-            double sum = 0.0;
-            for (int i = 0; i < 3; ++i)
-                for (int j = 0; j < 3; ++j) sum += Hs[a * 3 + i] * P[i * 3 + j] * Hs[b * 3 + j];
-            S[a * D + b] = sum;
-        }
-    for (size_t k = 0; k < pairs.size(); ++k)
-        for (int a = 0; a < d; ++a) S[(k * d + a) * D + k * d + a] += pred[pairs[k]->l].R[a];
-    if (!cholesky(D, S, Lw)) return INF;
-    cholesky_solve(D, Lw, y);
-    double q = 0.0;
-    for (size_t k = 0; k < pairs.size(); ++k)
-        for (int a = 0; a < d; ++a) q += pairs[k]->v[a] * y[k * d + a];
+// One pair's block of the stacked correction, on the running (δ, P) of a pose filter (see
+// kalman_block), with the pair's noise R (d, diagonal) divided by weight w.
+inline bool pair_block(int d, double* delta, double* P, const Pair& q, const Predicted& pr,
+                       double w, double& nis, double& logdet) {
+    const double R[4] = {pr.R[0] / w, 0.0, 0.0, d == 2 ? pr.R[1] / w : 0.0};
+    if (d == 2) return kalman_block<3, 2>(3, 2, delta, P, q.v, pr.H, R, nullptr, nis, logdet);
+    return kalman_block<3, 1>(3, 1, delta, P, q.v, pr.H, R, nullptr, nis, logdet);
+}
+
+// The joint d² of a set of pairs: the stacked innovation against its stacked S, pair by pair.
+double joint_d2(const std::vector<const Pair*>& pairs, const Predicted* pred,
+                const double* P, int d) {
+    double delta[3] = {0.0, 0.0, 0.0}, Pw[9], q = 0.0, ld = 0.0;
+    std::copy(P, P + 9, Pw);
+    for (const Pair* p : pairs)
+        if (!pair_block(d, delta, Pw, *p, pred[p->l], 1.0, q, ld)) return INF;
     return q;
 }
 
@@ -332,7 +366,7 @@ double joint_d2(const std::vector<const Pair*>& pairs, const std::vector<Predict
 // reading's pairs in increasing d², then the reading left unpaired; a branch is cut when even
 // pairing every remaining reading could not beat the best set. At most opt.jcbb_nodes nodes.
 std::vector<const Pair*> jcbb(const std::vector<std::vector<const Pair*>>& options,
-                              const std::vector<Predicted>& pred, const double* P, int d,
+                              const Predicted* pred, const double* P, int d,
                               const Options& opt) {
     std::vector<const Pair*> best, current;
     double best_d2 = INF;
@@ -344,7 +378,6 @@ std::vector<const Pair*> jcbb(const std::vector<std::vector<const Pair*>>& optio
     std::vector<int> remaining(options.size() + 1, 0);
     for (size_t i = options.size(); i-- > 0;)
         remaining[i] = remaining[i + 1] + (options[i].empty() ? 0 : 1);
-    std::vector<double> scratch;
     int64_t nodes = 0;
     auto gate = [&](size_t k) {
         return k < opt.joint_gate2.size() ? opt.joint_gate2[k] : INF;
@@ -363,7 +396,7 @@ std::vector<const Pair*> jcbb(const std::vector<std::vector<const Pair*>>& optio
         for (const Pair* p : options[level]) {
             if (taken[p->l]) continue;
             current.push_back(p);
-            const double j2 = joint_d2(current, pred, P, d, scratch);
+            const double j2 = joint_d2(current, pred, P, d);
             if (j2 <= gate(current.size())) {
                 taken[p->l] = 1;
                 self(self, level + 1, j2);
@@ -379,6 +412,29 @@ std::vector<const Pair*> jcbb(const std::vector<std::vector<const Pair*>>& optio
 
 }  // namespace
 
+namespace {
+
+// The scratch of correct_readings.
+struct Work {
+    std::vector<int8_t> status;
+    std::vector<int32_t> landmark;
+    std::vector<double> nearest, zc, pair_d2, range, inv_bound, keys;
+    std::vector<Predicted> pred;
+    std::vector<char> done, taken;
+    std::vector<Pair> pairs;
+    std::vector<int64_t> row_start, lo, hi, owner, near;
+    std::vector<const Pair*> chosen, update, best, order;
+};
+
+// This thread's scratch, looked up once per call: not inlined, so the compiler cannot redo the
+// lookup (a call, __tls_get_addr, in a shared library) at every use.
+RELMAP_NOINLINE Work& thread_work() {
+    thread_local Work work;
+    return work;
+}
+
+}  // namespace
+
 void predict_odometry(double* x, double* P, double ds, double dth, const double* params) {
     predict_step(x, P, make_step(ds, dth), params);
 }
@@ -388,66 +444,173 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
                       const Options& opt, ReadingOut out, Totals& totals) {
     const int d = opt.sensor == RANGE_ONLY ? 1 : 2;
     // scratch of this thread, reused between calls (no allocation per time stamp)
-    thread_local std::vector<int8_t> status;
-    thread_local std::vector<int32_t> landmark;
-    thread_local std::vector<double> nearest, zc, pair_d2;
-    thread_local std::vector<Predicted> pred;
-    thread_local std::vector<char> done;
-    thread_local std::vector<Pair> pairs;
-    thread_local std::vector<int64_t> row_start;
-    thread_local std::vector<const Pair*> chosen, update;
-    status.assign(m, 0);
-    landmark.assign(m, -1);
-    nearest.assign(m, INF);
-    zc.assign(m * d, 0.0);
-    pair_d2.assign(m, INF);
-    if (static_cast<int64_t>(pred.size()) < map.L) pred.resize(map.L);
-    done.assign(map.L, 0);
-    pairs.clear();
-    pairs.reserve(static_cast<size_t>(m) * std::max<int64_t>(map.L, 1));
-    row_start.assign(m + 1, 0);
-    chosen.assign(m, nullptr);
-    update.clear();
+    Work& w = thread_work();
+    w.status.assign(m, 0);
+    w.landmark.assign(m, -1);
+    w.nearest.assign(m, INF);
+    w.zc.assign(m * d, 0.0);
+    w.pair_d2.assign(m, INF);
+    w.lo.assign(m, 0);
+    w.hi.assign(m, 0);
+    if (static_cast<int64_t>(w.pred.size()) < map.L) {
+        w.pred.resize(map.L);
+        w.range.resize(map.L);
+        w.inv_bound.resize(map.L);
+    }
+    w.done.assign(map.L, 0);  // per landmark: 1 its bound is known, 2 also its prediction
+    w.pairs.clear();
+    w.row_start.assign(m + 1, 0);
+    w.chosen.assign(m, nullptr);
+    w.update.clear();
+    // raw pointers: the compiler keeps them in registers (a vector's would be reloaded after
+    // every byte store, which may alias it)
+    int8_t* const status = w.status.data();
+    int32_t* const landmark = w.landmark.data();
+    char* const done = w.done.data();
+    double *const nearest = w.nearest.data(), *const zc = w.zc.data(),
+                  *const pair_d2 = w.pair_d2.data(), *const range = w.range.data(),
+                  *const inv_bound = w.inv_bound.data();
+    Predicted* const pred = w.pred.data();
+    int64_t *const row_start = w.row_start.data(), *const lo = w.lo.data(),
+                   *const hi = w.hi.data();
+    const Pair** const chosen = w.chosen.data();
+    auto& pairs = w.pairs;
+    auto& update = w.update;
+    const SensorPose sp = sensor_pose(x, p);
+    // The cheap bound that spares most landmarks their prediction (atan2, H, S) and most pairs
+    // their d². For the landmark at range r from the sensor, |H_r|² = 1 + (dx oy - dy ox)²/r²
+    // <= 1 + |o|² (Cauchy-Schwarz) and λmax(P) <= tr P, so S_rr <= tr P (1 + |o|²) + R_rr =: b;
+    // a 2-vector's d² is at least that of its first component (a marginal), so
+    //   d² >= (z_r - r)² / b    and the Euclidean cost |v|² >= (z_r - r)².
+    const double trace_gain = (P[0] + P[4] + P[8]) * (1.0 + sp.ox * sp.ox + sp.oy * sp.oy);
+    auto bound_of = [&](int64_t l) {
+        if (!done[l]) {
+            const double dx = map.xy[2 * l] - sp.x, dy = map.xy[2 * l + 1] - sp.y;
+            range[l] = std::sqrt(dx * dx + dy * dy);
+            inv_bound[l] = 1.0 / (trace_gain + range_variance(range[l], p, opt));
+            done[l] = 1;
+        }
+    };
+    auto predicted = [&](int64_t l) -> const Predicted& {
+        if (done[l] < 2) {
+            predict_landmark(sp, P, map.xy + 2 * l, p, opt, d, pred[l]);
+            done[l] = 2;
+        }
+        return pred[l];
+    };
+    // a reading's candidates: rows lo[i]..hi[i] of these
+    const int64_t* const cand = opt.signatures ? map.sig_landmark.data() : map.rows.data();
+    auto add_pair = [&](int64_t i, int64_t l) {
+        const Predicted& pr = predicted(l);
+        if (!pr.ok) return;
+        Pair q;
+        q.i = i;
+        q.l = l;
+        q.v[0] = zc[i * d] - pr.h[0];
+        q.v[1] = d == 2 ? wrap(zc[i * d + 1] - pr.h[1]) : 0.0;
+        q.d2 = mahalanobis2(pr, q.v, d);
+        q.cost = opt.cost == EUCLIDEAN ? q.v[0] * q.v[0] + q.v[1] * q.v[1] : q.d2;
+        nearest[i] = std::min(nearest[i], q.d2);
+        pairs.push_back(q);
+    };
+    // The value a reading's pair is chosen by, and its bound from the range alone (above):
+    // one-to-one pairing takes the pair of least cost (Mahalanobis d² or Euclidean |v|²);
+    // JCBB looks at the pairs inside the gate and the nearest by d².
+    const bool by_d2 = opt.cost == MAHALANOBIS || opt.method == JCBB;
+    auto value = [&](int64_t i, int64_t l) {
+        const Predicted& pr = predicted(l);
+        if (!pr.ok) return INF;
+        const double v[2] = {zc[i * d] - pr.h[0], d == 2 ? wrap(zc[i * d + 1] - pr.h[1]) : 0.0};
+        return by_d2 ? mahalanobis2(pr, v, d) : v[0] * v[0] + v[1] * v[1];
+    };
+    // Each usable reading's candidates (its signature's landmarks, or all) and their pairs, in
+    // increasing landmark row (the reference's order for ties). Pruned (all = false): first the
+    // least value, best first: candidates in increasing bound, exactly, until the next bound
+    // exceeds the least value found (no candidate left can beat it); then the pairs of the
+    // candidates whose bound does not exceed it (JCBB: nor the gate). That keeps each
+    // reading's cheapest pair (what one-to-one pairing takes when no two readings want the
+    // same landmark) and, for JCBB, every pair inside the gate and the nearest one. all = true:
+    // every candidate (Eq. 21, and one-to-one when two readings want the same landmark).
+    auto collect = [&](bool all) {
+        if (!all && !opt.signatures)  // every landmark is a candidate of every reading
+            for (int64_t l = 0; l < map.L; ++l) bound_of(l);
+        pairs.clear();
+        pairs.reserve(static_cast<size_t>(m) * std::max<int64_t>(map.L, 1));
+        for (int64_t i = 0; i < m; ++i) {
+            row_start[i] = static_cast<int64_t>(pairs.size());
+            nearest[i] = INF;
+            if (status[i] != UNKNOWN || lo[i] == hi[i]) continue;
+            const int64_t n = hi[i] - lo[i];
+            const int64_t* const ci = cand + lo[i];
+            if (static_cast<int64_t>(w.keys.size()) < n) w.keys.resize(n), w.near.resize(n);
+            double* const keys = w.keys.data();
+            int64_t* const near = w.near.data();  // candidates (positions) that may matter
+            int64_t nn = 0;
+            if (all) {
+                for (int64_t k = 0; k < n; ++k) near[nn++] = k;
+            } else {
+                if (opt.signatures)
+                    for (int64_t k = 0; k < n; ++k) bound_of(ci[k]);
+                const double zr = zc[i * d];
+                int64_t first = 0;
+                for (int64_t k = 0; k < n; ++k) {
+                    const double g = zr - range[ci[k]];
+                    keys[k] = by_d2 ? g * g * inv_bound[ci[k]] : g * g;
+                    if (keys[k] < keys[first]) first = k;
+                }
+                // a margin for rounding: the bound is a bound of the exact values
+                auto limit = [&](double least) {
+                    const double t = opt.method == JCBB ? std::max(least, opt.gate2) : least;
+                    return t * (1.0 + 1e-9) + 1e-300;
+                };
+                double least = value(i, ci[first]);
+                double tau = limit(least);
+                for (int64_t k = 0; k < n; ++k)  // (negated: a NaN bound keeps the candidate)
+                    if (!(keys[k] > tau)) near[nn++] = k;
+                const double done_key = -1.0;  // marks a candidate evaluated
+                keys[first] = done_key;
+                for (;;) {  // best first among the rest
+                    int64_t next = -1;
+                    for (int64_t j = 0; j < nn; ++j) {
+                        const double kk = keys[near[j]];
+                        if (kk != done_key && (next < 0 || kk < keys[near[next]])) next = j;
+                    }
+                    if (next < 0 || keys[near[next]] > least * (1.0 + 1e-9)) break;
+                    least = std::min(least, value(i, ci[near[next]]));
+                    keys[near[next]] = done_key;
+                }
+                tau = limit(least);
+                int64_t kept = 0;
+                for (int64_t j = 0; j < nn; ++j) {
+                    const int64_t k = near[j];
+                    const double g = zr - range[ci[k]];
+                    const double kk = by_d2 ? g * g * inv_bound[ci[k]] : g * g;
+                    if (!(kk > tau)) near[kept++] = k;
+                }
+                nn = kept;
+            }
+            for (int64_t j = 0; j < nn; ++j) add_pair(i, ci[near[j]]);
+            if (static_cast<int64_t>(pairs.size()) == row_start[i]) status[i] = DEGENERATE;
+        }
+        row_start[m] = static_cast<int64_t>(pairs.size());
+    };
     for (int64_t i = 0; i < m; ++i) {
         const double* zi = z + i * d;
         bool usable = std::isfinite(zi[0]) && zi[0] > 0.0;
         if (d == 2) usable = usable && std::isfinite(zi[1]);
         status[i] = (present && !present[i]) ? ABSENT : (usable ? UNKNOWN : INVALID);
-        row_start[i] = static_cast<int64_t>(pairs.size());
         if (status[i] != UNKNOWN) continue;
         zc[i * d] = zi[0] - p[BIAS_R];
         if (d == 2) zc[i * d + 1] = zi[1] - p[BIAS_B];
-        int64_t lo = 0, hi = map.L;
+        hi[i] = map.L;
         if (opt.signatures) {
             auto range = std::equal_range(map.sig_sorted.begin(), map.sig_sorted.end(),
                                           signature[i]);
-            lo = range.first - map.sig_sorted.begin();
-            hi = range.second - map.sig_sorted.begin();
+            lo[i] = range.first - map.sig_sorted.begin();
+            hi[i] = range.second - map.sig_sorted.begin();
         }
-        // candidates in increasing landmark row (the reference's order for ties; the map
-        // keeps each signature's landmarks in increasing row)
-        if (lo == hi) continue;
-        for (int64_t k = lo; k < hi; ++k) {
-            const int64_t l = opt.signatures ? map.sig_landmark[k] : k;
-            if (!done[l]) {
-                predict_landmark(x, P, map.xy + 2 * l, p, opt, d, pred[l]);
-                done[l] = 1;
-            }
-            const Predicted& pr = pred[l];
-            if (!pr.ok) continue;
-            Pair q;
-            q.i = i;
-            q.l = l;
-            q.v[0] = zc[i * d] - pr.h[0];
-            q.v[1] = d == 2 ? wrap(zc[i * d + 1] - pr.h[1]) : 0.0;
-            q.d2 = mahalanobis2(pr, q.v, d);
-            q.cost = opt.cost == EUCLIDEAN ? q.v[0] * q.v[0] + q.v[1] * q.v[1] : q.d2;
-            nearest[i] = std::min(nearest[i], q.d2);
-            pairs.push_back(q);
-        }
-        if (static_cast<int64_t>(pairs.size()) == row_start[i]) status[i] = DEGENERATE;
     }
-    row_start[m] = static_cast<int64_t>(pairs.size());
+    collect(opt.method == PER_LANDMARK);
     // chosen: each reading's pair (used or gated); update: the pairs of the stacked update
     auto usable_with_pairs = [&](int64_t i) {
         return status[i] == UNKNOWN && row_start[i + 1] > row_start[i];
@@ -455,26 +618,28 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
     if (opt.method == GREEDY) {
         // Greedy one-to-one, cheapest pair first (ties: lower reading, then lower landmark).
         // When no two readings share their cheapest landmark, that is each reading's cheapest.
-        thread_local std::vector<const Pair*> best;
-        thread_local std::vector<int64_t> owner;
-        best.assign(m, nullptr);
-        for (const Pair& q : pairs)
-            if (!best[q.i] || q.cost < best[q.i]->cost) best[q.i] = &q;
-        owner.assign(map.L, -1);
-        bool clash = false;
-        for (int64_t i = 0; i < m && !clash; ++i)
-            if (best[i]) {
-                if (owner[best[i]->l] >= 0) clash = true;
-                owner[best[i]->l] = i;
-            }
-        if (!clash) {
-            for (int64_t i = 0; i < m; ++i) chosen[i] = best[i];
-        } else {
-            // The greedy run over the pairs sorted by (cost, reading, landmark). With the
+        auto& best = w.best;
+        auto& owner = w.owner;
+        auto cheapest = [&]() {
+            best.assign(m, nullptr);
+            for (const Pair& q : pairs)
+                if (!best[q.i] || q.cost < best[q.i]->cost) best[q.i] = &q;
+            owner.assign(map.L, -1);
+            for (int64_t i = 0; i < m; ++i)
+                if (best[i]) {
+                    if (owner[best[i]->l] >= 0) return true;
+                    owner[best[i]->l] = i;
+                }
+            return false;
+        };
+        bool clash = cheapest();
+        if (clash) {
+            // The greedy run over all pairs sorted by (cost, reading, landmark). With the
             // Mahalanobis cost the pairs inside the gate come first, so they are paired first
             // on their own; then the pairs outside, of the readings and landmarks left.
-            thread_local std::vector<const Pair*> order;
-            thread_local std::vector<char> taken;
+            collect(true);
+            auto& order = w.order;
+            auto& taken = w.taken;
             taken.assign(map.L, 0);
             auto by_cost = [](const Pair* a, const Pair* b) {
                 if (a->cost != b->cost) return a->cost < b->cost;
@@ -496,6 +661,8 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
                         taken[q->l] = 1;
                     }
             }
+        } else {
+            for (int64_t i = 0; i < m; ++i) chosen[i] = best[i];
         }
         for (int64_t i = 0; i < m; ++i) {
             if (!usable_with_pairs(i)) continue;
@@ -554,37 +721,39 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
             pair_d2[i] = chosen[i]->d2;
         }
     }
-    // The stacked update of the used pairs (Eqs. 26-28), one per time stamp.
+    // The correction with the used pairs (Eqs. 26-28), one per time stamp: their stacked
+    // update, done pair by pair (kalman_block: each pair's noise is its own, so R is block
+    // diagonal and the 2 × 2 blocks in turn are the stacked 2k × 2k update).
     if (!update.empty()) {
         const int D = d * static_cast<int>(update.size());
-        std::vector<double> y(D), H(D * 3), R(D * D, 0.0), Ru;
         const bool robust = std::isfinite(p[NU]);
-        const bool inflated = p[INFLATION] != 1.0;
-        if (robust || inflated) Ru.assign(D * D, 0.0);
-        for (size_t k = 0; k < update.size(); ++k) {
-            const Pair* q = update[k];
-            const Predicted& pr = pred[q->l];
+        // correlated readings carry less information than their spread says: the update's R
+        // is inflated by c² (NoiseParameters.inflation); association, gate and likelihood
+        // keep the readings' R
+        const double c2 = p[INFLATION] * p[INFLATION];
+        const bool reweighted = robust || c2 != 1.0;
+        double delta[3] = {0.0, 0.0, 0.0}, Pn[9], nis = 0.0, logdet = 0.0;
+        std::copy(P, P + 9, Pn);
+        bool ok = true;
+        for (const Pair* q : update) {
             // Student-t readings: the reading's weight (ν + d)/(ν + d²) scales R by its inverse
-            const double wgt = robust ? (p[NU] + d) / (p[NU] + q->d2) : 1.0;
-            // correlated readings carry less information than their spread says: the update's
-            // R is inflated, the association, gate and likelihood keep the readings' R
-            const double update_factor = p[INFLATION] * p[INFLATION] / wgt;
-            for (int a = 0; a < d; ++a) {
-                const int r = static_cast<int>(k) * d + a;
-                y[r] = q->v[a];
-                for (int j = 0; j < 3; ++j) H[r * 3 + j] = pr.H[a * 3 + j];
-                R[r * D + r] = pr.R[a];
-                if (robust || inflated) Ru[r * D + r] = pr.R[a] * update_factor;
-            }
+            const double wgt = (robust ? (p[NU] + d) / (p[NU] + q->d2) : 1.0) / c2;
+            ok = ok && pair_block(d, delta, Pn, *q, pred[q->l], wgt, nis, logdet);
         }
-        double nis = 0.0, logdet = 0.0;
-        double x_new[3] = {x[0], x[1], x[2]};
-        const bool ok = kalman_update(3, D, x_new, P, y.data(), H.data(), R.data(),
-                                      Ru.empty() ? nullptr : Ru.data(), nullptr, &nis, &logdet);
+        if (reweighted && ok) {  // the likelihood is that of S with R itself, not reweighted
+            double dl[3] = {0.0, 0.0, 0.0}, Pl[9];
+            std::copy(P, P + 9, Pl);
+            nis = logdet = 0.0;
+            for (const Pair* q : update)
+                ok = ok && pair_block(d, dl, Pl, *q, pred[q->l], 1.0, nis, logdet);
+        }
+        for (int k = 0; k < 9; ++k) ok = ok && std::isfinite(Pn[k]);
+        for (int k = 0; k < 3; ++k) ok = ok && std::isfinite(delta[k]);
         if (ok) {
-            x[0] = x_new[0];
-            x[1] = x_new[1];
-            x[2] = wrap(x_new[2]);
+            x[0] += delta[0];
+            x[1] += delta[1];
+            x[2] = wrap(x[2] + delta[2]);
+            std::copy(Pn, Pn + 9, P);
             double ll;
             if (robust) {  // multivariate Student-t of dimension D, scale S, ν dof
                 const double nu = p[NU];
@@ -636,6 +805,8 @@ Map make_map(Float2 landmarks, Index1 landmark_sig) {
         map.sig_sorted.push_back(s[l]);
         map.sig_landmark.push_back(l);
     }
+    map.rows.resize(map.L);
+    for (int64_t l = 0; l < map.L; ++l) map.rows[l] = l;
     return map;
 }
 
@@ -727,7 +898,7 @@ void register_ekf(nb::module_& m) {
                 ok.data()[b] = kalman_update(
                     static_cast<int>(n), static_cast<int>(D), xo.data() + b * n,
                     Po.data() + b * n * n, y.data() + b * D, H.data() + b * D * n,
-                    R.data() + b * D * D, nullptr, So.data() + b * D * D, nis.data() + b,
+                    R.data() + b * D * D, So.data() + b * D * D, nis.data() + b,
                     logdet.data() + b);
                 if (!ok.data()[b]) nis.data()[b] = logdet.data()[b] = NaN;
             }
@@ -778,15 +949,13 @@ void register_ekf(nb::module_& m) {
             const size_t F = 12 + mm * (d + d * d + 1) + 2, I = 2 * mm + 1;
             auto fo = new_array({B, F});
             auto io = new_array<int64_t>({B, I});
+            std::vector<int8_t> st(mm);
+            std::vector<int32_t> lmo(mm);
             for (size_t b = 0; b < B; ++b) {
                 double* f = fo.data() + b * F;
                 int64_t* iv = io.data() + b * I;
                 std::copy(x.data() + 3 * b, x.data() + 3 * b + 3, f);
                 std::copy(P.data() + 9 * b, P.data() + 9 * b + 9, f + 3);
-                thread_local std::vector<int8_t> st;
-                thread_local std::vector<int32_t> lmo;
-                st.assign(mm, 0);
-                lmo.assign(mm, -1);
                 ReadingOut out{f + 12, f + 12 + mm * d, f + 12 + mm * (d + d * d), st.data(),
                                lmo.data()};
                 Totals totals;

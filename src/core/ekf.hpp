@@ -3,7 +3,12 @@
 // - The generic steps, for a state of any size n: the prediction's covariance
 //   P⁻ = F P Fᵀ + Q (Eq. 13) and the correction (Eqs. 26-28) of a stacked innovation y with its
 //   Jacobian H and noise R: S = H P⁻ Hᵀ + R, K = P⁻ Hᵀ S⁻¹, x = x⁻ + K y, and the covariance in
-//   Joseph form (see kalman_update).
+//   Joseph form (see kalman_update). One template (ekf.cpp's kalman_block) does every
+//   correction; the compiler fixes its sizes for a pose (3) and a reading (2 or 1), so the
+//   pose filters' arithmetic is fixed-size, on the stack, with no allocation per step.
+// - A time stamp's readings are independent (R block diagonal), so their stacked update is
+//   done pair by pair: k 2 × 2 blocks in turn are the 2k × 2k update, to rounding (same x, P,
+//   yᵀS⁻¹y and log det S).
 // - The built-in models of a planar pose (x, y, θ), relmap's chart: differential-drive odometry
 //   steps (Δs, Δθ) with midpoint integration and relmap.robot.DistanceNoise's random-walk noise
 //   (Eqs. 10-13), range-bearing readings of point landmarks from a sensor mounted on the robot
@@ -11,7 +16,8 @@
 // - Association of a time stamp's readings with the map (Eqs. 21-25): candidates by signature
 //   or all landmarks, Mahalanobis (Eq. 23) or Euclidean (Eq. 22) cost, greedy one-to-one or the
 //   lecture's per-landmark pairing (Eq. 21), or joint compatibility branch and bound (JCBB,
-//   Neira & Tardós 2001); χ² gates.
+//   Neira & Tardós 2001); χ² gates. A cheap bound on d² from the range alone spares the
+//   landmarks that cannot matter their prediction (see correct_readings).
 // - A runner over a whole time-ordered log, for a batch of filters each with its own noise
 //   parameters: the loops over filters, steps and readings are here, none in Python.
 #pragma once
@@ -76,6 +82,7 @@ struct Map {
     const double* xy = nullptr;        // (L, 2)
     std::vector<int64_t> sig_sorted;   // signatures in increasing order
     std::vector<int64_t> sig_landmark; // the landmark of each sorted signature
+    std::vector<int64_t> rows;         // 0, 1, ..., L - 1
 };
 
 // What one correction reports per reading (pointers into the caller's arrays; may be null).
@@ -100,14 +107,13 @@ struct Totals {
 // P⁻ = F P Fᵀ + Q (n × n, row-major), symmetrized. out may alias P.
 void predict_covariance(int n, const double* F, const double* P, const double* Q, double* out);
 
-// The correction of x (n) and P (n × n) with the stacked innovation y (D), Jacobian H (D × n)
-// and noise R (D × D). Writes S (D × D, may be null), the NIS yᵀS⁻¹y and log det S; returns
-// false and leaves x and P untouched when S is not positive definite (0/0). With R_update
-// non-null the gain and update use it instead of R (a robust filter's reweighted noise), and
-// nis/logdet refer to S computed with R.
+// The correction of x (n) and P (n × n) with the innovation y (D), Jacobian H (D × n) and
+// noise R (D × D), Joseph form. Writes S (D × D, may be null), the NIS yᵀS⁻¹y and log det S;
+// returns false and leaves x and P untouched when S is not positive definite (0/0). (The
+// landmark correction stacks its pairs the same way, one 2 × 2 block per pair: ekf.cpp's
+// kalman_block, of which this is the single-block case.)
 bool kalman_update(int n, int D, double* x, double* P, const double* y, const double* H,
-                   const double* R, const double* R_update, double* S, double* nis,
-                   double* logdet);
+                   const double* R, double* S, double* nis, double* logdet);
 
 // One odometry step (Δs, Δθ) of a pose filter: midpoint integration, DistanceNoise (module
 // notes), compounded x ⊕ Δ with P⁻ = Gx P Gxᵀ + Gu C Guᵀ.

@@ -301,7 +301,7 @@ def predict(
             )
             G = numerical_jacobian(lambda v: model.f(x[..., None, :], v), uu, chart_out=chart)
         Qu = np.asarray(model.noise(uu), dtype=np.float64)
-        Q = G @ Qu @ np.swapaxes(G, -1, -2)
+        Q = gaussian.congruence(G, Qu)
         return _like(state, x_new, _predict_covariance(P, np.asarray(F), Q))
     if not isinstance(state, AT):
         raise ParameterError("odometry predicts a pose AT; use a Motion model for a Belief")
@@ -323,7 +323,7 @@ def predict(
     batch = np.broadcast_shapes(x.shape[:-1], m.shape[:-1])
     step = _step_ats(m, model, integration, drive)
     mean, F, G = se2.compose(x, step.mean, jacobians=True)
-    Q = G @ step.cov @ np.swapaxes(G, -1, -2)
+    Q = gaussian.congruence(G, step.cov)
     return AT._trusted(mean, _predict_covariance(P, F, Q))
 
 
