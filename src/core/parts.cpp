@@ -3,6 +3,7 @@
 #include "blocks.hpp"
 #include "ekf.hpp"
 #include "linearize.hpp"
+#include "linearize3.hpp"
 #include "ordering.hpp"
 #include "se3.hpp"
 #include "sparse_chol.hpp"
@@ -15,6 +16,7 @@ void register_parts(nb::module_& m) {
     register_blocks(m);
     register_ordering(m);
     register_linearize(m);
+    register_linearize3(m);
     register_ekf(m);
 }
 
