@@ -11,7 +11,7 @@ import relmap as rm
 from relmap.errors import SolverError
 from relmap.lie import SE2, SE3, se3
 from relmap.network import optimal
-from relmap.network.problem import Problem, parameterize
+from relmap.network.problem import Problem
 
 from .helpers import random_covs
 
