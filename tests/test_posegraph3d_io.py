@@ -523,7 +523,7 @@ def test_good_3d_file_and_quaternion_tolerance(tmp_path):
     g = read_graph(p)
     np.testing.assert_array_equal(g.vertex_quaternions[3], [0, 0, 0, 1])
     write_graph(p, g)
-    assert "VERTEX_SE3:QUAT 3 0.0 0.0 0.0 0.0 0.0 0.0 1.0\n" in p.read_text()
+    assert "VERTEX_SE3:QUAT 3 0 0 0 0 0 0 1\n" in p.read_text()
 
 
 @pytest.mark.parametrize(

@@ -2,6 +2,7 @@
 #include "core.hpp"
 #include "blocks.hpp"
 #include "ekf.hpp"
+#include "graphfile.hpp"
 #include "linearize.hpp"
 #include "linearize3.hpp"
 #include "ordering.hpp"
@@ -18,6 +19,7 @@ void register_parts(nb::module_& m) {
     register_linearize(m);
     register_linearize3(m);
     register_ekf(m);
+    register_graphfile(m);
 }
 
 }  // namespace relmap

@@ -93,7 +93,7 @@ from typing import Literal, NamedTuple, TypeVar
 import numpy as np
 import numpy.typing as npt
 
-from relmap import gaussian
+from relmap import _core, gaussian
 from relmap.at import AT
 from relmap.at3 import AT3
 from relmap.errors import (
@@ -674,8 +674,9 @@ def write_graph(
     measurement mean and the information matrix exactly as stored, in the format's field order.
     3-D rotations are written as quaternions ``qx qy qz qw`` with ``qw ≥ 0``: the ones the graph
     kept from its file where they still give the rotation exactly, else the rotation's own.
-    Numbers are written with full precision (``repr``), so reading the file back gives the same
-    arrays bit for bit. The legacy 3-D ``EDGE3`` format is not written (:class:`ParameterError`;
+    Numbers are written in their shortest round-trip decimal form (relmap's compiled core,
+    ``std::to_chars``: ``1`` for 1.0), so reading the file back gives the same arrays bit for
+    bit. The legacy 3-D ``EDGE3`` format is not written (:class:`ParameterError`;
     see the module docstring). Nothing is written if anything is invalid.
     """
     group = getattr(graph.measurements, "group", None)
@@ -724,21 +725,27 @@ def write_graph(
         eq = _written_quaternions(mean[:, :3, :3], graph.edge_quaternions)
         vertex_values = np.concatenate([pose_arr[:, :3, 3], vq], axis=1)
         edge_values = np.concatenate([mean[:, :3, 3], eq, info], axis=1)
-    out = [
-        f"{spec.vertex} {i} " + " ".join(map(repr, v))
-        for i, v in zip(ids.tolist(), vertex_values.tolist(), strict=True)
-    ]
-    out += [f"{spec.fix} {i}" for i in fixed.tolist()]
-    out += [
-        f"{spec.edge} {i} {j} " + " ".join(map(repr, v))
-        for i, j, v in zip(
-            np.asarray(graph.edge_from).tolist(),
-            np.asarray(graph.edge_to).tolist(),
-            edge_values.tolist(),
-            strict=True,
-        )
-    ]
-    write_text_atomic(path, "\n".join(out) + "\n" if out else "")
+    text = "".join(
+        [
+            _core.format_records(spec.vertex, _ids(ids), _values(vertex_values)),
+            _core.format_records(spec.fix or "FIX", _ids(fixed), np.empty((len(fixed), 0))),
+            _core.format_records(
+                spec.edge,
+                _ids(np.column_stack([graph.edge_from, graph.edge_to]), 2),
+                _values(edge_values),
+            ),
+        ]
+    )
+    write_text_atomic(path, text)
+
+
+def _ids(ids: ArrayLike, columns: int = 1) -> IntArray:
+    arr = np.asarray(ids, dtype=np.int64)
+    return np.ascontiguousarray(arr.reshape(len(arr), columns))
+
+
+def _values(values: FloatArray) -> FloatArray:
+    return np.ascontiguousarray(values, dtype=np.float64)
 
 
 def file_information(measurements: AT | AT3, format: GraphFormat = "g2o") -> FloatArray:

@@ -87,12 +87,16 @@ class Solution:
         final_error: float,
         data: FloatArray | None = None,
         converged: bool = True,
+        stale: bool = False,
     ) -> None:
         self.problem = problem
         self.param = param
         self.poses = poses  #: (n, 3) or (n, 4, 4) optimized frame poses (anchor at its given pose)
         self.group: Group = problem.group
-        self.factor = factor
+        self._factor = factor
+        # whether _factor holds another matrix than _data (factorized on first use: a caller
+        # that wants only the poses never pays for it)
+        self._stale = stale and factor is not None and data is not None
         self.iterations = iterations
         self.initial_error = initial_error  #: Σ rᵀ Σ⁻¹ r at the initial guess
         self.final_error = final_error  #: the same at the optimum
@@ -104,6 +108,16 @@ class Solution:
             list(problem.frames) if problem.frames is not None else list(range(problem.n))
         )
         self._row = {f: k for k, f in enumerate(self.frames)}
+
+    @property
+    def factor(self) -> SymmetricFactor | None:
+        """The sparse Cholesky factorization of the normal matrix at the optimum (None when
+        nothing is free)."""
+        if self._stale:
+            assert self._factor is not None and self._data is not None
+            self._factor.factorize(self._data)
+            self._stale = False
+        return self._factor
 
     def row(self, frame: object) -> int:
         """The row of frame ``frame`` (an id) in :attr:`poses` and :meth:`marginals`."""
@@ -528,8 +542,9 @@ def optimize(
     ``max|δ| ≤ xtol·(1 + max|t|)`` (t the poses' translations, m; δ in m and rad) or stops
     lowering the objective. One further Gauss-Newton step then moves the poses by less than
     about 1e-12 relatively. If the polish moved the poses, the normal matrix is factorized
-    once more at the polished poses, so the covariances are those at the returned poses (the
-    last Gauss-Newton iterate's differed by O(polish): 9e-8 relatively on the bridge).
+    once more at the polished poses (when :attr:`Solution.factor` is first used: a caller that
+    wants only the poses does not pay for it), so the covariances are those at the returned
+    poses (the last Gauss-Newton iterate's differed by O(polish): 9e-8 relatively on the bridge).
     ``Solution.converged`` is False when ``max_iterations`` ended the loop instead. An
     objective that overflows raises :class:`relmap.errors.NumericalError`.
 
@@ -639,9 +654,9 @@ def optimize(
             nu *= 2.0
             if lam > 1e12:
                 break  # no descent possible: the current point is a minimum to rounding
-    if not undamped_at_current:
-        factor.factorize(data)  # the undamped normal matrix at the optimum, for covariances
-    return Solution(p, param, poses, factor, iterations, initial, cost, data, converged)
+    # the undamped normal matrix at the optimum, for covariances: factorized when first needed
+    stale = not undamped_at_current
+    return Solution(p, param, poses, factor, iterations, initial, cost, data, converged, stale)
 
 
 #: chord steps (with the last factorization) that polish a converged solution to rounding
