@@ -52,6 +52,7 @@ struct V3 {
 struct Work {
     M3 m[13];
     V3 v[3];
+    Lanes nan;  // the overflow watch of the outputs (see watch)
 };
 
 Work& workspace() {
@@ -166,9 +167,26 @@ inline void shear(const M3& S, const M3& A, const M3& B, const M3& D, M3& tmp, M
     add_to(a, tmp);
 }
 
+// Adds x·0 of every lane of the blocks to `nan`: it stays 0 while they are finite, and becomes NaN
+// for good at an inf or NaN (the overflow check of relmap's results, done on data in cache).
+inline void watch(Lanes& nan, const double* x, size_t count) {
+    for (size_t k = 0; k < count; ++k)
+        for (size_t l = 0; l < W; ++l) nan[l] += x[k * W + l] * 0.0;
+}
+
+inline bool finite(const Lanes& nan) {
+    double s = 0.0;
+    for (size_t l = 0; l < W; ++l) s += nan[l];
+    return s == 0.0;
+}
+
 // Writes a chunk's covariances from blocks (0, 0) a, (0, 1) e, (1, 1) d; a and d (symmetric to
 // rounding) averaged with their transposes so that the result is exactly symmetric.
-void write_cov(double* out, size_t N, size_t n0, size_t w, const M3& a, const M3& e, const M3& d) {
+void write_cov(double* out, size_t N, size_t n0, size_t w, const M3& a, const M3& e, const M3& d,
+               Lanes& nan) {
+    watch(nan, a.m[0], 9);
+    watch(nan, e.m[0], 9);
+    watch(nan, d.m[0], 9);
     Lanes s;
     for (size_t i = 0; i < 3; ++i)
         for (size_t j = 0; j < 3; ++j) {
@@ -181,7 +199,10 @@ void write_cov(double* out, size_t N, size_t n0, size_t w, const M3& a, const M3
         }
 }
 
-void write_pose(double* out, size_t N, size_t n0, size_t w, const M3& R, const V3& t) {
+void write_pose(double* out, size_t N, size_t n0, size_t w, const M3& R, const V3& t,
+                Lanes& nan) {
+    watch(nan, R.m[0], 9);
+    watch(nan, t.v[0], 3);
     Lanes zero, one;
     std::fill(zero, zero + W, 0.0);
     std::fill(one, one + W, 1.0);
@@ -214,9 +235,12 @@ nb::tuple compound3(Pose Ta, Cov Ca, Pose Tb, Cov Cb, std::optional<Cov> X) {
     if (X) batch_size(N, {X->shape(2)});
     double* To = new double[16 * N];
     double* Co = new double[36 * N];
+    bool ok;
     {
         nb::gil_scoped_release release;
         Work& work = workspace();
+        Lanes& nan = work.nan;
+        std::fill(nan, nan + W, 0.0);
         auto& [Ra, Rb, R, S, a, e, d, blk, tmp, k11, k12, x21, x22] = work.m;
         auto& [ta, tb, t] = work.v;
         for (size_t n0 = 0; n0 < N; n0 += W) {
@@ -234,7 +258,7 @@ nb::tuple compound3(Pose Ta, Cov Ca, Pose Tb, Cov Cb, std::optional<Cov> X) {
             hat(t, -1.0, S);  // S = -[u]× (t holds u here)
             for (size_t i = 0; i < 3; ++i)
                 for (size_t l = 0; l < W; ++l) t.v[i][l] += ta.v[i][l];
-            write_pose(To, N, n0, w, R, t);
+            write_pose(To, N, n0, w, R, t, nan);
             // J_a C_a J_aᵀ: the shear; block (1, 1) is D_a
             M3& A = R;  // R is written out: reuse its storage
             load(Ca, 0, 0, n0, w, A);
@@ -271,10 +295,11 @@ nb::tuple compound3(Pose Ta, Cov Ca, Pose Tb, Cov Cb, std::optional<Cov> X) {
                 add_to(d, tmp);
                 add_t_to(d, tmp);
             }
-            write_cov(Co, N, n0, w, a, e, d);
+            write_cov(Co, N, n0, w, a, e, d, nan);
         }
+        ok = finite(nan);
     }
-    return nb::make_tuple(owned<PoseOut, 4, 4>(To, N), owned<CovOut, 6, 6>(Co, N));
+    return nb::make_tuple(owned<PoseOut, 4, 4>(To, N), owned<CovOut, 6, 6>(Co, N), ok);
 }
 
 // Aᴿ for N poses: T⁻¹ = (Rᵀ, -Rᵀ t), C' = M C Mᵀ with M = blkdiag(Rᵀ, Rᵀ) [[I, [t]×], [0, I]].
@@ -283,9 +308,12 @@ nb::tuple reverse3(Pose T, Cov C) {
     const size_t N = batch_size(T.shape(2), {C.shape(2)});
     double* To = new double[16 * N];
     double* Co = new double[36 * N];
+    bool ok;
     {
         nb::gil_scoped_release release;
         Work& work = workspace();
+        Lanes& nan = work.nan;
+        std::fill(nan, nan + W, 0.0);
         auto& [R, Rt, S, A, B, D, a, e, tmp, o1, o2, o3, spare] = work.m;
         auto& [t, v, spare_v] = work.v;
         (void)spare;
@@ -301,7 +329,7 @@ nb::tuple reverse3(Pose T, Cov C) {
                 for (size_t l = 0; l < W; ++l)
                     v.v[i][l] = -(R.m[i][l] * t.v[0][l] + R.m[3 + i][l] * t.v[1][l] +
                                   R.m[6 + i][l] * t.v[2][l]);
-            write_pose(To, N, n0, w, Rt, v);
+            write_pose(To, N, n0, w, Rt, v, nan);
             load(C, 0, 0, n0, w, A);
             load(C, 0, 3, n0, w, B);
             load(C, 3, 3, n0, w, D);
@@ -310,10 +338,11 @@ nb::tuple reverse3(Pose T, Cov C) {
             rotate(R, a, true, tmp, o1);  // Rᵀ X R for each block
             rotate(R, e, true, tmp, o2);
             rotate(R, D, true, tmp, o3);
-            write_cov(Co, N, n0, w, o1, o2, o3);
+            write_cov(Co, N, n0, w, o1, o2, o3, nan);
         }
+        ok = finite(nan);
     }
-    return nb::make_tuple(owned<PoseOut, 4, 4>(To, N), owned<CovOut, 6, 6>(Co, N));
+    return nb::make_tuple(owned<PoseOut, 4, 4>(To, N), owned<CovOut, 6, 6>(Co, N), ok);
 }
 
 }  // namespace
@@ -322,9 +351,11 @@ void register_se3(nb::module_& m) {
     m.def("compound3", &compound3, nb::arg("Ta"), nb::arg("Ca"), nb::arg("Tb"), nb::arg("Cb"),
           nb::arg("X").none(),
           "a ⊕ b for N SE(3) pairs, entry-major (4, 4, N) poses and (6, 6, N) covariances (any "
-          "strides), X the (6, 6, N) cross-covariance E[δa δbᵀ] or None: new (T, C) arrays.");
+          "strides), X the (6, 6, N) cross-covariance E[δa δbᵀ] or None: new (T, C) arrays and "
+          "whether all their entries are finite.");
     m.def("reverse3", &reverse3, nb::arg("T"), nb::arg("C"),
-          "Aᴿ for N SE(3) poses, entry-major (4, 4, N) and (6, 6, N) (any strides): new (T, C).");
+          "Aᴿ for N SE(3) poses, entry-major (4, 4, N) and (6, 6, N) (any strides): new (T, C) "
+          "and whether all their entries are finite.");
 }
 
 }  // namespace relmap
