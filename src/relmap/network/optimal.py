@@ -7,12 +7,14 @@ joint covariance (the inverse of the normal matrix at the optimum), by solving f
 columns needed from the one sparse factorization. Exact in the linear case (no angular error),
 where one step reaches the optimum.
 
-Residuals and chart Jacobians come from :mod:`relmap.lie` (numpy, vectorized over the ATs);
-the normal equations are accumulated straight into the sparse matrix's slots by one pass of
-relmap's compiled core (``relmap._core.normal_equations``), and factorized by its sparse
+Planar residuals and chart Jacobians come from :mod:`relmap.lie` (numpy, vectorized over the
+ATs) and their normal equations are accumulated straight into the sparse matrix's slots by one
+pass of relmap's compiled core (``relmap._core.normal_equations``); in 3-D the residuals, their
+Jacobians and the normal equations are one pass of the core (``relmap._core.normal_equations3``,
+:func:`residuals3`, ``src/core/linearize3.cpp``). The matrix is factorized by the core's sparse
 Cholesky (:mod:`relmap.network.sparse`); one Levenberg-Marquardt loop drives the planar
-(:class:`_System`: frames tied into rigid sets and exact headings) and the group
-(:class:`_LieSystem`, any pose group) problems.
+(:class:`_System`: frames tied into rigid sets and exact headings) and the 3-D
+(:class:`_LieSystem`) problems.
 
 Residuals, weights and exact components: see :mod:`relmap.network.problem`.
 """
