@@ -617,10 +617,11 @@ def optimize(
             for _ in range(_POLISH_STEPS):
                 if size <= xtol * scale:
                     break
-                trial = linearize(step(state, delta))
+                moved = step(state, delta)
+                trial = linearize(moved)
                 if not trial[0] <= cost * (1.0 + 1e-13) + 1e-300:
                     break
-                state = step(state, delta)
+                state = moved
                 cost, poses, data, grad = trial
                 undamped_at_current = False
                 delta = -factor.solve(grad)
