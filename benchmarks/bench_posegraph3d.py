@@ -38,7 +38,7 @@ import numpy as np
 import relmap as rm
 from relmap.io import read_graph, solve_graph
 from relmap.lie import SE3
-from relmap.network.optimal import _residual
+from relmap.network.optimal import residuals3
 
 DATA = Path(os.environ.get("RELMAP_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
 PRIOR = gtsam.noiseModel.Diagonal.Variances(np.full(6, 1e-10))
@@ -102,8 +102,7 @@ def poses_of(values, n: int) -> np.ndarray:
 def relmap_objective(graph, poses: np.ndarray) -> float:
     """relmap's Σ rᵀ Σ⁻¹ r at the given poses (n, 4, 4), frame rows as in the graph."""
     i, j = graph.edge_indices()
-    d = SE3.between(poses[i], poses[j])
-    r, _ = _residual(SE3, d, graph.measurements.mean)
+    r, _, _ = residuals3(poses, i, j, graph.measurements.mean)
     W = np.linalg.inv(graph.measurements.cov)
     return float(np.einsum("ka,kab,kb->", r, W, r))
 

@@ -379,3 +379,24 @@ def test_fast_paths_accept_other_layouts_and_return_read_only_arrays():
         a @ random_at3s(32, 3)
     with pytest.raises(ShapeError):
         rm.compound(a, a, cross_cov=np.zeros((3, 6, 6)))
+
+
+@pytest.mark.parametrize("where", [0, 300, 999])
+def test_compound_and_reverse_that_overflow_raise(where):
+    """A result with inf or NaN (translations of 1e200 m: their squares in the covariance
+    overflow) is refused with NumericalError, whichever batch element holds it (the core
+    watches every output lane, chunks of 256 included)."""
+    from relmap.errors import NumericalError
+
+    rng = np.random.default_rng(where)
+    T = se3.exp(rng.normal(size=(1000, 6)))
+    T[where, :3, 3] = 1e200
+    a = rm.AT3.from_matrix(T, np.broadcast_to(0.01 * np.eye(6), (1000, 6, 6)))
+    with pytest.raises(NumericalError, match="compound overflowed"):
+        a @ a
+    with pytest.raises(NumericalError, match="reverse overflowed"):
+        a.reverse()
+    fine = rm.AT3.from_matrix(
+        np.delete(T, where, 0), np.broadcast_to(0.01 * np.eye(6), (999, 6, 6))
+    )
+    assert np.isfinite((fine @ fine).cov).all()

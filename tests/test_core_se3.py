@@ -47,7 +47,8 @@ def test_strided_and_broadcast_views_are_read_in_place():
 def test_the_core_returns_new_arrays_and_checks_its_contract():
     a = random_at3s(61, 5)
     T, C = at3._planes(a.mean, (5,), 5), at3._planes(a.cov, (5,), 5)
-    To, Co = _core.compound3(T, C, T, C, None)
+    To, Co, finite = _core.compound3(T, C, T, C, None)
+    assert finite
     assert To.shape == (4, 4, 5) and Co.shape == (6, 6, 5)
     assert To.flags.c_contiguous and To.flags.writeable and not np.shares_memory(To, T)
     with pytest.raises(ValueError, match="batch sizes differ"):

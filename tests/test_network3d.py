@@ -11,7 +11,7 @@ import relmap as rm
 from relmap.errors import SolverError
 from relmap.lie import SE2, SE3, se3
 from relmap.network import optimal
-from relmap.network.problem import Problem, parameterize
+from relmap.network.problem import Problem
 
 from .helpers import random_covs
 
@@ -176,47 +176,6 @@ def test_planar_network_embedded_in_3d_gives_the_planar_answers():
     po, so = planar.query("w", "v", method="optimal"), tiny.query("w", "v", method="optimal")
     np.testing.assert_allclose(so.at.cov[np.ix_(keep, keep)], po.at.cov, rtol=1e-6, atol=1e-12)
     np.testing.assert_allclose(so.at.translation[:2], po.at.mean[:2], atol=1e-9)
-
-
-def test_the_generic_assembly_matches_the_planar_closed_forms():
-    """_LieSystem (Jacobians, any group) and _System (closed forms, SE(2)) build the same
-    normal equations on a planar problem."""
-    m = rm.RelationalMap()
-    g = rng(5)
-    for u, v in BRIDGE:
-        m.add(
-            u,
-            v,
-            rm.AT(
-                [g.uniform(-2, 2), g.uniform(-2, 2), g.uniform(-3, 3)],
-                random_covs(g, (), scale=0.1),
-            ),
-            name=u + v,
-        )
-    problem, _ = optimal.problem_from_map(m, [e.name for e in m.edges()], "a")
-    param = parameterize(problem)
-    w = optimal._weights(problem, param)
-    poses = problem.guess + g.normal(scale=0.1, size=problem.guess.shape)
-    state = (poses[:, :2].copy(), poses[:, 2].copy())
-    closed = optimal._System(problem, param, w).linearize(*state)
-    generic_system = optimal._LieSystem(problem._replace(group=SE2), param, w)
-    generic = generic_system.linearize(poses)
-    assert generic[0] == pytest.approx(closed[0], rel=1e-12)
-    np.testing.assert_allclose(generic[3], closed[3], atol=1e-10)
-
-    # the CSC data are laid out differently: compare the assembled matrices
-    def dense(pattern, data):
-        import scipy.sparse as sp
-
-        return sp.csc_matrix(
-            (data, pattern.indices, pattern.indptr), shape=(pattern.size,) * 2
-        ).toarray()
-
-    np.testing.assert_allclose(
-        dense(generic_system.pattern, generic[2]),
-        dense(optimal._System(problem, param, w).pattern, closed[2]),
-        atol=1e-9,
-    )
 
 
 def test_dependent_ats_in_3d_are_one_joint_residual():

@@ -4,7 +4,7 @@ against its ground truth, relative ATs of far-apart frames against GTSAM's margi
 
 GTSAM is given relmap's own covariances (``AT3.to_body``: its body, rotation-first chart).
 GTSAM's ``BetweenFactorPose3`` weighs ``Log(z⁻¹ d)``, relmap the chart residual
-``(t_d - t_z, Log(R_d R_zᵀ))`` (:func:`relmap.network.optimal._residual`): the same to first
+``(t_d - t_z, Log(R_d R_zᵀ))`` (:func:`relmap.network.optimal.residuals3`): the same to first
 order, so GTSAM's objective at relmap's optimum equals its own minimum up to terms of fourth
 order in the residuals — below 1e-6 relative on sphere2500 and parking-garage, whose rotation
 residuals are small, but not on the grids (rotation σ ≈ 0.4 rad), which are therefore also

@@ -523,7 +523,7 @@ def test_good_3d_file_and_quaternion_tolerance(tmp_path):
     g = read_graph(p)
     np.testing.assert_array_equal(g.vertex_quaternions[3], [0, 0, 0, 1])
     write_graph(p, g)
-    assert "VERTEX_SE3:QUAT 3 0.0 0.0 0.0 0.0 0.0 0.0 1.0\n" in p.read_text()
+    assert "VERTEX_SE3:QUAT 3 0 0 0 0 0 0 1\n" in p.read_text()
 
 
 @pytest.mark.parametrize(
@@ -552,3 +552,27 @@ def test_other_malformed_3d_files(tmp_path, text, line, match):
         read_graph(p)
     assert info.value.line == line
     assert str(info.value).startswith(f"{p}:{line}: ")
+
+
+def test_text_that_the_core_leaves_to_python_reads_the_same(tmp_path):
+    """A non-ASCII comment, Python's wider whitespace (no-break space, \\x1f) and a record the
+    core's number syntax refuses ("+-" is not a number, reported at its line) go to the plain
+    path of the reader: the same graph, the same errors."""
+    ascii_file, wide = tmp_path / "a.g2o", tmp_path / "b.g2o"
+    ascii_file.write_text(GOOD_3D + "FIX 0\n")
+    wide.write_text(
+        GOOD_3D.replace("# a 3-D graph", "# un graphe 3-D, café").replace(
+            " 1 1 0", "\u00a01\x1f1 0"
+        )
+        + "FIX\u00a00\n",
+        encoding="utf-8",
+    )
+    a, b = read_graph(ascii_file), read_graph(wide)
+    for field in ("vertex_ids", "poses", "edge_from", "edge_to", "information", "fixed"):
+        np.testing.assert_array_equal(getattr(b, field), getattr(a, field))
+    np.testing.assert_array_equal(b.measurements.cov, a.measurements.cov)
+    bad = tmp_path / "c.g2o"
+    bad.write_text(GOOD_3D.replace("VERTEX_SE3:QUAT 2 2 0", "VERTEX_SE3:QUAT 2 +-2 0"))
+    with pytest.raises(FileFormatError, match="'\\+-2' is not a number") as info:
+        read_graph(bad)
+    assert info.value.line == 5

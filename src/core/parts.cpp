@@ -2,7 +2,9 @@
 #include "core.hpp"
 #include "blocks.hpp"
 #include "ekf.hpp"
+#include "graphfile.hpp"
 #include "linearize.hpp"
+#include "linearize3.hpp"
 #include "ordering.hpp"
 #include "se3.hpp"
 #include "sparse_chol.hpp"
@@ -15,7 +17,9 @@ void register_parts(nb::module_& m) {
     register_blocks(m);
     register_ordering(m);
     register_linearize(m);
+    register_linearize3(m);
     register_ekf(m);
+    register_graphfile(m);
 }
 
 }  // namespace relmap

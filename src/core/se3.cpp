@@ -52,6 +52,7 @@ struct V3 {
 struct Work {
     M3 m[13];
     V3 v[3];
+    Lanes nan;  // the overflow watch of the outputs (see watch)
 };
 
 Work& workspace() {
@@ -60,8 +61,12 @@ Work& workspace() {
     return *work;
 }
 
+// The lanes a chunk of w elements computes: w rounded up to a multiple of 8 (whole vectors), so
+// that one pair costs a few lanes, not a whole chunk.
+inline size_t lanes(size_t w) { return std::min(W, (w + 7) & ~size_t(7)); }
+
 // Rows (r0..r0+3, c0..c0+3) of a chunk of an entry-major (R, C, N) array (any strides) into a
-// 3×3 block; lanes beyond w are zero.
+// 3×3 block; lanes beyond w (up to lanes(w)) are zero.
 template <class A>
 void load(const A& a, size_t r0, size_t c0, size_t n0, size_t w, M3& out) {
     const double* p = a.data();
@@ -74,7 +79,7 @@ void load(const A& a, size_t r0, size_t c0, size_t n0, size_t w, M3& out) {
                 std::copy(q, q + w, o);
             else
                 for (size_t l = 0; l < w; ++l) o[l] = q[int64_t(l) * s2];
-            std::fill(o + w, o + W, 0.0);
+            std::fill(o + w, o + lanes(w), 0.0);
         }
 }
 
@@ -88,7 +93,7 @@ void load_column(const A& a, size_t c, size_t n0, size_t w, V3& out) {
             std::copy(q, q + w, out.v[i]);
         else
             for (size_t l = 0; l < w; ++l) out.v[i][l] = q[int64_t(l) * s2];
-        std::fill(out.v[i] + w, out.v[i] + W, 0.0);
+        std::fill(out.v[i] + w, out.v[i] + lanes(w), 0.0);
     }
 }
 
@@ -96,44 +101,44 @@ inline void put(double* out, size_t N, size_t entry, size_t n0, size_t w, const 
     std::copy(lanes, lanes + w, out + entry * N + n0);
 }
 
-inline void mul(const M3& a, const M3& b, M3& o) {  // o = a b (o distinct from a, b)
+inline void mul(size_t n, const M3& a, const M3& b, M3& o) {  // o = a b (o distinct from a, b)
     for (size_t i = 0; i < 3; ++i)
         for (size_t j = 0; j < 3; ++j)
-            for (size_t l = 0; l < W; ++l)
+            for (size_t l = 0; l < n; ++l)
                 o.m[3 * i + j][l] = a.m[3 * i][l] * b.m[j][l] + a.m[3 * i + 1][l] * b.m[3 + j][l] +
                                     a.m[3 * i + 2][l] * b.m[6 + j][l];
 }
 
-inline void mul_t(const M3& a, const M3& b, M3& o) {  // o = a bᵀ
+inline void mul_t(size_t n, const M3& a, const M3& b, M3& o) {  // o = a bᵀ
     for (size_t i = 0; i < 3; ++i)
         for (size_t j = 0; j < 3; ++j)
-            for (size_t l = 0; l < W; ++l)
+            for (size_t l = 0; l < n; ++l)
                 o.m[3 * i + j][l] = a.m[3 * i][l] * b.m[3 * j][l] +
                                     a.m[3 * i + 1][l] * b.m[3 * j + 1][l] +
                                     a.m[3 * i + 2][l] * b.m[3 * j + 2][l];
 }
 
-inline void t_mul(const M3& a, const M3& b, M3& o) {  // o = aᵀ b
+inline void t_mul(size_t n, const M3& a, const M3& b, M3& o) {  // o = aᵀ b
     for (size_t i = 0; i < 3; ++i)
         for (size_t j = 0; j < 3; ++j)
-            for (size_t l = 0; l < W; ++l)
+            for (size_t l = 0; l < n; ++l)
                 o.m[3 * i + j][l] = a.m[i][l] * b.m[j][l] + a.m[3 + i][l] * b.m[3 + j][l] +
                                     a.m[6 + i][l] * b.m[6 + j][l];
 }
 
-inline void add_to(M3& a, const M3& b) {  // a += b
+inline void add_to(size_t n, M3& a, const M3& b) {  // a += b
     for (size_t k = 0; k < 9; ++k)
-        for (size_t l = 0; l < W; ++l) a.m[k][l] += b.m[k][l];
+        for (size_t l = 0; l < n; ++l) a.m[k][l] += b.m[k][l];
 }
 
-inline void add_t_to(M3& a, const M3& b) {  // a += bᵀ
+inline void add_t_to(size_t n, M3& a, const M3& b) {  // a += bᵀ
     for (size_t i = 0; i < 3; ++i)
         for (size_t j = 0; j < 3; ++j)
-            for (size_t l = 0; l < W; ++l) a.m[3 * i + j][l] += b.m[3 * j + i][l];
+            for (size_t l = 0; l < n; ++l) a.m[3 * i + j][l] += b.m[3 * j + i][l];
 }
 
-inline void hat(const V3& u, double sign, M3& o) {  // o = sign [u]×
-    for (size_t l = 0; l < W; ++l) {
+inline void hat(size_t n, const V3& u, double sign, M3& o) {  // o = sign [u]×
+    for (size_t l = 0; l < n; ++l) {
         o.m[0][l] = o.m[4][l] = o.m[8][l] = 0.0;
         o.m[1][l] = -sign * u.v[2][l];
         o.m[2][l] = sign * u.v[1][l];
@@ -145,46 +150,67 @@ inline void hat(const V3& u, double sign, M3& o) {  // o = sign [u]×
 }
 
 // R M Rᵀ (rotate, R_left = false: Rᵀ M R) into o; tmp is scratch.
-inline void rotate(const M3& R, const M3& M, bool transpose, M3& tmp, M3& o) {
+inline void rotate(size_t n, const M3& R, const M3& M, bool transpose, M3& tmp, M3& o) {
     if (transpose) {
-        t_mul(R, M, tmp);
-        mul(tmp, R, o);
+        t_mul(n, R, M, tmp);
+        mul(n, tmp, R, o);
     } else {
-        mul(R, M, tmp);
-        mul_t(tmp, R, o);
+        mul(n, R, M, tmp);
+        mul_t(n, tmp, R, o);
     }
 }
 
 // The shear [[I, S], [0, I]] C [[I, S], [0, I]]ᵀ of C = [[A, B], [Bᵀ, D]]: its block (0, 1)
 // B + S D into e, then (0, 0) A + S Bᵀ + e Sᵀ into a; block (1, 1) stays D. tmp is scratch.
-inline void shear(const M3& S, const M3& A, const M3& B, const M3& D, M3& tmp, M3& a, M3& e) {
-    mul(S, D, e);
-    add_to(e, B);
-    mul_t(S, B, a);
-    add_to(a, A);
-    mul_t(e, S, tmp);
-    add_to(a, tmp);
+inline void shear(size_t n, const M3& S, const M3& A, const M3& B, const M3& D, M3& tmp, M3& a, M3& e) {
+    mul(n, S, D, e);
+    add_to(n, e, B);
+    mul_t(n, S, B, a);
+    add_to(n, a, A);
+    mul_t(n, e, S, tmp);
+    add_to(n, a, tmp);
+}
+
+// Adds x·0 of every lane of the blocks to `nan`: it stays 0 while they are finite, and becomes NaN
+// for good at an inf or NaN (the overflow check of relmap's results, done on data in cache).
+inline void watch(size_t n, Lanes& nan, const double* x, size_t count) {
+    for (size_t k = 0; k < count; ++k)
+        for (size_t l = 0; l < n; ++l) nan[l] += x[k * W + l] * 0.0;
+}
+
+inline bool finite(const Lanes& nan) {
+    double s = 0.0;
+    for (size_t l = 0; l < W; ++l) s += nan[l];
+    return s == 0.0;
 }
 
 // Writes a chunk's covariances from blocks (0, 0) a, (0, 1) e, (1, 1) d; a and d (symmetric to
 // rounding) averaged with their transposes so that the result is exactly symmetric.
-void write_cov(double* out, size_t N, size_t n0, size_t w, const M3& a, const M3& e, const M3& d) {
+void write_cov(double* out, size_t N, size_t n0, size_t w, const M3& a, const M3& e, const M3& d,
+               Lanes& nan) {
+    const size_t n = lanes(w);
+    watch(n, nan, a.m[0], 9);
+    watch(n, nan, e.m[0], 9);
+    watch(n, nan, d.m[0], 9);
     Lanes s;
     for (size_t i = 0; i < 3; ++i)
         for (size_t j = 0; j < 3; ++j) {
-            for (size_t l = 0; l < W; ++l) s[l] = 0.5 * (a.m[3 * i + j][l] + a.m[3 * j + i][l]);
+            for (size_t l = 0; l < n; ++l) s[l] = 0.5 * (a.m[3 * i + j][l] + a.m[3 * j + i][l]);
             put(out, N, 6 * i + j, n0, w, s);
-            for (size_t l = 0; l < W; ++l) s[l] = 0.5 * (d.m[3 * i + j][l] + d.m[3 * j + i][l]);
+            for (size_t l = 0; l < n; ++l) s[l] = 0.5 * (d.m[3 * i + j][l] + d.m[3 * j + i][l]);
             put(out, N, 6 * (3 + i) + 3 + j, n0, w, s);
             put(out, N, 6 * i + 3 + j, n0, w, e.m[3 * i + j]);
             put(out, N, 6 * (3 + j) + i, n0, w, e.m[3 * i + j]);
         }
 }
 
-void write_pose(double* out, size_t N, size_t n0, size_t w, const M3& R, const V3& t) {
+void write_pose(double* out, size_t N, size_t n0, size_t w, const M3& R, const V3& t,
+                Lanes& nan) {
+    watch(lanes(w), nan, R.m[0], 9);
+    watch(lanes(w), nan, t.v[0], 3);
     Lanes zero, one;
-    std::fill(zero, zero + W, 0.0);
-    std::fill(one, one + W, 1.0);
+    std::fill(zero, zero + w, 0.0);
+    std::fill(one, one + w, 1.0);
     for (size_t i = 0; i < 3; ++i) {
         for (size_t j = 0; j < 3; ++j) put(out, N, 4 * i + j, n0, w, R.m[3 * i + j]);
         put(out, N, 4 * i + 3, n0, w, t.v[i]);
@@ -214,67 +240,71 @@ nb::tuple compound3(Pose Ta, Cov Ca, Pose Tb, Cov Cb, std::optional<Cov> X) {
     if (X) batch_size(N, {X->shape(2)});
     double* To = new double[16 * N];
     double* Co = new double[36 * N];
+    bool ok;
     {
         nb::gil_scoped_release release;
         Work& work = workspace();
+        Lanes& nan = work.nan;
+        std::fill(nan, nan + W, 0.0);
         auto& [Ra, Rb, R, S, a, e, d, blk, tmp, k11, k12, x21, x22] = work.m;
         auto& [ta, tb, t] = work.v;
         for (size_t n0 = 0; n0 < N; n0 += W) {
-            const size_t w = std::min(W, N - n0);
+            const size_t w = std::min(W, N - n0), n = lanes(w);
             load(Ta, 0, 0, n0, w, Ra);
             load(Tb, 0, 0, n0, w, Rb);
             load_column(Ta, 3, n0, w, ta);
             load_column(Tb, 3, n0, w, tb);
             // the mean: (Ra Rb, ta + u) with u = Ra tb
-            mul(Ra, Rb, R);
+            mul(n, Ra, Rb, R);
             for (size_t i = 0; i < 3; ++i)
-                for (size_t l = 0; l < W; ++l)
+                for (size_t l = 0; l < n; ++l)
                     t.v[i][l] = Ra.m[3 * i][l] * tb.v[0][l] + Ra.m[3 * i + 1][l] * tb.v[1][l] +
                                 Ra.m[3 * i + 2][l] * tb.v[2][l];
-            hat(t, -1.0, S);  // S = -[u]× (t holds u here)
+            hat(n, t, -1.0, S);  // S = -[u]× (t holds u here)
             for (size_t i = 0; i < 3; ++i)
-                for (size_t l = 0; l < W; ++l) t.v[i][l] += ta.v[i][l];
-            write_pose(To, N, n0, w, R, t);
+                for (size_t l = 0; l < n; ++l) t.v[i][l] += ta.v[i][l];
+            write_pose(To, N, n0, w, R, t, nan);
             // J_a C_a J_aᵀ: the shear; block (1, 1) is D_a
             M3& A = R;  // R is written out: reuse its storage
             load(Ca, 0, 0, n0, w, A);
             load(Ca, 0, 3, n0, w, blk);
             load(Ca, 3, 3, n0, w, d);
-            shear(S, A, blk, d, tmp, a, e);
+            shear(n, S, A, blk, d, tmp, a, e);
             // + J_b C_b J_bᵀ: each block rotated by Ra
             load(Cb, 0, 0, n0, w, blk);
-            rotate(Ra, blk, false, tmp, Rb);
-            add_to(a, Rb);
+            rotate(n, Ra, blk, false, tmp, Rb);
+            add_to(n, a, Rb);
             load(Cb, 0, 3, n0, w, blk);
-            rotate(Ra, blk, false, tmp, Rb);
-            add_to(e, Rb);
+            rotate(n, Ra, blk, false, tmp, Rb);
+            add_to(n, e, Rb);
             load(Cb, 3, 3, n0, w, blk);
-            rotate(Ra, blk, false, tmp, Rb);
-            add_to(d, Rb);
+            rotate(n, Ra, blk, false, tmp, Rb);
+            add_to(n, d, Rb);
             if (X) {  // + K + Kᵀ, K = J_a X J_bᵀ = [[X11 + S X21, X12 + S X22], [X21, X22]] Raᵀ
                 load(*X, 3, 0, n0, w, x21);
                 load(*X, 3, 3, n0, w, x22);
                 load(*X, 0, 0, n0, w, blk);
-                mul(S, x21, k11);
-                add_to(k11, blk);
-                mul_t(k11, Ra, tmp);  // K11
-                add_to(a, tmp);
-                add_t_to(a, tmp);
+                mul(n, S, x21, k11);
+                add_to(n, k11, blk);
+                mul_t(n, k11, Ra, tmp);  // K11
+                add_to(n, a, tmp);
+                add_t_to(n, a, tmp);
                 load(*X, 0, 3, n0, w, blk);
-                mul(S, x22, k12);
-                add_to(k12, blk);
-                mul_t(k12, Ra, tmp);  // K12
-                add_to(e, tmp);
-                mul_t(x21, Ra, tmp);  // K21
-                add_t_to(e, tmp);
-                mul_t(x22, Ra, tmp);  // K22
-                add_to(d, tmp);
-                add_t_to(d, tmp);
+                mul(n, S, x22, k12);
+                add_to(n, k12, blk);
+                mul_t(n, k12, Ra, tmp);  // K12
+                add_to(n, e, tmp);
+                mul_t(n, x21, Ra, tmp);  // K21
+                add_t_to(n, e, tmp);
+                mul_t(n, x22, Ra, tmp);  // K22
+                add_to(n, d, tmp);
+                add_t_to(n, d, tmp);
             }
-            write_cov(Co, N, n0, w, a, e, d);
+            write_cov(Co, N, n0, w, a, e, d, nan);
         }
+        ok = finite(nan);
     }
-    return nb::make_tuple(owned<PoseOut, 4, 4>(To, N), owned<CovOut, 6, 6>(Co, N));
+    return nb::make_tuple(owned<PoseOut, 4, 4>(To, N), owned<CovOut, 6, 6>(Co, N), ok);
 }
 
 // Aᴿ for N poses: T⁻¹ = (Rᵀ, -Rᵀ t), C' = M C Mᵀ with M = blkdiag(Rᵀ, Rᵀ) [[I, [t]×], [0, I]].
@@ -283,37 +313,41 @@ nb::tuple reverse3(Pose T, Cov C) {
     const size_t N = batch_size(T.shape(2), {C.shape(2)});
     double* To = new double[16 * N];
     double* Co = new double[36 * N];
+    bool ok;
     {
         nb::gil_scoped_release release;
         Work& work = workspace();
+        Lanes& nan = work.nan;
+        std::fill(nan, nan + W, 0.0);
         auto& [R, Rt, S, A, B, D, a, e, tmp, o1, o2, o3, spare] = work.m;
         auto& [t, v, spare_v] = work.v;
         (void)spare;
         (void)spare_v;
         for (size_t n0 = 0; n0 < N; n0 += W) {
-            const size_t w = std::min(W, N - n0);
+            const size_t w = std::min(W, N - n0), n = lanes(w);
             load(T, 0, 0, n0, w, R);
             load_column(T, 3, n0, w, t);
             for (size_t i = 0; i < 3; ++i)
                 for (size_t j = 0; j < 3; ++j)
-                    for (size_t l = 0; l < W; ++l) Rt.m[3 * i + j][l] = R.m[3 * j + i][l];
+                    for (size_t l = 0; l < n; ++l) Rt.m[3 * i + j][l] = R.m[3 * j + i][l];
             for (size_t i = 0; i < 3; ++i)
-                for (size_t l = 0; l < W; ++l)
+                for (size_t l = 0; l < n; ++l)
                     v.v[i][l] = -(R.m[i][l] * t.v[0][l] + R.m[3 + i][l] * t.v[1][l] +
                                   R.m[6 + i][l] * t.v[2][l]);
-            write_pose(To, N, n0, w, Rt, v);
+            write_pose(To, N, n0, w, Rt, v, nan);
             load(C, 0, 0, n0, w, A);
             load(C, 0, 3, n0, w, B);
             load(C, 3, 3, n0, w, D);
-            hat(t, 1.0, S);  // S = [t]×
-            shear(S, A, B, D, tmp, a, e);
-            rotate(R, a, true, tmp, o1);  // Rᵀ X R for each block
-            rotate(R, e, true, tmp, o2);
-            rotate(R, D, true, tmp, o3);
-            write_cov(Co, N, n0, w, o1, o2, o3);
+            hat(n, t, 1.0, S);  // S = [t]×
+            shear(n, S, A, B, D, tmp, a, e);
+            rotate(n, R, a, true, tmp, o1);  // Rᵀ X R for each block
+            rotate(n, R, e, true, tmp, o2);
+            rotate(n, R, D, true, tmp, o3);
+            write_cov(Co, N, n0, w, o1, o2, o3, nan);
         }
+        ok = finite(nan);
     }
-    return nb::make_tuple(owned<PoseOut, 4, 4>(To, N), owned<CovOut, 6, 6>(Co, N));
+    return nb::make_tuple(owned<PoseOut, 4, 4>(To, N), owned<CovOut, 6, 6>(Co, N), ok);
 }
 
 }  // namespace
@@ -322,9 +356,11 @@ void register_se3(nb::module_& m) {
     m.def("compound3", &compound3, nb::arg("Ta"), nb::arg("Ca"), nb::arg("Tb"), nb::arg("Cb"),
           nb::arg("X").none(),
           "a ⊕ b for N SE(3) pairs, entry-major (4, 4, N) poses and (6, 6, N) covariances (any "
-          "strides), X the (6, 6, N) cross-covariance E[δa δbᵀ] or None: new (T, C) arrays.");
+          "strides), X the (6, 6, N) cross-covariance E[δa δbᵀ] or None: new (T, C) arrays and "
+          "whether all their entries are finite.");
     m.def("reverse3", &reverse3, nb::arg("T"), nb::arg("C"),
-          "Aᴿ for N SE(3) poses, entry-major (4, 4, N) and (6, 6, N) (any strides): new (T, C).");
+          "Aᴿ for N SE(3) poses, entry-major (4, 4, N) and (6, 6, N) (any strides): new (T, C) "
+          "and whether all their entries are finite.");
 }
 
 }  // namespace relmap

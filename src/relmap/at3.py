@@ -298,13 +298,10 @@ class AT3(UncertainPose):
             raise uncertain.broadcast_error(
                 "compound", *shapes, *([] if cross_cov is None else [cross_cov.shape[:-2]])
             ) from None
-        out = _compound_batched(self, other, cross_cov, batch)
-        check_result("compound", out._mean, out._cov)
-        return out
+        return _compound_batched(self, other, cross_cov, batch)
 
     def _reverse(self, jacobian: bool) -> AT3 | tuple[AT3, FloatArray]:
         out = _reverse_batched(self)
-        check_result("reverse", out._mean, out._cov)
         if jacobian:
             return out, se3.inverse(self._mean, jacobians=True)[1]
         return out
@@ -378,20 +375,24 @@ def _logical(p: FloatArray, batch: tuple[int, ...]) -> FloatArray:
 
 def _compound_batched(a: AT3, b: AT3, X: FloatArray | None, batch: tuple[int, ...]) -> AT3:
     N = math.prod(batch)
-    To, Co = _core.compound3(
+    To, Co, finite = _core.compound3(
         _planes(a._mean, batch, N),
         _planes(a._cov, batch, N),
         _planes(b._mean, batch, N),
         _planes(b._cov, batch, N),
         None if X is None else _planes(X, batch, N),
     )
+    if not finite:  # the core watched its results for inf and NaN
+        raise uncertain.overflow_error("compound")
     return AT3._own(_logical(To, batch), _logical(Co, batch))
 
 
 def _reverse_batched(a: AT3) -> AT3:
     batch = a.batch_shape
     N = math.prod(batch)
-    To, Co = _core.reverse3(_planes(a._mean, batch, N), _planes(a._cov, batch, N))
+    To, Co, finite = _core.reverse3(_planes(a._mean, batch, N), _planes(a._cov, batch, N))
+    if not finite:
+        raise uncertain.overflow_error("reverse")
     return AT3._own(_logical(To, batch), _logical(Co, batch))
 
 

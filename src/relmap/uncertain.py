@@ -223,10 +223,16 @@ def check_result(what: str, *arrays: FloatArray) -> None:
         # finite are the entries tested, since a sum of huge finite entries can overflow too
         total = sum(arr.ravel().tolist()) if arr.size <= 64 else np.add.reduce(arr, axis=None)
         if not math.isfinite(total) and not np.isfinite(arr).all():
-            raise NumericalError(
-                f"{what} overflowed the floating-point range (inputs too large): the result "
-                "would hold inf or NaN"
-            )
+            raise overflow_error(what)
+
+
+def overflow_error(what: str) -> NumericalError:
+    """The error of a result of relmap's own arithmetic that overflowed (:func:`check_result`;
+    relmap's compiled core reports it for the results it makes)."""
+    return NumericalError(
+        f"{what} overflowed the floating-point range (inputs too large): the result would hold "
+        "inf or NaN"
+    )
 
 
 def checked_cross_cov(Ca: FloatArray, Cb: FloatArray, value: ArrayLike, n: int) -> FloatArray:

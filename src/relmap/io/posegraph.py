@@ -93,7 +93,7 @@ from typing import Literal, NamedTuple, TypeVar
 import numpy as np
 import numpy.typing as npt
 
-from relmap import gaussian
+from relmap import _core, gaussian
 from relmap.at import AT
 from relmap.at3 import AT3
 from relmap.errors import (
@@ -302,7 +302,7 @@ def _classify(path: Path, first_line: dict[str, int]) -> _Spec:
 
 
 class _Table(NamedTuple):
-    lines: list[int]  # 1-based line numbers
+    lines: Sequence[int]  # 1-based line numbers
     ids: IntArray  # (k, n_ids)
     values: FloatArray  # (k, n_values)
 
@@ -310,20 +310,8 @@ class _Table(NamedTuple):
 def _parse(
     path: Path, tag: str, records: _Records, n_ids: int, n_values: int, fields: str
 ) -> tuple[IntArray, FloatArray]:
-    """``(ids (k, n_ids), values (k, n_values))`` of one tag's records, with numpy's C parser.
-
-    On any failure the records are parsed again one by one, to report the offending line.
-    """
-    if not records.rests:
-        return np.empty((0, n_ids), dtype=np.int64), np.empty((0, n_values))
-    # Structured rows for numpy's C text parser: integer ids, then float64 values.
-    dtype = np.dtype([("ids", np.int64, (n_ids,)), ("values", np.float64, (n_values,))])
-    try:
-        rows = np.loadtxt(records.rests, dtype=dtype, comments=None, ndmin=1)
-        if rows.shape == (len(records.rests),):
-            return rows["ids"], rows["values"]
-    except ValueError:
-        pass
+    """``(ids (k, n_ids), values (k, n_values))`` of one tag's records, line by line: the plain
+    path of :func:`_records`, which names the first line that does not parse."""
     ids = np.empty((len(records.rests), n_ids), dtype=np.int64)
     values = np.empty((len(records.rests), n_values))
     for k, (line, rest) in enumerate(zip(records.lines, records.rests, strict=True)):
@@ -492,6 +480,54 @@ def _compose_tree(n: int, a: IntArray, b: IntArray, Z: FloatArray) -> FloatArray
     return poses
 
 
+#: The record tags, their ids and numbers per line (-1: FIX, any positive number of ids).
+_TAGS = list(_KIND_OF_TAG)
+_SHAPES = {"FIX": (-1, 0)}
+for _spec in _SPECS.values():
+    _SHAPES[_spec.vertex] = (1, _spec.pose_size)
+    _SHAPES[_spec.edge] = (2, _spec.measurement_size + len(_spec.info_order))
+
+
+def _records(p: Path, text: str) -> tuple[_Spec, _Table, _Table, IntArray, list[int]]:
+    """The file's spec, its vertex and edge tables, the FIX ids and their lines.
+
+    Read by relmap's compiled core (``relmap._core.scan_records``: one pass, no Python per
+    line); a text it leaves to the plain path (a record that does not parse, whose error needs
+    the line's own message, or a non-ASCII or control byte: Python's whitespace is wider) is
+    read line by line in Python, which names the offending line."""
+    shapes = [_SHAPES[t] for t in _TAGS]
+    fast = _core.scan_records(text, _TAGS, [a for a, _ in shapes], [b for _, b in shapes])
+    if fast is not None:
+        first_line, tables = fast
+        spec = _classify(p, first_line)
+        table = dict(zip(_TAGS, tables, strict=True))
+        vtx, edg = (
+            _Table(ln.tolist(), *rest) for ln, *rest in (table[spec.vertex], table[spec.edge])
+        )
+        if spec.fix is None:  # TORO: no FIX records (_classify refuses them)
+            return spec, vtx, edg, np.empty(0, np.int64), []
+        fix_lines, fix_ids, _ = table[spec.fix]
+        return spec, vtx, edg, fix_ids[:, 0], fix_lines.tolist()
+    spec, groups = _group(p, text)
+    empty = _Records([], [])
+    records = groups.get(spec.vertex, empty)
+    vtx = _Table(
+        records.lines, *_parse(p, spec.vertex, records, 1, spec.pose_size, spec.vertex_fields)
+    )
+    records = groups.get(spec.edge, empty)
+    n_edge_values = spec.measurement_size + len(spec.info_order)
+    edg = _Table(records.lines, *_parse(p, spec.edge, records, 2, n_edge_values, spec.edge_fields))
+    fixed: list[int] = []
+    fixed_lines: list[int] = []
+    for line, rest in zip(*groups.get(spec.fix or "", empty), strict=True):
+        if not rest.split():
+            raise FileFormatError(p, "FIX needs at least one vertex id", line=line)
+        for tok in rest.split():
+            fixed.append(_int(p, "FIX", tok, line))
+            fixed_lines.append(line)
+    return spec, vtx, edg, np.array(fixed, dtype=np.int64), fixed_lines
+
+
 def read_graph(path: str | os.PathLike[str]) -> PoseGraph:
     """Read a 2-D or 3-D pose graph in g2o or TORO format (recognised from the first record's
     tag).
@@ -515,26 +551,9 @@ def read_graph(path: str | os.PathLike[str]) -> PoseGraph:
 def graph_from_text(p: Path, text: str) -> PoseGraph:
     """:func:`read_graph` of text already read (:func:`relmap.io.textfile.read_text`) from the
     file ``p`` (named in errors): a pipe can be read only once."""
-    fixed_list: list[int] = []
-    fixed_lines: list[int] = []
-    spec, groups = _group(p, text)
-    empty = _Records([], [])
-    records = groups.get(spec.vertex, empty)
-    vtx = _Table(
-        records.lines, *_parse(p, spec.vertex, records, 1, spec.pose_size, spec.vertex_fields)
-    )
-    records = groups.get(spec.edge, empty)
-    n_edge_values = spec.measurement_size + len(spec.info_order)
-    edg = _Table(records.lines, *_parse(p, spec.edge, records, 2, n_edge_values, spec.edge_fields))
-    for line, rest in zip(*groups.get(spec.fix or "", empty), strict=True):
-        if not rest.split():
-            raise FileFormatError(p, "FIX needs at least one vertex id", line=line)
-        for tok in rest.split():
-            fixed_list.append(_int(p, "FIX", tok, line))
-            fixed_lines.append(line)
+    spec, vtx, edg, fixed, fixed_lines = _records(p, text)
     vertex_ids, poses = vtx.ids[:, 0], vtx.values
     edge_ids, edge_values = edg.ids, edg.values
-    fixed = np.array(fixed_list, dtype=np.int64)
 
     for tag, values, lines in (
         (spec.vertex, poses, vtx.lines),
@@ -544,7 +563,7 @@ def graph_from_text(p: Path, text: str) -> PoseGraph:
         fail_at(p, bad, lines, f"non-finite number in a {tag} line (values must be finite)")
 
     # iSAM's EDGE3 files have no vertex lines: the edges name the vertices.
-    implied = spec.edge == "EDGE3" and not vtx.lines and bool(edg.lines)
+    implied = spec.edge == "EDGE3" and not len(vtx.lines) and bool(len(edg.lines))
     if implied:
         vertex_ids = np.unique(edge_ids)
 
@@ -674,8 +693,9 @@ def write_graph(
     measurement mean and the information matrix exactly as stored, in the format's field order.
     3-D rotations are written as quaternions ``qx qy qz qw`` with ``qw ≥ 0``: the ones the graph
     kept from its file where they still give the rotation exactly, else the rotation's own.
-    Numbers are written with full precision (``repr``), so reading the file back gives the same
-    arrays bit for bit. The legacy 3-D ``EDGE3`` format is not written (:class:`ParameterError`;
+    Numbers are written in their shortest round-trip decimal form (relmap's compiled core,
+    ``std::to_chars``: ``1`` for 1.0), so reading the file back gives the same arrays bit for
+    bit. The legacy 3-D ``EDGE3`` format is not written (:class:`ParameterError`;
     see the module docstring). Nothing is written if anything is invalid.
     """
     group = getattr(graph.measurements, "group", None)
@@ -724,21 +744,27 @@ def write_graph(
         eq = _written_quaternions(mean[:, :3, :3], graph.edge_quaternions)
         vertex_values = np.concatenate([pose_arr[:, :3, 3], vq], axis=1)
         edge_values = np.concatenate([mean[:, :3, 3], eq, info], axis=1)
-    out = [
-        f"{spec.vertex} {i} " + " ".join(map(repr, v))
-        for i, v in zip(ids.tolist(), vertex_values.tolist(), strict=True)
-    ]
-    out += [f"{spec.fix} {i}" for i in fixed.tolist()]
-    out += [
-        f"{spec.edge} {i} {j} " + " ".join(map(repr, v))
-        for i, j, v in zip(
-            np.asarray(graph.edge_from).tolist(),
-            np.asarray(graph.edge_to).tolist(),
-            edge_values.tolist(),
-            strict=True,
-        )
-    ]
-    write_text_atomic(path, "\n".join(out) + "\n" if out else "")
+    text = "".join(
+        [
+            _core.format_records(spec.vertex, _ids(ids), _values(vertex_values)),
+            _core.format_records(spec.fix or "FIX", _ids(fixed), np.empty((len(fixed), 0))),
+            _core.format_records(
+                spec.edge,
+                _ids(np.column_stack([graph.edge_from, graph.edge_to]), 2),
+                _values(edge_values),
+            ),
+        ]
+    )
+    write_text_atomic(path, text)
+
+
+def _ids(ids: ArrayLike, columns: int = 1) -> IntArray:
+    arr = np.asarray(ids, dtype=np.int64)
+    return np.ascontiguousarray(arr.reshape(len(arr), columns))
+
+
+def _values(values: FloatArray) -> FloatArray:
+    return np.ascontiguousarray(values, dtype=np.float64)
 
 
 def file_information(measurements: AT | AT3, format: GraphFormat = "g2o") -> FloatArray:

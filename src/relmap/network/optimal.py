@@ -7,12 +7,14 @@ joint covariance (the inverse of the normal matrix at the optimum), by solving f
 columns needed from the one sparse factorization. Exact in the linear case (no angular error),
 where one step reaches the optimum.
 
-Residuals and chart Jacobians come from :mod:`relmap.lie` (numpy, vectorized over the ATs);
-the normal equations are accumulated straight into the sparse matrix's slots by one pass of
-relmap's compiled core (``relmap._core.normal_equations``), and factorized by its sparse
+Planar residuals and chart Jacobians come from :mod:`relmap.lie` (numpy, vectorized over the
+ATs) and their normal equations are accumulated straight into the sparse matrix's slots by one
+pass of relmap's compiled core (``relmap._core.normal_equations``); in 3-D the residuals, their
+Jacobians and the normal equations are one pass of the core (``relmap._core.normal_equations3``,
+:func:`residuals3`, ``src/core/linearize3.cpp``). The matrix is factorized by the core's sparse
 Cholesky (:mod:`relmap.network.sparse`); one Levenberg-Marquardt loop drives the planar
-(:class:`_System`: frames tied into rigid sets and exact headings) and the group
-(:class:`_LieSystem`, any pose group) problems.
+(:class:`_System`: frames tied into rigid sets and exact headings) and the 3-D
+(:class:`_LieSystem`) problems.
 
 Residuals, weights and exact components: see :mod:`relmap.network.problem`.
 """
@@ -29,7 +31,7 @@ from relmap.at import AT
 from relmap.at3 import AT3
 from relmap.errors import NumericalError, SolverError, UnknownFrameError
 from relmap.gaussian import inverse_pd
-from relmap.lie import SE2, Group, se2, so3
+from relmap.lie import SE2, Group, se2
 from relmap.network.problem import Parameterization, Problem, parameterize
 from relmap.network.sparse import SymmetricFactor, SymmetricPattern, selected_inverse_blocks
 from relmap.typing import FloatArray, IntArray
@@ -87,12 +89,16 @@ class Solution:
         final_error: float,
         data: FloatArray | None = None,
         converged: bool = True,
+        stale: bool = False,
     ) -> None:
         self.problem = problem
         self.param = param
         self.poses = poses  #: (n, 3) or (n, 4, 4) optimized frame poses (anchor at its given pose)
         self.group: Group = problem.group
-        self.factor = factor
+        self._factor = factor
+        # whether _factor holds another matrix than _data (factorized on first use: a caller
+        # that wants only the poses never pays for it)
+        self._stale = stale and factor is not None and data is not None
         self.iterations = iterations
         self.initial_error = initial_error  #: Σ rᵀ Σ⁻¹ r at the initial guess
         self.final_error = final_error  #: the same at the optimum
@@ -104,6 +110,16 @@ class Solution:
             list(problem.frames) if problem.frames is not None else list(range(problem.n))
         )
         self._row = {f: k for k, f in enumerate(self.frames)}
+
+    @property
+    def factor(self) -> SymmetricFactor | None:
+        """The sparse Cholesky factorization of the normal matrix at the optimum (None when
+        nothing is free)."""
+        if self._stale:
+            assert self._factor is not None and self._data is not None
+            self._factor.factorize(self._data)
+            self._stale = False
+        return self._factor
 
     def row(self, frame: object) -> int:
         """The row of frame ``frame`` (an id) in :attr:`poses` and :meth:`marginals`."""
@@ -388,30 +404,37 @@ class _System:
         return float(e @ e), vals, grad
 
 
-def _residual(group: Group, d: FloatArray, z: FloatArray) -> tuple[FloatArray, FloatArray | None]:
-    """The residual ``r = d ⊟ z`` (m, dof) of predicted relative poses d against measured z, and
-    its Jacobian with respect to d in the chart (None for SE(2), where it is the identity).
+def residuals3(
+    poses: FloatArray, i: IntArray, j: IntArray, z: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The SE(3) residuals ``r = d ⊟ z = (t_d - t_z, Log(R_d R_zᵀ))`` (m, 6) of the predicted
+    relative poses ``d = T_i⁻¹ T_j`` against measured z (m, 4, 4), and their chart Jacobians
+    ``Ji, Jj`` (m, 6, 6) with respect to frames i and j (relmap's chart on both sides): relmap's
+    compiled core (``relmap._core.residuals3``, ``src/core/linearize3.cpp``).
 
-    In SE(3), ``r = (t_d - t_z, Log(R_d R_zᵀ))``: exactly the noise of relmap's measurement model
-    ``z = d ⊞ n``, ``n ~ N(0, Σ)`` (up to sign), so ``Σ rᵀ Σ⁻¹ r`` is its negative
-    log-likelihood, and in the plane it is the planar residual. A left perturbation δφ of R_d
-    moves the rotation part by ``J_l(r_φ)⁻¹ δφ``. GTSAM's between factor weighs ``Log(z⁻¹ d)``
+    The residual is exactly the noise of relmap's measurement model ``z = d ⊞ n``,
+    ``n ~ N(0, Σ)`` (up to sign), so ``Σ rᵀ Σ⁻¹ r`` is its negative log-likelihood, and in the
+    plane it is the planar residual. A left perturbation δφ of R_d moves the rotation part by
+    ``J_l(r_φ)⁻¹ δφ``, so ``Jj = blkdiag(I, J_l⁻¹) blkdiag(R_iᵀ, R_iᵀ)`` and
+    ``Ji = -Jj [[I, -[t_j - t_i]×], [0, I]]``. GTSAM's between factor weighs ``Log(z⁻¹ d)``
     instead, which agrees to first order; the optima differ at second order in the residuals.
     """
-    if group is SE2:
-        return group.minus(d, z), None
-    r = group.minus(d, z)
-    Jr = np.zeros((len(r), 6, 6))
-    Jr[:, 0, 0] = Jr[:, 1, 1] = Jr[:, 2, 2] = 1.0
-    Jr[:, 3:, 3:] = so3.left_jacobian_inverse(r[:, 3:])
-    return r, Jr
+    c = np.ascontiguousarray
+    return _core.residuals3(  # type: ignore[no-any-return]
+        c(poses, dtype=np.float64),
+        c(i, dtype=np.int64),
+        c(j, dtype=np.int64),
+        c(z, dtype=np.float64),
+    )
 
 
 class _LieSystem:
-    """Residuals, Jacobians and normal equations for any pose group, from its Jacobians.
+    """Residuals, Jacobians and normal equations of 3-D pose graphs (:data:`relmap.lie.SE3`).
 
-    The standard layout only: every frame but the anchor owns one ``dof`` parameter block and a
-    step moves it in the chart, ``p_f ← p_f ⊞ δ_f``. The block contributions are laid out
+    The standard layout only: every frame but the anchor owns one 6-parameter block and a
+    step moves it in the chart, ``p_f ← p_f ⊞ δ_f``. The residuals (:func:`residuals3`) and the
+    normal equations of the plain ATs are one pass of relmap's compiled core
+    (``relmap._core.normal_equations3``). The block contributions are laid out
     ``[entry q][block k]`` for :meth:`SymmetricPattern.from_blocks`: the four blocks
     (i,i), (i,j), (j,i), (j,j) of every AT, then every block pair of each dependent group.
     """
@@ -420,7 +443,8 @@ class _LieSystem:
         self.p, self.param, self.w = p, param, w
         self.group, self.dof = p.group, p.group.dof
         b = self.dof
-        self.i, self.j = p.i[w.edges], p.j[w.edges]
+        self.i = np.ascontiguousarray(p.i[w.edges], dtype=np.int64)
+        self.j = np.ascontiguousarray(p.j[w.edges], dtype=np.int64)
         node_of = np.where(param.col[:, 0] >= 0, param.col[:, 0] // b, -1)
         ni, nj = node_of[self.i], node_of[self.j]
         brow, bcol = [ni, ni, nj, nj], [ni, nj, ni, nj]
@@ -434,8 +458,8 @@ class _LieSystem:
             param.size // b, np.concatenate(brow), np.concatenate(bcol), block=b
         )
         g_index = np.concatenate([param.col[self.i].T.reshape(-1), param.col[self.j].T.reshape(-1)])
-        self.g_index = np.where(g_index >= 0, g_index, param.size)
-        self.W = w.W
+        self.g_index = np.ascontiguousarray(np.where(g_index >= 0, g_index, param.size))
+        self.W = np.ascontiguousarray(w.W, dtype=np.float64)
         self._z = np.ascontiguousarray(p.z[w.edges])
         m = len(self.i)  # the plain ATs' contribution slots, AT by AT: (m, [block t][entry q])
         position = self.pattern.position.reshape(b * b, -1)  # [entry q][block k]
@@ -444,14 +468,19 @@ class _LieSystem:
 
     def linearize(self, poses: FloatArray) -> tuple[float, FloatArray, FloatArray, FloatArray]:
         """(cost, poses, normal-matrix CSC data, gradient) at ``poses``."""
-        p, group, b = self.p, self.group, self.dof
-        d, Ji, Jj = group.between(poses[self.i], poses[self.j], jacobians=True)
-        r, Jr = _residual(group, d, p.z[self.w.edges])
-        if Jr is not None:
-            Ji, Jj = Jr @ Ji, Jr @ Jj
-        cost, data, grad = _normal_equations(
-            r, Ji, Jj, self.W, self._slots, self.g_index, self.pattern.nnz, self.param.size
+        b, nnz, size = self.dof, self.pattern.nnz, self.param.size
+        cost, data, grad = _core.normal_equations3(
+            np.ascontiguousarray(poses, dtype=np.float64),
+            self.i,
+            self.j,
+            self._z,
+            self.W,
+            self._slots,
+            self.g_index,
+            nnz,
+            size,
         )
+        cost, data, grad = float(cost), data[:nnz], grad[:size]
         blocks = []
         for (members, Lg), frames in zip(self.w.groups, self.group_frames, strict=True):
             gcost, H, ggrad = self._group(poses, members, Lg, frames)
@@ -469,13 +498,10 @@ class _LieSystem:
     ) -> tuple[float, FloatArray, FloatArray]:
         """One dependent group: cost, its Hessian blocks (f², b, b) in (frame, frame) order,
         and its gradient."""
-        p, group, b = self.p, self.group, self.dof
+        p, b = self.p, self.dof
         k, nf = len(members), len(frames)
         where = np.searchsorted(frames, np.stack([p.i[members], p.j[members]]))
-        d, Ji, Jj = group.between(poses[p.i[members]], poses[p.j[members]], jacobians=True)
-        r, Jr = _residual(group, d, p.z[members])
-        if Jr is not None:
-            Ji, Jj = Jr @ Ji, Jr @ Jj
+        r, Ji, Jj = residuals3(poses, p.i[members], p.j[members], p.z[members])
         J = np.zeros((k, b, nf, b))
         rows = np.arange(k)
         np.add.at(J, (rows, slice(None), where[0]), Ji)  # J[k, :, f, :] += ∂r_k/∂p_f
@@ -518,8 +544,9 @@ def optimize(
     ``max|δ| ≤ xtol·(1 + max|t|)`` (t the poses' translations, m; δ in m and rad) or stops
     lowering the objective. One further Gauss-Newton step then moves the poses by less than
     about 1e-12 relatively. If the polish moved the poses, the normal matrix is factorized
-    once more at the polished poses, so the covariances are those at the returned poses (the
-    last Gauss-Newton iterate's differed by O(polish): 9e-8 relatively on the bridge).
+    once more at the polished poses (when :attr:`Solution.factor` is first used: a caller that
+    wants only the poses does not pay for it), so the covariances are those at the returned
+    poses (the last Gauss-Newton iterate's differed by O(polish): 9e-8 relatively on the bridge).
     ``Solution.converged`` is False when ``max_iterations`` ended the loop instead. An
     objective that overflows raises :class:`relmap.errors.NumericalError`.
 
@@ -590,10 +617,11 @@ def optimize(
             for _ in range(_POLISH_STEPS):
                 if size <= xtol * scale:
                     break
-                trial = linearize(step(state, delta))
+                moved = step(state, delta)
+                trial = linearize(moved)
                 if not trial[0] <= cost * (1.0 + 1e-13) + 1e-300:
                     break
-                state = step(state, delta)
+                state = moved
                 cost, poses, data, grad = trial
                 undamped_at_current = False
                 delta = -factor.solve(grad)
@@ -629,9 +657,9 @@ def optimize(
             nu *= 2.0
             if lam > 1e12:
                 break  # no descent possible: the current point is a minimum to rounding
-    if not undamped_at_current:
-        factor.factorize(data)  # the undamped normal matrix at the optimum, for covariances
-    return Solution(p, param, poses, factor, iterations, initial, cost, data, converged)
+    # the undamped normal matrix at the optimum, for covariances: factorized when first needed
+    stale = not undamped_at_current
+    return Solution(p, param, poses, factor, iterations, initial, cost, data, converged, stale)
 
 
 #: chord steps (with the last factorization) that polish a converged solution to rounding
