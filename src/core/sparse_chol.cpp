@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <memory>
 #include <stdexcept>
 
 #include "arrays.hpp"
@@ -220,7 +221,7 @@ int64_t SparseCholesky::factorize(const double* data) {
     int64_t S = supernodes();
     // Left-looking (Ng & Peyton 1993): head[s] links the supernodes d whose next update goes
     // to s; ptr[d] is the first row of d not yet used.
-    std::vector<int64_t> head(S, -1), next(S, -1), ptr(S, 0), map(n_), rel(n_);
+    std::vector<int64_t> head(S, -1), next(S, -1), ptr(S, 0), map(n_), rel(n_), run(n_ + 1);
     std::vector<double> W(max_update_);
     for (int64_t s = 0; s < S; ++s) {
         const int64_t f = first_[s], l = first_[s + 1], w = l - f;
@@ -239,11 +240,24 @@ int64_t SparseCholesky::factorize(const double* data) {
             // W = L_d[p:, :] L_d[p:p+q, :]ᵀ (r × q, lower part)
             std::fill(W.begin(), W.begin() + r * q, 0.0);
             dense::lower_product(r, q, wd, 1.0, Xd + p, nrd, W.data(), r);
-            for (int64_t ii = 0; ii < r; ++ii) rel[ii] = map[Rd[p + ii]];  // relative indices
-            for (int64_t jj = 0; jj < q; ++jj) {  // scatter-subtract into s's panel
-                double* Xc = Xs + rel[jj] * nr;    // column Rd[p + jj] - f
+            // relative indices, and the runs of consecutive ones (rows of d that are
+            // consecutive rows of s: a frame's parameters at least)
+            int64_t runs = 0;
+            for (int64_t ii = 0; ii < r; ++ii) {
+                rel[ii] = map[Rd[p + ii]];
+                if (ii == 0 || rel[ii] != rel[ii - 1] + 1) run[runs++] = ii;
+            }
+            run[runs] = r;
+            for (int64_t jj = 0, t0 = 0; jj < q; ++jj) {  // scatter-subtract into s's panel
+                double* Xc = Xs + rel[jj] * nr;            // column Rd[p + jj] - f
                 const double* Wj = W.data() + jj * r;
-                for (int64_t ii = jj; ii < r; ++ii) Xc[rel[ii]] -= Wj[ii];
+                while (run[t0 + 1] <= jj) ++t0;
+                for (int64_t t = t0; t < runs; ++t) {  // rows jj … r - 1, run by run
+                    const int64_t lo = std::max(run[t], jj), len = run[t + 1] - lo;
+                    double* to = Xc + rel[lo];
+                    const double* from = Wj + lo;
+                    for (int64_t u = 0; u < len; ++u) to[u] -= from[u];
+                }
             }
             ptr[d] = p + q;
             if (p + q < nrd) {
@@ -391,29 +405,36 @@ bool SparseCholesky::selected_inverse_blocks(const int64_t* groups, int64_t coun
                                              double* out) const {
     // Z = A⁻¹ on L's pattern, in panels like L's, by Takahashi's recurrence from the last
     // supernode (the root) to the first. Every Z_SS a supernode needs is on the pattern of
-    // its ancestors (L's pattern is chordal) and already formed.
+    // its ancestors (L's pattern is chordal) and already formed. Every entry of Z's panels is
+    // written (Z_JJ whole, Z_SJ below it), so Z needs no initialization.
     const int64_t S = supernodes();
-    std::vector<double> Z(X_.size());
+    std::unique_ptr<double[]> Zbuf(new double[X_.size() ? X_.size() : 1]);
+    double* Z = Zbuf.get();
     std::vector<double> Linv, Lt, Dinv, Zss, ZSJ;
+    std::vector<int64_t> at;  // positions of s's rows below in an ancestor's rows
     for (int64_t s = S - 1; s >= 0; --s) {
         const int64_t f = first_[s], w = first_[s + 1] - f;
         const int64_t nr = rows_ptr_[s + 1] - rows_ptr_[s], r = nr - w;
         const int64_t* R = rows_.data() + rows_ptr_[s];
         const double* L = X_.data() + panel_ptr_[s];  // column-major, leading dimension nr
-        Linv.assign(w * w, 0.0);                         // L_JJ⁻¹, column-major (w × w)
+        // L_JJ⁻¹ (column-major, w × w) by forward substitution on the columns of the panel,
+        // column j from L x = e_j: contiguous updates along the panel's columns.
+        Linv.assign(w * w, 0.0);
         for (int64_t j = 0; j < w; ++j) {
-            Linv[j * w + j] = 1.0 / L[j * nr + j];
-            for (int64_t i = j + 1; i < w; ++i) {
-                double sum = 0.0;
-                for (int64_t t = j; t < i; ++t) sum += L[t * nr + i] * Linv[j * w + t];
-                Linv[j * w + i] = -sum / L[i * nr + i];
+            double* x = Linv.data() + j * w;
+            x[j] = 1.0;
+            for (int64_t t = j; t < w; ++t) {
+                const double* Lt_col = L + t * nr;
+                const double xt = x[t] / Lt_col[t];
+                x[t] = xt;
+                for (int64_t i = t + 1; i < w; ++i) x[i] -= Lt_col[i] * xt;
             }
         }
         Dinv.assign(w * w, 0.0);  // L_JJ⁻ᵀ L_JJ⁻¹
         for (int64_t a = 0; a < w; ++a)
             for (int64_t c = 0; c <= a; ++c) {
-                double sum = 0.0;
-                for (int64_t t = a; t < w; ++t) sum += Linv[a * w + t] * Linv[c * w + t];
+                const double sum = dense::dot(w - a, Linv.data() + a * w + a,
+                                              Linv.data() + c * w + a);
                 Dinv[c * w + a] = Dinv[a * w + c] = sum;
             }
         Lt.assign(r * w, 0.0);  // L̃_SJ = L_SJ L_JJ⁻¹ (r × w, column-major)
@@ -424,18 +445,27 @@ bool SparseCholesky::selected_inverse_blocks(const int64_t* groups, int64_t coun
                 double* out_col = Lt.data() + j * r;
                 for (int64_t i = 0; i < r; ++i) out_col[i] += col[i] * a;
             }
-        Zss.assign(r * r, 0.0);  // gathered from the ancestors' Z panels by merging rows
-        for (int64_t c = 0; c < r; ++c) {
-            const int64_t gc = R[w + c], t = sn_[gc], col = gc - first_[t];
+        // Z_SS gathered from the ancestors' Z panels. The rows below s that are columns of one
+        // ancestor t are consecutive in R; for them, the positions of R's later rows in t's
+        // rows are found by one merge, the same for each of t's columns.
+        Zss.resize(r * r);
+        at.resize(r);
+        for (int64_t c0 = 0, c1; c0 < r; c0 = c1) {
+            const int64_t t = sn_[R[w + c0]], lt = first_[t + 1];
+            for (c1 = c0 + 1; c1 < r && R[w + c1] < lt; ++c1) {
+            }
             const int64_t nrt = rows_ptr_[t + 1] - rows_ptr_[t];
             const int64_t* Rt = rows_.data() + rows_ptr_[t];
-            const double* Zt = Z.data() + panel_ptr_[t] + col * nrt;
-            int64_t pos = col;
-            for (int64_t a = c; a < r; ++a) {
+            for (int64_t a = c0, pos = R[w + c0] - first_[t]; a < r; ++a, ++pos) {
                 const int64_t ga = R[w + a];
                 while (pos < nrt && Rt[pos] != ga) ++pos;
                 if (pos == nrt) throw std::logic_error("selected inversion: pattern not chordal");
-                Zss[c * r + a] = Zt[pos];
+                at[a] = pos;
+            }
+            for (int64_t c = c0; c < c1; ++c) {
+                const double* Zt = Z + panel_ptr_[t] + (R[w + c] - first_[t]) * nrt;
+                double* zc = Zss.data() + c * r;
+                for (int64_t a = c; a < r; ++a) zc[a] = Zt[at[a]];
             }
         }
         for (int64_t c0 = 0; c0 < r; c0 += 32)  // the upper triangle, by 32 × 32 tiles
@@ -445,14 +475,12 @@ bool SparseCholesky::selected_inverse_blocks(const int64_t* groups, int64_t coun
                         Zss[a * r + c] = Zss[c * r + a];
         ZSJ.assign(r * w, 0.0);  // Z_SJ = -Z_SS L̃_SJ
         dense::gemm_nn(r, w, r, -1.0, Zss.data(), r, Lt.data(), r, ZSJ.data(), r);
-        double* Zs = Z.data() + panel_ptr_[s];
+        double* Zs = Z + panel_ptr_[s];
         for (int64_t j = 0; j < w; ++j) {
-            for (int64_t a = 0; a < w; ++a) {  // Z_JJ = L_JJ⁻ᵀ L_JJ⁻¹ - L̃_SJᵀ Z_SJ
-                double sum = Dinv[j * w + a];
+            for (int64_t a = 0; a <= j; ++a) {  // Z_JJ = L_JJ⁻ᵀ L_JJ⁻¹ - L̃_SJᵀ Z_SJ (symmetric)
                 const double* lt = Lt.data() + a * r;
                 const double* zc = ZSJ.data() + j * r;
-                for (int64_t i = 0; i < r; ++i) sum -= lt[i] * zc[i];
-                Zs[j * nr + a] = sum;
+                Zs[j * nr + a] = Zs[a * nr + j] = Dinv[j * w + a] - dense::dot(r, lt, zc);
             }
             std::copy(ZSJ.data() + j * r, ZSJ.data() + (j + 1) * r, Zs + j * nr + w);
         }
@@ -462,7 +490,8 @@ bool SparseCholesky::selected_inverse_blocks(const int64_t* groups, int64_t coun
             for (int64_t c = 0; c < b; ++c) {
                 const int64_t i = inv_[groups[g * b + a]], j = inv_[groups[g * b + c]];
                 const int64_t lo = std::min(i, j), hi = std::max(i, j), t = sn_[lo];
-                const int64_t pos = position(t, hi);
+                // a supernode's rows start with its own columns
+                const int64_t pos = hi < first_[t + 1] ? hi - first_[t] : position(t, hi);
                 if (pos < 0) return false;
                 const int64_t nrt = rows_ptr_[t + 1] - rows_ptr_[t];
                 out[(g * b + a) * b + c] = Z[panel_ptr_[t] + (lo - first_[t]) * nrt + pos];
