@@ -177,6 +177,7 @@ SparseCholesky::SparseCholesky(int64_t n, const int64_t* indptr, const int64_t* 
     src_.reserve(nnz_A_ / 2 + n);
     dst_.reserve(nnz_A_ / 2 + n);
     std::vector<int64_t> slot(n, -1);
+    a_ptr_.assign(S + 1, 0);
     for (int64_t k = 0; k < n; ++k) {
         const int64_t s = sn_[k], nr = rows_ptr_[s + 1] - rows_ptr_[s];
         if (k == first_[s])
@@ -188,6 +189,7 @@ SparseCholesky::SparseCholesky(int64_t n, const int64_t* indptr, const int64_t* 
             src_.push_back(e);
             dst_.push_back(base + slot[i]);
         }
+        a_ptr_[s + 1] = static_cast<int64_t>(src_.size());  // columns come supernode by supernode
     }
     X_.assign(panel_ptr_[S], 0.0);
 }
@@ -216,18 +218,19 @@ int64_t SparseCholesky::position(int64_t s, int64_t row) const {
 
 RELMAP_MULTIVERSION
 int64_t SparseCholesky::factorize(const double* data) {
-    std::fill(X_.begin(), X_.end(), 0.0);
-    for (size_t e = 0; e < src_.size(); ++e) X_[dst_[e]] += data[src_[e]];
     int64_t S = supernodes();
     // Left-looking (Ng & Peyton 1993): head[s] links the supernodes d whose next update goes
     // to s; ptr[d] is the first row of d not yet used.
-    std::vector<int64_t> head(S, -1), next(S, -1), ptr(S, 0), map(n_), rel(n_), run(n_ + 1);
+    std::vector<int64_t> head(S, -1), next(S, -1), ptr(S, 0), map(n_), rel(n_);
     std::vector<double> W(max_update_);
     for (int64_t s = 0; s < S; ++s) {
         const int64_t f = first_[s], l = first_[s + 1], w = l - f;
         const int64_t nr = rows_ptr_[s + 1] - rows_ptr_[s];
         const int64_t* R = rows_.data() + rows_ptr_[s];
         double* Xs = X_.data() + panel_ptr_[s];
+        // s's panel: A's entries, assembled just before the updates (the panel stays in cache)
+        std::fill(Xs, Xs + nr * w, 0.0);
+        for (int64_t e = a_ptr_[s]; e < a_ptr_[s + 1]; ++e) X_[dst_[e]] += data[src_[e]];
         for (int64_t i = 0; i < nr; ++i) map[R[i]] = i;  // relative indices of s's rows
         for (int64_t d = head[s]; d != -1;) {
             const int64_t nxt = next[d];
@@ -237,26 +240,20 @@ int64_t SparseCholesky::factorize(const double* data) {
             const int64_t p = ptr[d], r = nrd - p;
             int64_t q = 0;
             while (p + q < nrd && Rd[p + q] < l) ++q;
-            // W = L_d[p:, :] L_d[p:p+q, :]ᵀ (r × q, lower part)
-            std::fill(W.begin(), W.begin() + r * q, 0.0);
-            dense::lower_product(r, q, wd, 1.0, Xd + p, nrd, W.data(), r);
-            // relative indices, and the runs of consecutive ones (rows of d that are
-            // consecutive rows of s: a frame's parameters at least)
-            int64_t runs = 0;
+            bool consecutive = true;  // d's rows are consecutive rows of s
             for (int64_t ii = 0; ii < r; ++ii) {
-                rel[ii] = map[Rd[p + ii]];
-                if (ii == 0 || rel[ii] != rel[ii - 1] + 1) run[runs++] = ii;
+                rel[ii] = map[Rd[p + ii]];  // relative indices
+                consecutive = consecutive && rel[ii] == rel[0] + ii;
             }
-            run[runs] = r;
-            for (int64_t jj = 0, t0 = 0; jj < q; ++jj) {  // scatter-subtract into s's panel
-                double* Xc = Xs + rel[jj] * nr;            // column Rd[p + jj] - f
-                const double* Wj = W.data() + jj * r;
-                while (run[t0 + 1] <= jj) ++t0;
-                for (int64_t t = t0; t < runs; ++t) {  // rows jj … r - 1, run by run
-                    const int64_t lo = std::max(run[t], jj), len = run[t + 1] - lo;
-                    double* to = Xc + rel[lo];
-                    const double* from = Wj + lo;
-                    for (int64_t u = 0; u < len; ++u) to[u] -= from[u];
+            if (consecutive) {  // the update straight into s's panel: no buffer, no scatter
+                dense::lower_product(r, q, wd, -1.0, Xd + p, nrd, Xs + rel[0] * nr + rel[0], nr);
+            } else {  // W = L_d[p:, :] L_d[p:p+q, :]ᵀ (r × q, lower part), then scattered
+                std::fill(W.begin(), W.begin() + r * q, 0.0);
+                dense::lower_product(r, q, wd, 1.0, Xd + p, nrd, W.data(), r);
+                for (int64_t jj = 0; jj < q; ++jj) {  // scatter-subtract into s's panel
+                    double* Xc = Xs + rel[jj] * nr;    // column Rd[p + jj] - f
+                    const double* Wj = W.data() + jj * r;
+                    for (int64_t ii = jj; ii < r; ++ii) Xc[rel[ii]] -= Wj[ii];
                 }
             }
             ptr[d] = p + q;

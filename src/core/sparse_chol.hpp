@@ -63,6 +63,7 @@ private:
     std::vector<int64_t> rows_ptr_, rows_;     // row structure of each supernode (sorted)
     std::vector<int64_t> panel_ptr_;           // offset of each supernode's panel
     std::vector<int64_t> src_, dst_;           // A's lower entries → panel slots
+    std::vector<int64_t> a_ptr_;               // the entries of each supernode in src_, dst_
     std::vector<double> X_;                    // the panels of L, column-major
     int64_t max_update_ = 0;                   // workspace for the largest update
 
