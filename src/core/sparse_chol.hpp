@@ -10,10 +10,13 @@
 // - L's row structure by row subtrees of the elimination tree (cs_ereach);
 // - fundamental supernodes (chains of columns with nested structures) stored as dense
 //   column-major panels, factorized by the left-looking supernodal Cholesky of Ng & Peyton
-//   (each supernode gathers the updates of its descendants, linked lists, relative indices);
+//   (each supernode's panel is assembled from A just before it gathers the updates of its
+//   descendants, linked lists, relative indices; an update whose rows are consecutive rows of
+//   the target is formed straight in the target's panel, others in a buffer then scattered);
 // - selected inversion by Takahashi's recurrence (K. Takahashi, J. Fagan, M.-S. Chen, 1973;
 //   supernodal form as in Y. Lin et al., ACM TOMS 37, 2011): with L̃_SJ = L_SJ L_JJ⁻¹,
-//   Z_SJ = -Z_SS L̃_SJ, Z_JJ = L_JJ⁻ᵀ L_JJ⁻¹ - L̃_SJᵀ Z_SJ, supernodes from last to first;
+//   Z_SJ = -Z_SS L̃_SJ, Z_JJ = L_JJ⁻ᵀ L_JJ⁻¹ - L̃_SJᵀ Z_SJ, supernodes from last to first; Z_SS
+//   is gathered from each ancestor's panel with one merge of row lists per ancestor;
 // - the joint block of A⁻¹ of a few parameters from forward solves along their
 //   elimination-tree paths only: (A⁻¹)_pq = (L⁻¹ e_p)ᵀ (L⁻¹ e_q).
 #pragma once
