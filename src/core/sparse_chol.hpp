@@ -22,6 +22,7 @@
 #pragma once
 
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #include "core.hpp"
@@ -52,6 +53,7 @@ public:
                                  double* out) const;
 
     int64_t n() const { return n_; }
+    bool factorized() const { return factorized_; }  // the last factorize succeeded
     int64_t nnz_L() const;  // entries of L (one triangle, diagonal included)
     int64_t supernodes() const { return static_cast<int64_t>(first_.size()) - 1; }
     const std::vector<int64_t>& perm() const { return perm_; }
@@ -67,7 +69,9 @@ private:
     std::vector<int64_t> panel_ptr_;           // offset of each supernode's panel
     std::vector<int64_t> src_, dst_;           // A's lower entries → panel slots
     std::vector<int64_t> a_ptr_;               // the entries of each supernode in src_, dst_
-    std::vector<double> X_;                    // the panels of L, column-major
+    std::unique_ptr<double[]> X_;              // the panels of L, column-major
+    int64_t x_size_ = 0;                       // their entries
+    bool factorized_ = false;
     int64_t max_update_ = 0;                   // workspace for the largest update
 
     int64_t sparent(int64_t s) const;                        // parent supernode, or -1
