@@ -18,7 +18,8 @@ For city10000 and manhattanOlson3500 (``../shared/data/posegraph2d``), in one ru
 
 Every ratio is GTSAM's time over relmap's, min against min and median against median, with the
 run-by-run range; the machine's load is printed (wall-clock times: other work on the machine
-slows either side).
+slows either side). CPU time of the process (every thread: GTSAM may use several) is printed
+beside, the steadier figure on a loaded machine.
 
 Run: ``python benchmarks/bench_posegraph.py [--repeat 5] [--marginal-repeat 3]
 [--graphs city10000 manhattanOlson3500]``.
@@ -125,12 +126,17 @@ def main() -> None:
     for name in args.graphs:
         path = DATA / "posegraph2d" / f"{name}.g2o"
         # interleave the two contenders so that a slow spell hits both
-        t_rel, t_gt = [], []
+        t_rel, t_gt, c_rel, c_gt = [], [], [], []
         for _ in range(args.repeat):
+            c0 = time.process_time()
             r = relmap_e2e(path)
+            c1 = time.process_time()
             g = gtsam_e2e(path)
+            c2 = time.process_time()
             t_rel.append(r[0])
             t_gt.append(g[0])
+            c_rel.append(c1 - c0)
+            c_gt.append(c2 - c1)
         _, graph, sol, rel = r
         _, ggraph, result, _, joint = g
         n = len(graph.vertex_ids)
@@ -149,6 +155,10 @@ def main() -> None:
             f"  median {np.median(t_gt) * 1e3:8.1f} ms   ({_span(t_gt)})"
         )
         print(f"    ratio: {_ratio(t_rel, t_gt)}   (target >= 4x)")
+        print(
+            f"    CPU time (every thread of the process): relmap {min(c_rel) * 1e3:.1f} ms,"
+            f" GTSAM {min(c_gt) * 1e3:.1f} ms; ratio {_ratio(c_rel, c_gt)}"
+        )
 
         cmd = [sys.executable, "-m", "relmap.cli", "query", str(path), "0", str(n - 1), "--json"]
         t_cli = []
@@ -165,11 +175,16 @@ def main() -> None:
         )
 
         t_margs, t_gmargs = [], []  # interleaved; GTSAM's takes seconds, so fewer runs
+        c_margs, c_gmargs = [], []
         for _ in range(args.marginal_repeat):
             for _ in range(3):
+                c0 = time.process_time()
                 t, ours = _timed(sol.marginals)
+                c_margs.append(time.process_time() - c0)
                 t_margs.append(t)
+            c0 = time.process_time()
             t, theirs = _timed(gtsam_marginals, ggraph, result, n)
+            c_gmargs.append(time.process_time() - c0)
             t_gmargs.append(t)
         # relmap's three runs per GTSAM run: the ratio pairs each GTSAM run with their best
         t_best3 = [min(t_margs[3 * k : 3 * k + 3]) for k in range(args.marginal_repeat)]
@@ -189,6 +204,11 @@ def main() -> None:
             f" {np.median(t_gmargs) * 1e3:.1f}; {_span(t_gmargs)}; {len(t_gmargs)} runs)"
         )
         print(f"    ratio: {_ratio(t_best3, t_gmargs)}   (target >= 100x)")
+        c_best3 = [min(c_margs[3 * k : 3 * k + 3]) for k in range(args.marginal_repeat)]
+        print(
+            f"    CPU time: relmap {min(c_margs) * 1e3:.1f} ms, GTSAM {min(c_gmargs) * 1e3:.1f} ms;"
+            f" ratio {_ratio(c_best3, c_gmargs)}"
+        )
         print(f"    largest relative difference {diff.max():.2e} (chart differences)")
 
         values = gtsam.Values()
