@@ -5,8 +5,9 @@ manhattanOlson3500 and sphere2500 at their optima, the ordering, a right-hand si
 in one fresh process per build and round (rounds interleaved), with each build's
 ``relmap._core`` loaded from the given ``.so``: the minimum-degree ordering (on every entry's
 node pair, and on one pair per node pair), the symbolic analysis (``SparseCholesky``), one
-numeric factorization, one solve and the selected inversion of every frame's block. Thread CPU
-time, the minimum over repeats and rounds (the steadier figure on a shared machine).
+numeric factorization and one solve (also with the caches flushed before each call, as in the
+solver's loop) and the selected inversion of every frame's block. Thread CPU time, the minimum
+over repeats and rounds (the steadier figure on a shared machine).
 
 Build the other core from another checkout (for example ``git archive <commit> src/core`` and
 CMakeLists.txt, then ``cmake -S . -B b -G Ninja && ninja -C b``). Run:
@@ -73,9 +74,23 @@ def _best(fn, reps: int) -> float:
     return min(times) * 1e3
 
 
+def _cold(fn, reps: int) -> float:
+    """Like :func:`_best`, with the caches flushed before each call (a 64 MB sweep), as in the
+    solver's loop, where a linearization runs between two factorizations."""
+    sweep = np.zeros(8 << 20)
+    times = []
+    for _ in range(reps):
+        sweep += 1.0
+        t0 = time.thread_time()
+        fn()
+        times.append(time.thread_time() - t0)
+    return min(times) * 1e3
+
+
 def _graph(core, name: str, z: dict) -> dict[str, float]:
     k = int(z["k"].reshape(-1)[0])
     f = core.SparseCholesky(z["indptr"], z["indices"], z["perm"])
+    f.factorize(z["data"])
     return {
         f"{name} ordering, every entry": _best(lambda: core.minimum_degree(k, z["a"], z["b"]), 5),
         f"{name} ordering, one pair per node pair": _best(
@@ -85,7 +100,9 @@ def _graph(core, name: str, z: dict) -> dict[str, float]:
             lambda: core.SparseCholesky(z["indptr"], z["indices"], z["perm"]), 5
         ),
         f"{name} factorization": _best(lambda: f.factorize(z["data"]), 15),
+        f"{name} factorization, caches flushed": _cold(lambda: f.factorize(z["data"]), 15),
         f"{name} solve": _best(lambda: f.solve(z["rhs"]), 15),
+        f"{name} solve, caches flushed": _cold(lambda: f.solve(z["rhs"]), 15),
         f"{name} selected inversion": _best(lambda: f.selected_inverse_blocks(z["groups"]), 5),
     }
 

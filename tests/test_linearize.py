@@ -140,3 +140,56 @@ def test_bad_arguments_are_refused_by_the_3d_core():
         _core.normal_equations3(poses, i, j, z, W, slots + 5, g, 1, 1)
     with pytest.raises(ValueError):
         _core.normal_equations3(poses, i, j, z, W[:, :3, :3].copy(), slots, g, 1, 1)
+
+
+def test_planar_residuals_equal_the_mathematics_across_the_wrap():
+    """relmap._core.residuals2 against d = p_i⁻¹ ∘ p_j ⊟ z written with relmap.lie.se2, and
+    its Jacobians (times each frame's ∂pose/∂parameters F) against central differences; the
+    headings straddle ±π and lie far outside [-π, π)."""
+    from relmap.lie import se2
+
+    rng = np.random.default_rng(5)
+    n, m = 6, 40
+    poses = rng.normal(scale=2.0, size=(n, 3))
+    poses[:, 2] = rng.choice([-np.pi + 1e-9, np.pi - 1e-9, 7.0, -9.5, 0.3, 3.1], size=n)
+    i, j = rng.integers(0, n, m), rng.integers(0, n, m)
+    z = rng.normal(scale=2.0, size=(m, 3))
+    z[:, 2] = rng.choice([np.pi - 1e-12, -np.pi, 4.0, -0.2], size=m)
+    F = np.eye(3) + rng.normal(scale=0.3, size=(n, 3, 3))
+    r, Ji, Jj = optimal._residuals2(poses, i, j, z, F)
+    np.testing.assert_allclose(r, se2.minus(se2.between(poses[i], poses[j]), z), atol=1e-12)
+    assert np.all((r[:, 2] >= -np.pi) & (r[:, 2] < np.pi))
+    for k in range(m):  # pose f moved by F[f] δ in the chart: the Jacobian is J F[f]
+        for f, J in ((i[k], Ji[k]), (j[k], Jj[k])):
+            if i[k] == j[k]:
+                continue
+
+            def res(d, f=f, k=k):
+                moved = poses.copy()
+                moved[f] = poses[f] + F[f] @ d
+                return se2.minus(se2.between(moved[i[k]], moved[j[k]]), z[k])
+
+            h = 1e-6  # central differences, the heading's difference wrapped
+            num = np.stack([se2.minus(res(h * e), res(-h * e)) / (2 * h) for e in np.eye(3)], 1)
+            np.testing.assert_allclose(J, num, atol=1e-6)
+    r0, Ji0, Jj0 = optimal._residuals2(poses, i, j, z, None)  # no F: the chart Jacobians
+    np.testing.assert_array_equal(r0, r)
+    np.testing.assert_allclose(Ji0 @ F[i], Ji, atol=1e-13)
+    np.testing.assert_allclose(Jj0 @ F[j], Jj, atol=1e-13)
+
+
+def test_bad_planar_arguments_are_refused_by_the_core():
+    from relmap import _core
+
+    poses, z, F0 = np.zeros((3, 3)), np.zeros((2, 3)), np.zeros((0, 3, 3))
+    i, j = np.array([0, 1]), np.array([1, 2])
+    W, slots, g = np.zeros((2, 3, 3)), np.zeros((2, 36), np.int64), np.zeros(12, np.int64)
+    _core.normal_equations2(poses, i, j, z, F0, W, slots, g, 1, 1)
+    with pytest.raises(ValueError, match="frame index"):
+        _core.residuals2(poses, i, j + 1, z, F0)
+    with pytest.raises(ValueError, match="F must be"):
+        _core.residuals2(poses, i, j, z, np.zeros((2, 3, 3)))
+    with pytest.raises(ValueError, match="slot"):
+        _core.normal_equations2(poses, i, j, z, F0, W, slots + 5, g, 1, 1)
+    with pytest.raises(ValueError, match="gradient"):
+        _core.normal_equations2(poses, i, j, z, F0, W, slots, g + 5, 1, 1)

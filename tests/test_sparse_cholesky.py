@@ -88,6 +88,30 @@ def test_grid_patterns_with_wide_supernodes(rows, cols, b):
     _check(*_system(rows * cols, i, j, b, seed=rows), b)
 
 
+@pytest.mark.parametrize("split", ["scalar", "reversed", "some"])
+def test_orderings_that_split_or_reverse_the_frames(split):
+    """The symbolic analysis works on runs of columns with equal patterns (a frame's
+    parameters, kept together by the ordering); orderings that break those runs up entirely,
+    reverse them inside each frame, or split a few frames give the same numbers."""
+    b, nodes = 3, 60
+    i, j = _random_graph(nodes, 50, seed=11)
+    pattern, data = _system(nodes, i, j, b, seed=4)
+    rng = np.random.default_rng(3)
+    frames = np.asarray(pattern.permutation).reshape(-1, b)[:, 0] // b  # the frames' order
+    inner = np.tile(np.arange(b), (nodes, 1))
+    if split == "scalar":
+        perm = rng.permutation(pattern.size)
+    else:
+        if split == "reversed":
+            inner = inner[:, ::-1]
+        perm = (b * frames[:, None] + inner).reshape(-1)
+        if split == "some":  # move the middle parameter of every fourth frame to the end
+            moved = perm.reshape(nodes, b)[::4, 1]
+            perm = np.concatenate([perm[~np.isin(perm, moved)], moved])
+    pattern._perm = np.ascontiguousarray(perm, dtype=np.int64)
+    _check(pattern, data, b)
+
+
 def test_a_dense_pattern_is_one_supernode():
     nodes = 12
     i, j = np.triu_indices(nodes, 1)

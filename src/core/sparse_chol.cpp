@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <memory>
 #include <stdexcept>
 
 #include "arrays.hpp"
@@ -75,61 +76,129 @@ std::vector<int64_t> postorder(const std::vector<int64_t>& parent) {
 SparseCholesky::SparseCholesky(int64_t n, const int64_t* indptr, const int64_t* indices,
                                const int64_t* perm)
     : n_(n), nnz_A_(indptr[n]) {
-    // The caller's ordering, then the postorder of its elimination tree (same fill).
+    // Supervariables: runs of consecutive columns of P A Pᵀ (caller's order) with equal closed
+    // patterns (indistinguishable nodes, e.g. a frame's parameters). Each is a chain of the
+    // elimination tree inside one fundamental supernode, so the tree, its postorder, the
+    // column counts and the row structures are found on the graph of supervariables (a pattern
+    // of 3 × 3 blocks has a ninth of the entries), then expanded to columns.
     std::vector<int64_t> inv(n);
     for (int64_t k = 0; k < n; ++k) inv[perm[k]] = k;
-    const std::vector<int64_t> parent0 = elimination_tree(n, indptr, indices, perm, inv.data());
-    const std::vector<int64_t> post = postorder(parent0);
+    std::vector<int64_t> vfirst, of(n);  // first column of each supervariable; each column's
+    {
+        std::vector<int64_t> stamp[2] = {std::vector<int64_t>(n, -1), std::vector<int64_t>(n, -1)};
+        int64_t size_prev = 0;
+        for (int64_t k = 0; k < n; ++k) {
+            // stamp k's closed pattern; equal to k-1's if of equal size and all in k-1's
+            std::vector<int64_t>& mine = stamp[k & 1];
+            const std::vector<int64_t>& prev = stamp[(k + 1) & 1];
+            int64_t size = 0;
+            bool same = k > 0;
+            auto take = [&](int64_t i) {
+                if (mine[i] == k) return;
+                mine[i] = k;
+                ++size;
+                same = same && prev[i] == k - 1;
+            };
+            take(k);
+            const int64_t c = perm[k];
+            for (int64_t e = indptr[c]; e < indptr[c + 1]; ++e) take(inv[indices[e]]);
+            if (!(same && size == size_prev)) vfirst.push_back(k);
+            of[k] = static_cast<int64_t>(vfirst.size()) - 1;
+            size_prev = size;
+        }
+        vfirst.push_back(n);
+    }
+    const int64_t V = static_cast<int64_t>(vfirst.size()) - 1;
+    // The graph of supervariables (both triangles, no self-loops), from each one's first column.
+    std::vector<int64_t> vptr(V + 1, 0), vidx, vmark(V, -1);
+    vidx.reserve(nnz_A_ / 3 + 1);
+    for (int64_t v = 0; v < V; ++v) {
+        const int64_t c = perm[vfirst[v]];
+        vmark[v] = v;
+        for (int64_t e = indptr[c]; e < indptr[c + 1]; ++e) {
+            const int64_t u = of[inv[indices[e]]];
+            if (vmark[u] != v) {
+                vmark[u] = v;
+                vidx.push_back(u);
+            }
+        }
+        vptr[v + 1] = static_cast<int64_t>(vidx.size());
+    }
+    std::vector<int64_t> ident(V);
+    for (int64_t v = 0; v < V; ++v) ident[v] = v;
+    // Its elimination tree, postordered (the same fill); the columns follow, each
+    // supervariable's in the caller's order.
+    const std::vector<int64_t> vparent0 =
+        elimination_tree(V, vptr.data(), vidx.data(), ident.data(), ident.data());
+    const std::vector<int64_t> vpost = postorder(vparent0);
+    std::vector<int64_t> vrank(V), vinv(V), vparent(V), vsize(V), vstart(V + 1, 0);
+    for (int64_t k = 0; k < V; ++k) vrank[vpost[k]] = k;
+    for (int64_t k = 0; k < V; ++k) {
+        const int64_t v = vpost[k], p0 = vparent0[v];
+        vparent[k] = p0 == -1 ? -1 : vrank[p0];
+        vsize[k] = vfirst[v + 1] - vfirst[v];
+        vstart[k + 1] = vstart[k] + vsize[k];
+        vinv[v] = k;
+    }
     perm_.resize(n);
     inv_.resize(n);
-    std::vector<int64_t> rank(n);  // position of each column of the caller's order in post
-    for (int64_t k = 0; k < n; ++k) {
-        perm_[k] = perm[post[k]];
-        rank[post[k]] = k;
-    }
+    for (int64_t k = 0; k < V; ++k)
+        for (int64_t t = 0; t < vsize[k]; ++t) perm_[vstart[k] + t] = perm[vfirst[vpost[k]] + t];
     for (int64_t k = 0; k < n; ++k) inv_[perm_[k]] = k;
-    // A postorder relabels the elimination tree and changes nothing else.
+    // The columns' tree: a chain through each supervariable, whose last column's parent is
+    // the first column of the parent supervariable.
     parent_.resize(n);
-    for (int64_t k = 0; k < n; ++k) {
-        const int64_t p0 = parent0[post[k]];
-        parent_[k] = p0 == -1 ? -1 : rank[p0];
+    for (int64_t k = 0; k < V; ++k) {
+        for (int64_t t = vstart[k]; t + 1 < vstart[k + 1]; ++t) parent_[t] = t + 1;
+        parent_[vstart[k + 1] - 1] = vparent[k] == -1 ? -1 : vstart[vparent[k]];
     }
 
-    // Column counts of L by row subtrees: row k of L is the set of columns met walking up
-    // the tree from each i < k of A's row k until a column already marked for k (cs_ereach).
-    std::vector<int64_t> mark(n, -1), count(n, 1);
+    // Row counts by row subtrees of the supervariables' tree: row k of L is the set of nodes
+    // met walking up the tree from each i < k of A's row k until one already marked for k
+    // (cs_ereach); each node met holds all of k's columns.
+    std::vector<int64_t> mark(V, -1), below(V, 0);
     auto each_row_entry = [&](auto&& visit) {
         std::fill(mark.begin(), mark.end(), -1);
-        for (int64_t k = 0; k < n; ++k) {
+        for (int64_t k = 0; k < V; ++k) {
             mark[k] = k;
-            upper_column(k, indptr, indices, perm_.data(), inv_.data(), [&](int64_t i) {
-                for (int64_t j = i; j != -1 && mark[j] != k; j = parent_[j]) {
+            upper_column(k, vptr.data(), vidx.data(), vpost.data(), vinv.data(), [&](int64_t i) {
+                for (int64_t j = i; j != -1 && mark[j] != k; j = vparent[j]) {
                     mark[j] = k;
                     visit(j, k);
                 }
             });
         }
     };
-    each_row_entry([&](int64_t j, int64_t) { ++count[j]; });
+    each_row_entry([&](int64_t j, int64_t k) { below[j] += vsize[k]; });
+    std::vector<int64_t> count(n);  // entries of each column of L (diagonal included)
+    for (int64_t k = 0; k < V; ++k)
+        for (int64_t t = 0; t < vsize[k]; ++t)
+            count[vstart[k] + t] = vsize[k] - t + below[k];
 
     // Fundamental supernodes: column j joins j-1's supernode when j is j-1's parent and
-    // struct(j-1) = {j} ∪ struct(j).
+    // struct(j-1) = {j} ∪ struct(j) (so each starts at a supervariable's first column).
     std::vector<int64_t> fund(1, 0);
     for (int64_t j = 1; j < n; ++j)
         if (!(parent_[j - 1] == j && count[j - 1] == count[j] + 1)) fund.push_back(j);
     fund.push_back(n);
     const int64_t F = static_cast<int64_t>(fund.size()) - 1;
-    // The row structure of each fundamental supernode's first column, in increasing order.
+    // The row structure of each fundamental supernode's first column, in increasing order:
+    // its supervariable's columns, then those of the supervariables below it.
     std::vector<int64_t> fsn(n), fptr(F + 1, 0);
     for (int64_t t = 0; t < F; ++t) {
         for (int64_t j = fund[t]; j < fund[t + 1]; ++j) fsn[j] = t;
         fptr[t + 1] = fptr[t] + count[fund[t]];
     }
-    std::vector<int64_t> frows(fptr[F]), filled(F, 1);
-    for (int64_t t = 0; t < F; ++t) frows[fptr[t]] = fund[t];
+    std::vector<int64_t> frows(fptr[F]), filled(F, 0);
+    for (int64_t k = 0; k < V; ++k) {
+        const int64_t t = fsn[vstart[k]];
+        if (fund[t] != vstart[k]) continue;
+        for (int64_t c = vstart[k]; c < vstart[k + 1]; ++c) frows[fptr[t] + filled[t]++] = c;
+    }
     each_row_entry([&](int64_t j, int64_t k) {
-        const int64_t t = fsn[j];
-        if (fund[t] == j) frows[fptr[t] + filled[t]++] = k;
+        const int64_t t = fsn[vstart[j]];
+        if (fund[t] != vstart[j]) return;
+        for (int64_t c = vstart[k]; c < vstart[k + 1]; ++c) frows[fptr[t] + filled[t]++] = c;
     });
     // Relaxed supernodes (amalgamation as in CHOLMOD): a fundamental supernode joins the
     // group before it when its first column is the parent of the group's last and the group
@@ -176,6 +245,7 @@ SparseCholesky::SparseCholesky(int64_t n, const int64_t* indptr, const int64_t* 
     src_.reserve(nnz_A_ / 2 + n);
     dst_.reserve(nnz_A_ / 2 + n);
     std::vector<int64_t> slot(n, -1);
+    a_ptr_.assign(S + 1, 0);
     for (int64_t k = 0; k < n; ++k) {
         const int64_t s = sn_[k], nr = rows_ptr_[s + 1] - rows_ptr_[s];
         if (k == first_[s])
@@ -187,8 +257,10 @@ SparseCholesky::SparseCholesky(int64_t n, const int64_t* indptr, const int64_t* 
             src_.push_back(e);
             dst_.push_back(base + slot[i]);
         }
+        a_ptr_[s + 1] = static_cast<int64_t>(src_.size());  // columns come supernode by supernode
     }
-    X_.assign(panel_ptr_[S], 0.0);
+    x_size_ = panel_ptr_[S];  // each panel is zeroed by factorize before it is filled
+    X_.reset(new double[x_size_ ? x_size_ : 1]);
 }
 
 int64_t SparseCholesky::nnz_L() const {
@@ -215,8 +287,7 @@ int64_t SparseCholesky::position(int64_t s, int64_t row) const {
 
 RELMAP_MULTIVERSION
 int64_t SparseCholesky::factorize(const double* data) {
-    std::fill(X_.begin(), X_.end(), 0.0);
-    for (size_t e = 0; e < src_.size(); ++e) X_[dst_[e]] += data[src_[e]];
+    factorized_ = false;
     int64_t S = supernodes();
     // Left-looking (Ng & Peyton 1993): head[s] links the supernodes d whose next update goes
     // to s; ptr[d] is the first row of d not yet used.
@@ -226,24 +297,34 @@ int64_t SparseCholesky::factorize(const double* data) {
         const int64_t f = first_[s], l = first_[s + 1], w = l - f;
         const int64_t nr = rows_ptr_[s + 1] - rows_ptr_[s];
         const int64_t* R = rows_.data() + rows_ptr_[s];
-        double* Xs = X_.data() + panel_ptr_[s];
+        double* Xs = X_.get() + panel_ptr_[s];
+        // s's panel: A's entries, assembled just before the updates (the panel stays in cache)
+        std::fill(Xs, Xs + nr * w, 0.0);
+        for (int64_t e = a_ptr_[s]; e < a_ptr_[s + 1]; ++e) X_[dst_[e]] += data[src_[e]];
         for (int64_t i = 0; i < nr; ++i) map[R[i]] = i;  // relative indices of s's rows
         for (int64_t d = head[s]; d != -1;) {
             const int64_t nxt = next[d];
             const int64_t nrd = rows_ptr_[d + 1] - rows_ptr_[d], wd = first_[d + 1] - first_[d];
             const int64_t* Rd = rows_.data() + rows_ptr_[d];
-            const double* Xd = X_.data() + panel_ptr_[d];
+            const double* Xd = X_.get() + panel_ptr_[d];
             const int64_t p = ptr[d], r = nrd - p;
             int64_t q = 0;
             while (p + q < nrd && Rd[p + q] < l) ++q;
-            // W = L_d[p:, :] L_d[p:p+q, :]ᵀ (r × q, lower part)
-            std::fill(W.begin(), W.begin() + r * q, 0.0);
-            dense::lower_product(r, q, wd, 1.0, Xd + p, nrd, W.data(), r);
-            for (int64_t ii = 0; ii < r; ++ii) rel[ii] = map[Rd[p + ii]];  // relative indices
-            for (int64_t jj = 0; jj < q; ++jj) {  // scatter-subtract into s's panel
-                double* Xc = Xs + rel[jj] * nr;    // column Rd[p + jj] - f
-                const double* Wj = W.data() + jj * r;
-                for (int64_t ii = jj; ii < r; ++ii) Xc[rel[ii]] -= Wj[ii];
+            bool consecutive = true;  // d's rows are consecutive rows of s
+            for (int64_t ii = 0; ii < r; ++ii) {
+                rel[ii] = map[Rd[p + ii]];  // relative indices
+                consecutive = consecutive && rel[ii] == rel[0] + ii;
+            }
+            if (consecutive) {  // the update straight into s's panel: no buffer, no scatter
+                dense::lower_product(r, q, wd, -1.0, Xd + p, nrd, Xs + rel[0] * nr + rel[0], nr);
+            } else {  // W = L_d[p:, :] L_d[p:p+q, :]ᵀ (r × q, lower part), then scattered
+                std::fill(W.begin(), W.begin() + r * q, 0.0);
+                dense::lower_product(r, q, wd, 1.0, Xd + p, nrd, W.data(), r);
+                for (int64_t jj = 0; jj < q; ++jj) {  // scatter-subtract into s's panel
+                    double* Xc = Xs + rel[jj] * nr;    // column Rd[p + jj] - f
+                    const double* Wj = W.data() + jj * r;
+                    for (int64_t ii = jj; ii < r; ++ii) Xc[rel[ii]] -= Wj[ii];
+                }
             }
             ptr[d] = p + q;
             if (p + q < nrd) {
@@ -281,6 +362,7 @@ int64_t SparseCholesky::factorize(const double* data) {
             head[t] = s;
         }
     }
+    factorized_ = true;
     return -1;
 }
 
@@ -295,7 +377,7 @@ void SparseCholesky::forward(double* y, int64_t m, const std::vector<int64_t>* o
         const int64_t f = first_[s], w = first_[s + 1] - f;
         const int64_t nr = rows_ptr_[s + 1] - rows_ptr_[s], r = nr - w;
         const int64_t* R = rows_.data() + rows_ptr_[s] + w;
-        const double* L = X_.data() + panel_ptr_[s];
+        const double* L = X_.get() + panel_ptr_[s];
         double* x = y + f * m;
         for (int64_t c = 0; c < w; ++c) {
             const double* Lc = L + c * nr;
@@ -328,7 +410,7 @@ void SparseCholesky::backward(double* y, int64_t m) const {
         const int64_t f = first_[s], w = first_[s + 1] - f;
         const int64_t nr = rows_ptr_[s + 1] - rows_ptr_[s], r = nr - w;
         const int64_t* R = rows_.data() + rows_ptr_[s] + w;
-        const double* L = X_.data() + panel_ptr_[s];
+        const double* L = X_.get() + panel_ptr_[s];
         double* x = y + f * m;
         tmp.resize(r * m);
         for (int64_t i = 0; i < r; ++i)
@@ -391,29 +473,36 @@ bool SparseCholesky::selected_inverse_blocks(const int64_t* groups, int64_t coun
                                              double* out) const {
     // Z = A⁻¹ on L's pattern, in panels like L's, by Takahashi's recurrence from the last
     // supernode (the root) to the first. Every Z_SS a supernode needs is on the pattern of
-    // its ancestors (L's pattern is chordal) and already formed.
+    // its ancestors (L's pattern is chordal) and already formed. Every entry of Z's panels is
+    // written (Z_JJ whole, Z_SJ below it), so Z needs no initialization.
     const int64_t S = supernodes();
-    std::vector<double> Z(X_.size());
+    std::unique_ptr<double[]> Zbuf(new double[x_size_ ? x_size_ : 1]);
+    double* Z = Zbuf.get();
     std::vector<double> Linv, Lt, Dinv, Zss, ZSJ;
+    std::vector<int64_t> at;  // positions of s's rows below in an ancestor's rows
     for (int64_t s = S - 1; s >= 0; --s) {
         const int64_t f = first_[s], w = first_[s + 1] - f;
         const int64_t nr = rows_ptr_[s + 1] - rows_ptr_[s], r = nr - w;
         const int64_t* R = rows_.data() + rows_ptr_[s];
-        const double* L = X_.data() + panel_ptr_[s];  // column-major, leading dimension nr
-        Linv.assign(w * w, 0.0);                         // L_JJ⁻¹, column-major (w × w)
+        const double* L = X_.get() + panel_ptr_[s];  // column-major, leading dimension nr
+        // L_JJ⁻¹ (column-major, w × w) by forward substitution on the columns of the panel,
+        // column j from L x = e_j: contiguous updates along the panel's columns.
+        Linv.assign(w * w, 0.0);
         for (int64_t j = 0; j < w; ++j) {
-            Linv[j * w + j] = 1.0 / L[j * nr + j];
-            for (int64_t i = j + 1; i < w; ++i) {
-                double sum = 0.0;
-                for (int64_t t = j; t < i; ++t) sum += L[t * nr + i] * Linv[j * w + t];
-                Linv[j * w + i] = -sum / L[i * nr + i];
+            double* x = Linv.data() + j * w;
+            x[j] = 1.0;
+            for (int64_t t = j; t < w; ++t) {
+                const double* Lt_col = L + t * nr;
+                const double xt = x[t] / Lt_col[t];
+                x[t] = xt;
+                for (int64_t i = t + 1; i < w; ++i) x[i] -= Lt_col[i] * xt;
             }
         }
         Dinv.assign(w * w, 0.0);  // L_JJ⁻ᵀ L_JJ⁻¹
         for (int64_t a = 0; a < w; ++a)
             for (int64_t c = 0; c <= a; ++c) {
-                double sum = 0.0;
-                for (int64_t t = a; t < w; ++t) sum += Linv[a * w + t] * Linv[c * w + t];
+                const double sum = dense::dot(w - a, Linv.data() + a * w + a,
+                                              Linv.data() + c * w + a);
                 Dinv[c * w + a] = Dinv[a * w + c] = sum;
             }
         Lt.assign(r * w, 0.0);  // L̃_SJ = L_SJ L_JJ⁻¹ (r × w, column-major)
@@ -424,18 +513,27 @@ bool SparseCholesky::selected_inverse_blocks(const int64_t* groups, int64_t coun
                 double* out_col = Lt.data() + j * r;
                 for (int64_t i = 0; i < r; ++i) out_col[i] += col[i] * a;
             }
-        Zss.assign(r * r, 0.0);  // gathered from the ancestors' Z panels by merging rows
-        for (int64_t c = 0; c < r; ++c) {
-            const int64_t gc = R[w + c], t = sn_[gc], col = gc - first_[t];
+        // Z_SS gathered from the ancestors' Z panels. The rows below s that are columns of one
+        // ancestor t are consecutive in R; for them, the positions of R's later rows in t's
+        // rows are found by one merge, the same for each of t's columns.
+        Zss.resize(r * r);
+        at.resize(r);
+        for (int64_t c0 = 0, c1; c0 < r; c0 = c1) {
+            const int64_t t = sn_[R[w + c0]], lt = first_[t + 1];
+            for (c1 = c0 + 1; c1 < r && R[w + c1] < lt; ++c1) {
+            }
             const int64_t nrt = rows_ptr_[t + 1] - rows_ptr_[t];
             const int64_t* Rt = rows_.data() + rows_ptr_[t];
-            const double* Zt = Z.data() + panel_ptr_[t] + col * nrt;
-            int64_t pos = col;
-            for (int64_t a = c; a < r; ++a) {
+            for (int64_t a = c0, pos = R[w + c0] - first_[t]; a < r; ++a, ++pos) {
                 const int64_t ga = R[w + a];
                 while (pos < nrt && Rt[pos] != ga) ++pos;
                 if (pos == nrt) throw std::logic_error("selected inversion: pattern not chordal");
-                Zss[c * r + a] = Zt[pos];
+                at[a] = pos;
+            }
+            for (int64_t c = c0; c < c1; ++c) {
+                const double* Zt = Z + panel_ptr_[t] + (R[w + c] - first_[t]) * nrt;
+                double* zc = Zss.data() + c * r;
+                for (int64_t a = c; a < r; ++a) zc[a] = Zt[at[a]];
             }
         }
         for (int64_t c0 = 0; c0 < r; c0 += 32)  // the upper triangle, by 32 × 32 tiles
@@ -445,14 +543,12 @@ bool SparseCholesky::selected_inverse_blocks(const int64_t* groups, int64_t coun
                         Zss[a * r + c] = Zss[c * r + a];
         ZSJ.assign(r * w, 0.0);  // Z_SJ = -Z_SS L̃_SJ
         dense::gemm_nn(r, w, r, -1.0, Zss.data(), r, Lt.data(), r, ZSJ.data(), r);
-        double* Zs = Z.data() + panel_ptr_[s];
+        double* Zs = Z + panel_ptr_[s];
         for (int64_t j = 0; j < w; ++j) {
-            for (int64_t a = 0; a < w; ++a) {  // Z_JJ = L_JJ⁻ᵀ L_JJ⁻¹ - L̃_SJᵀ Z_SJ
-                double sum = Dinv[j * w + a];
+            for (int64_t a = 0; a <= j; ++a) {  // Z_JJ = L_JJ⁻ᵀ L_JJ⁻¹ - L̃_SJᵀ Z_SJ
                 const double* lt = Lt.data() + a * r;
                 const double* zc = ZSJ.data() + j * r;
-                for (int64_t i = 0; i < r; ++i) sum -= lt[i] * zc[i];
-                Zs[j * nr + a] = sum;
+                Zs[j * nr + a] = Zs[a * nr + j] = Dinv[j * w + a] - dense::dot(r, lt, zc);
             }
             std::copy(ZSJ.data() + j * r, ZSJ.data() + (j + 1) * r, Zs + j * nr + w);
         }
@@ -462,7 +558,8 @@ bool SparseCholesky::selected_inverse_blocks(const int64_t* groups, int64_t coun
             for (int64_t c = 0; c < b; ++c) {
                 const int64_t i = inv_[groups[g * b + a]], j = inv_[groups[g * b + c]];
                 const int64_t lo = std::min(i, j), hi = std::max(i, j), t = sn_[lo];
-                const int64_t pos = position(t, hi);
+                // a supernode's rows start with its own columns
+                const int64_t pos = hi < first_[t + 1] ? hi - first_[t] : position(t, hi);
                 if (pos < 0) return false;
                 const int64_t nrt = rows_ptr_[t + 1] - rows_ptr_[t];
                 out[(g * b + a) * b + c] = Z[panel_ptr_[t] + (lo - first_[t]) * nrt + pos];
@@ -503,6 +600,8 @@ void register_sparse_chol(nb::module_& m) {
         .def(
             "solve",
             [](const SparseCholesky& f, Float2 b) {
+                if (!f.factorized())
+                    throw nb::value_error("factorize a positive-definite matrix first");
                 if (static_cast<int64_t>(b.shape(0)) != f.n())
                     throw nb::value_error("right-hand side has the wrong number of rows");
                 const int64_t m = static_cast<int64_t>(b.shape(1));
@@ -517,6 +616,8 @@ void register_sparse_chol(nb::module_& m) {
         .def(
             "inverse_submatrix",
             [](const SparseCholesky& f, Index1 idx) {
+                if (!f.factorized())
+                    throw nb::value_error("factorize a positive-definite matrix first");
                 const int64_t k = static_cast<int64_t>(idx.shape(0));
                 auto out = new_array({static_cast<size_t>(k), static_cast<size_t>(k)});
                 f.inverse_submatrix(idx.data(), k, out.data());
@@ -526,6 +627,8 @@ void register_sparse_chol(nb::module_& m) {
         .def(
             "selected_inverse_blocks",
             [](const SparseCholesky& f, Index2 groups) {
+                if (!f.factorized())
+                    throw nb::value_error("factorize a positive-definite matrix first");
                 const size_t count = groups.shape(0), b = groups.shape(1);
                 auto out = new_array({count, b, b});
                 bool ok;

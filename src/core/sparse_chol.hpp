@@ -10,15 +10,19 @@
 // - L's row structure by row subtrees of the elimination tree (cs_ereach);
 // - fundamental supernodes (chains of columns with nested structures) stored as dense
 //   column-major panels, factorized by the left-looking supernodal Cholesky of Ng & Peyton
-//   (each supernode gathers the updates of its descendants, linked lists, relative indices);
+//   (each supernode's panel is assembled from A just before it gathers the updates of its
+//   descendants, linked lists, relative indices; an update whose rows are consecutive rows of
+//   the target is formed straight in the target's panel, others in a buffer then scattered);
 // - selected inversion by Takahashi's recurrence (K. Takahashi, J. Fagan, M.-S. Chen, 1973;
 //   supernodal form as in Y. Lin et al., ACM TOMS 37, 2011): with L̃_SJ = L_SJ L_JJ⁻¹,
-//   Z_SJ = -Z_SS L̃_SJ, Z_JJ = L_JJ⁻ᵀ L_JJ⁻¹ - L̃_SJᵀ Z_SJ, supernodes from last to first;
+//   Z_SJ = -Z_SS L̃_SJ, Z_JJ = L_JJ⁻ᵀ L_JJ⁻¹ - L̃_SJᵀ Z_SJ, supernodes from last to first; Z_SS
+//   is gathered from each ancestor's panel with one merge of row lists per ancestor;
 // - the joint block of A⁻¹ of a few parameters from forward solves along their
 //   elimination-tree paths only: (A⁻¹)_pq = (L⁻¹ e_p)ᵀ (L⁻¹ e_q).
 #pragma once
 
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #include "core.hpp"
@@ -49,6 +53,7 @@ public:
                                  double* out) const;
 
     int64_t n() const { return n_; }
+    bool factorized() const { return factorized_; }  // the last factorize succeeded
     int64_t nnz_L() const;  // entries of L (one triangle, diagonal included)
     int64_t supernodes() const { return static_cast<int64_t>(first_.size()) - 1; }
     const std::vector<int64_t>& perm() const { return perm_; }
@@ -63,7 +68,10 @@ private:
     std::vector<int64_t> rows_ptr_, rows_;     // row structure of each supernode (sorted)
     std::vector<int64_t> panel_ptr_;           // offset of each supernode's panel
     std::vector<int64_t> src_, dst_;           // A's lower entries → panel slots
-    std::vector<double> X_;                    // the panels of L, column-major
+    std::vector<int64_t> a_ptr_;               // the entries of each supernode in src_, dst_
+    std::unique_ptr<double[]> X_;              // the panels of L, column-major
+    int64_t x_size_ = 0;                       // their entries
+    bool factorized_ = false;
     int64_t max_update_ = 0;                   // workspace for the largest update
 
     int64_t sparent(int64_t s) const;                        // parent supernode, or -1

@@ -31,7 +31,7 @@ from relmap.at import AT
 from relmap.at3 import AT3
 from relmap.errors import NumericalError, SolverError, UnknownFrameError
 from relmap.gaussian import inverse_pd
-from relmap.lie import SE2, Group, se2
+from relmap.lie import SE2, Group
 from relmap.network.problem import Parameterization, Problem, parameterize
 from relmap.network.sparse import SymmetricFactor, SymmetricPattern, selected_inverse_blocks
 from relmap.typing import FloatArray, IntArray
@@ -278,18 +278,39 @@ def _normal_equations(
     return float(cost), data[:nnz], grad[:size]
 
 
+_NO_FRAME_JACOBIAN = np.zeros((0, 3, 3))  # every frame its own root: ∂pose/∂parameters = I
+
+
+def _residuals2(
+    poses: FloatArray, i: IntArray, j: IntArray, z: FloatArray, Jf: FloatArray | None
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The planar residuals ``r = p_i⁻¹ ∘ p_j ⊟ z`` (m, 3) and their Jacobians ``Ji, Jj``
+    (m, 3, 3) with respect to the parameters of frames i and j (through ``Jf``, each frame's
+    ∂pose/∂parameters, for rigid sets): relmap's compiled core (``relmap._core.residuals2``,
+    the closed forms of :func:`relmap.lie.se2.between` with its Jacobians)."""
+    c = np.ascontiguousarray
+    return _core.residuals2(  # type: ignore[no-any-return]
+        c(poses, dtype=np.float64),
+        c(i, dtype=np.int64),
+        c(j, dtype=np.int64),
+        c(z, dtype=np.float64),
+        _NO_FRAME_JACOBIAN if Jf is None else c(Jf, dtype=np.float64),
+    )
+
+
 class _System:
     """Residuals, Jacobians and the normal equations, assembled with a fixed pattern.
 
     The pattern's contributions are laid out component-major: for each of the four 3×3 blocks
     (i,i), (i,j), (j,i), (j,j) and each of its 9 entries, one slot per AT (then the dependent
     groups' blocks); entries of fixed parameters go to a discarded slot. The core fills the
-    plain ATs' slots from the chart Jacobians of :func:`relmap.lie.se2.between`.
+    plain ATs' slots in one pass with their residuals and Jacobians (:func:`_residuals2`).
     """
 
     def __init__(self, p: Problem, param: Parameterization, w: _Weights):
         self.p, self.param, self.w = p, param, w
-        i, j = p.i[w.edges], p.j[w.edges]
+        i = np.ascontiguousarray(p.i[w.edges], dtype=np.int64)
+        j = np.ascontiguousarray(p.j[w.edges], dtype=np.int64)
         self.i, self.j = i, j
         self.group_frames = [
             np.unique(np.concatenate([p.i[members], p.j[members]])) for members, _ in w.groups
@@ -310,9 +331,9 @@ class _System:
             self.pattern = self._scalar_pattern(p, param, w, i, j)
         # gradient scatter: parameters of frames i then j, component-major; fixed → a spare slot
         g_index = np.concatenate([param.col[i].T.reshape(-1), param.col[j].T.reshape(-1)])
-        self.g_index = np.where(g_index >= 0, g_index, param.size)
-        self.W = w.W  # information Σ⁻¹ of each soft AT
-        self._z = np.ascontiguousarray(p.z[w.edges])
+        self.g_index = np.ascontiguousarray(np.where(g_index >= 0, g_index, param.size))
+        self.W = np.ascontiguousarray(w.W, dtype=np.float64)  # information Σ⁻¹ of each soft AT
+        self._z = np.ascontiguousarray(p.z[w.edges], dtype=np.float64)
         m = len(i)  # the plain ATs' contribution slots, AT by AT: (m, [block t][entry q])
         self._slots = _slots(self.pattern.position[: 36 * m].reshape(4, 9, m).transpose(2, 0, 1))
 
@@ -348,15 +369,14 @@ class _System:
     ) -> tuple[float, FloatArray, FloatArray, FloatArray]:
         """(cost, poses, normal-matrix CSC data, gradient)."""
         param, w = self.param, self.w
-        poses = param.poses(xy, theta)
+        poses = np.ascontiguousarray(param.poses(xy, theta), dtype=np.float64)
         Jf = param.frame_jacobian(poses)
-        d, Ji, Jj = se2.between(poses[self.i], poses[self.j], jacobians=True)
-        if Jf is not None:  # frames tied into rigid sets
-            Ji, Jj = Ji @ Jf[self.i], Jj @ Jf[self.j]
-        r = se2.minus(d, self._z)
-        cost, data, grad = _normal_equations(
-            r, Ji, Jj, self.W, self._slots, self.g_index, self.pattern.nnz, param.size
+        F = _NO_FRAME_JACOBIAN if Jf is None else np.ascontiguousarray(Jf)
+        nnz = self.pattern.nnz
+        cost, data, grad = _core.normal_equations2(
+            poses, self.i, self.j, self._z, F, self.W, self._slots, self.g_index, nnz, param.size
         )
+        cost, data, grad = float(cost), data[:nnz], grad[: param.size]
         values = []
         for (members, Lg), frames in zip(w.groups, self.group_frames, strict=True):
             gcost, gvals, ggrad = self._group(poses, Jf, members, Lg, frames)
@@ -381,14 +401,12 @@ class _System:
         where = {int(f): a for a, f in enumerate(frames)}
         J = np.zeros((3 * k, 3 * len(frames)))
         r = np.zeros(3 * k)
+        rk, Jik, Jjk = _residuals2(poses, p.i[members], p.j[members], p.z[members], Jf)
         for row, m in enumerate(members):
             fi, fj = int(p.i[m]), int(p.j[m])
-            d, Ji, Jj = se2.between(poses[fi], poses[fj], jacobians=True)
-            if Jf is not None:
-                Ji, Jj = Ji @ Jf[fi], Jj @ Jf[fj]
-            r[3 * row : 3 * row + 3] = se2.minus(d, p.z[m])
-            J[3 * row : 3 * row + 3, 3 * where[fi] : 3 * where[fi] + 3] += Ji
-            J[3 * row : 3 * row + 3, 3 * where[fj] : 3 * where[fj] + 3] += Jj
+            r[3 * row : 3 * row + 3] = rk[row]
+            J[3 * row : 3 * row + 3, 3 * where[fi] : 3 * where[fi] + 3] += Jik[row]
+            J[3 * row : 3 * row + 3, 3 * where[fj] : 3 * where[fj] + 3] += Jjk[row]
         e, LJ = Lg @ r, Lg @ J
         H = LJ.T @ LJ
         g = LJ.T @ e
