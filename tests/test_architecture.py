@@ -16,6 +16,7 @@ marks are then to be removed.
 from __future__ import annotations
 
 import ast
+import functools
 from pathlib import Path
 
 import pytest
@@ -62,15 +63,6 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
 #: an entry when its part is merged): module -> why.
 PENDING_NUMBA: dict[str, str] = {}
 PENDING_LAYERS: dict[str, str] = {}
-#: Import cycles still present, each a sorted tuple of modules -> why.
-PENDING_CYCLES = {
-    (
-        "relmap.network.graph",
-        "relmap.network.optimal",
-        "relmap.network.query",
-        "relmap.network.sensing",
-    ): "RelationalMap's methods import the solvers that take a RelationalMap (issue 17, network)",
-}
 
 
 def _module_name(path: Path) -> str:
@@ -93,13 +85,20 @@ def _resolve(name: str) -> str:
     return name
 
 
-def imports(module: str) -> set[str]:
+@functools.cache
+def tree(module: str) -> ast.Module:
+    """The parsed source of ``module`` (parsed once per test process)."""
+    return ast.parse(MODULES[module].read_text(encoding="utf-8"))
+
+
+@functools.cache
+def imports(module: str) -> frozenset[str]:
     """Every module that ``module`` imports (anywhere in its source), resolved to relmap's
     modules where they are relmap's; others by their top-level name."""
     path = MODULES[module]
     package = module if path.name == "__init__.py" else module.rpartition(".")[0]
     out: set[str] = set()
-    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+    for node in ast.walk(tree(module)):
         if isinstance(node, ast.Import):
             out.update(
                 _resolve(a.name) if a.name.startswith("relmap") else a.name.split(".")[0]
@@ -118,7 +117,7 @@ def imports(module: str) -> set[str]:
                 target = f"{source}.{alias.name}"
                 is_module = target in MODULES or target == "relmap._core"
                 out.add(target if is_module else _resolve(source))
-    return out
+    return frozenset(out)
 
 
 def layer_of(module: str) -> int:
@@ -216,20 +215,8 @@ def test_the_layer_map_knows_every_module():
 
 
 def test_no_import_cycles():
-    """No import cycle joins two modules, except those still pending (each checked below)."""
-    unexpected = [c for c in _cycles() if tuple(c) not in PENDING_CYCLES]
-    assert unexpected == [], f"import cycles: {unexpected}"
-
-
-@pytest.mark.parametrize(
-    "cycle",
-    [
-        pytest.param(c, marks=pytest.mark.xfail(reason=r, strict=False))
-        for c, r in PENDING_CYCLES.items()
-    ],
-)
-def test_pending_import_cycle_is_gone(cycle):
-    assert list(cycle) not in _cycles()
+    """No import cycle joins two modules (a function-level or ``TYPE_CHECKING`` import counts)."""
+    assert _cycles() == [], f"import cycles: {_cycles()}"
 
 
 def test_the_import_parser_sees_relmaps_imports():
@@ -241,3 +228,30 @@ def test_the_import_parser_sees_relmaps_imports():
     assert "relmap" in imports("relmap.cli")  # from relmap import __version__: the package
     assert "numpy" in imports("relmap.gaussian")
     assert layer_of("relmap.io.posegraph") > layer_of("relmap.network.graph")
+
+
+SOLVERS = ("relmap.network.query", "relmap.network.optimal", "relmap.network.sensing")
+
+
+def test_the_solvers_read_a_map_through_its_stated_interface():
+    """The map sits above its solvers: they import no ``network.graph`` and read a map ``g``
+    only through the members :class:`relmap.network.parts.MapView` / ``EditableMap`` state."""
+    from relmap.network.parts import EditableMap
+
+    stated = {
+        name
+        for cls in EditableMap.__mro__
+        for name in vars(cls)
+        if not name.startswith("_") or name == "__contains__"
+    }
+    for module in SOLVERS:
+        assert "relmap.network.graph" not in imports(module), f"{module} imports the map"
+        read = {
+            node.attr
+            for node in ast.walk(tree(module))
+            if isinstance(node, ast.Attribute)
+            and isinstance(node.value, ast.Name)
+            and node.value.id in ("g", "trial")
+        }
+        assert read, f"{module}: no map read found (the check would be vacuous)"
+        assert read <= stated, f"{module} reads {sorted(read - stated)} off the map"

@@ -35,7 +35,7 @@ from relmap.network.sparse import SymmetricFactor, SymmetricPattern, selected_in
 from relmap.typing import FloatArray, IntArray
 
 if TYPE_CHECKING:
-    from relmap.network.graph import RelationalMap
+    from relmap.network.parts import MapView
 
 __all__ = [
     "Solution",
@@ -651,7 +651,7 @@ def _check_cost(cost: float, where: str) -> None:
 
 
 def problem_from_map(
-    g: RelationalMap,
+    g: MapView,
     names: Sequence[str],
     anchor: Frame,
     *,
@@ -664,8 +664,8 @@ def problem_from_map(
     re-expressed relative to the anchor (``keep_guess``: as given, the anchor at its own
     guess); otherwise poses compounded along a spanning tree, the anchor at the identity.
     ``frames``: the order of the problem's frames (default: the anchor, then as the ATs name
-    them). Uses the map's solver interface only (:meth:`RelationalMap.ends`, ``arrays``,
-    ``guesses``, ``groups``, ``at_type``).
+    them). Reads the map through :class:`~relmap.network.parts.MapView` only (``ends``,
+    ``arrays``, ``guesses``, ``groups``, ``at_type``).
     """
     ends = g.ends()
     index: dict[Frame, int] = (
@@ -704,7 +704,7 @@ def problem_from_map(
 
 
 def solve_map(
-    g: RelationalMap,
+    g: MapView,
     anchor: Frame | None = None,
     *,
     progress: Progress | None = None,
@@ -767,9 +767,7 @@ def solve_frames(
     return optimize(problem, progress=progress, max_iterations=max_iterations, **options)
 
 
-def _rows(
-    g: RelationalMap, names: Sequence[str], index: dict[Frame, int]
-) -> tuple[IntArray, IntArray]:
+def _rows(g: MapView, names: Sequence[str], index: dict[Frame, int]) -> tuple[IntArray, IntArray]:
     ends = g.ends()
     i = np.fromiter((index[ends[n][0]] for n in names), dtype=np.int64, count=len(names))
     j = np.fromiter((index[ends[n][1]] for n in names), dtype=np.int64, count=len(names))
@@ -846,13 +844,13 @@ def _tree_guess(n: int, i: IntArray, j: IntArray, z: FloatArray, group: Group = 
     return rel
 
 
-def solve_relative(g: RelationalMap, names: Sequence[str], entry: Frame, exit: Frame) -> Solved:
+def solve_relative(g: MapView, names: Sequence[str], entry: Frame, exit: Frame) -> Solved:
     """The AT of ``exit`` seen from ``entry``, from the joint estimate over the named ATs."""
     sol = solve_part(g, names, entry)
     return Solved(sol.relative(entry, exit), sol.iterations)
 
 
-def solve_part(g: RelationalMap, names: Sequence[str], anchor: Frame) -> Solution:
+def solve_part(g: MapView, names: Sequence[str], anchor: Frame) -> Solution:
     """The joint estimate over the named ATs, anchored at ``anchor``; kept on the map
     (:meth:`RelationalMap.memo`) until it changes, so that further queries in the same part
     reuse its factorization."""

@@ -38,7 +38,7 @@ from relmap.network.blocks import blocks_between
 from relmap.network.reduce import Reduction, reduce_network
 
 if TYPE_CHECKING:
-    from relmap.network.graph import RelationalMap
+    from relmap.network.parts import MapView
 
 __all__ = ["METHODS", "Estimate", "LinearizationCheck", "linearization_check", "query"]
 
@@ -101,7 +101,7 @@ def _position_trace(at: AT | AT3) -> float:
 
 
 def query(
-    g: RelationalMap,
+    g: MapView,
     src: Frame,
     dst: Frame,
     *,
@@ -233,7 +233,7 @@ def query(
     return Estimate(total, "optimal", None, src, dst, iterations=iterations, converged=converged)
 
 
-def _from_kept_solve(g: RelationalMap, src: Frame, dst: Frame) -> Estimate | None:
+def _from_kept_solve(g: MapView, src: Frame, dst: Frame) -> Estimate | None:
     """The estimate from a joint solve kept on the map whose part holds both frames (two
     frames of one solved region: the blocks between them lie inside it), or None."""
     if src == dst:
@@ -273,7 +273,7 @@ def _compare(first: AT, exact: AT) -> LinearizationCheck:
 
 
 def linearization_check(
-    g: RelationalMap, src: Frame, dst: Frame, *, on_irreducible: str = "raise"
+    g: MapView, src: Frame, dst: Frame, *, on_irreducible: str = "raise"
 ) -> LinearizationCheck:
     """Predicted error of the first-order reduction from ``src`` to ``dst`` (SE(2) maps):
     ``query(g, src, dst, method="reduce", diagnose=True).linearization``."""
@@ -288,7 +288,7 @@ class _Region(NamedTuple):
     names: tuple[str, ...]
 
 
-def _solve_regions(g: RelationalMap, blocks: list) -> list[_Region]:  # type: ignore[type-arg]
+def _solve_regions(g: MapView, blocks: list) -> list[_Region]:  # type: ignore[type-arg]
     """Blocks to solve one by one; blocks tied by a dependent group are solved together."""
     regions = [_Region(b.entry, b.exit, b.names) for b in blocks]
     block_of = {n: i for i, r in enumerate(regions) for n in r.names}

@@ -24,11 +24,11 @@ from relmap import gaussian
 from relmap.at import AT, merge
 from relmap.at3 import AT3
 from relmap.errors import DisconnectedError, ParameterError, ShapeError, UnknownFrameError
+from relmap.network.query import Estimate, query
 from relmap.typing import ArrayLike, FloatArray
 
 if TYPE_CHECKING:
-    from relmap.network.graph import RelationalMap
-    from relmap.network.query import Estimate
+    from relmap.network.parts import EditableMap
 
 __all__ = [
     "GlitchTest",
@@ -104,7 +104,7 @@ class SensingForecast(NamedTuple):
 
 
 def forecast_sensing(
-    g: RelationalMap,
+    g: EditableMap,
     sensed: tuple[Frame, Frame],
     sensor_cov: ArrayLike,
     of_interest: tuple[Frame, Frame],
@@ -118,13 +118,13 @@ def forecast_sensing(
     ``sensor_cov``; the relation of interest is queried before and after. Nothing is read and
     the map is not changed.
     """
-    before = g.query(*of_interest, method=method)
-    predicted = g.query(*sensed, method=method).at
+    before = query(g, *of_interest, method=method)
+    predicted = query(g, *sensed, method=method).at
     cov = gaussian.validate_covariance(sensor_cov, dim=predicted.group.dof, name="sensor cov")
     trial = g.copy()
     proposed = type(predicted)._trusted(predicted.mean, cov)
     trial.add(sensed[0], sensed[1], proposed, name=_fresh(trial, "proposed sensing"))
-    after = trial.query(*of_interest, method=method)
+    after = query(trial, *of_interest, method=method)
     k = 2 if isinstance(predicted, AT) else 3  # position block; the rotation block follows it
     C0, C1 = before.at.cov, after.at.cov
     area = np.sqrt(np.linalg.det(C1[:k, :k]) / max(np.linalg.det(C0[:k, :k]), 1e-300))
@@ -147,7 +147,7 @@ class SensingDecision(NamedTuple):
 
 
 def sense(
-    g: RelationalMap,
+    g: EditableMap,
     src: Frame,
     dst: Frame,
     reading: AT | AT3,
@@ -177,7 +177,7 @@ def sense(
         ):
             raise ParameterError(f"{label} must be a finite number; got {value!r}")
     try:
-        predicted: AT | AT3 | None = g.query(src, dst, method=method).at
+        predicted: AT | AT3 | None = query(g, src, dst, method=method).at
     except (DisconnectedError, UnknownFrameError):
         predicted = None  # a new frame, or frames not yet related: nothing to predict
     visible = None
@@ -250,7 +250,7 @@ def sense(
     )
 
 
-def _fresh(g: RelationalMap, base: str) -> str:
+def _fresh(g: EditableMap, base: str) -> str:
     name, k = base, 1
     while name in g:
         k += 1
