@@ -307,7 +307,7 @@ def write_records(
             "name": r.name,
             "from": _frame_for_file(r.src, r.name, "from"),
             "to": _frame_for_file(r.dst, r.name, "to"),
-            "mean": [float(v) for v in (r.at.vector if isinstance(r.at, AT3) else r.at.mean)],
+            "mean": [float(v) for v in r.at.vector],
             "cov": [[float(v) for v in row] for row in r.at.cov],
         }
         for r in records

@@ -34,6 +34,7 @@ from relmap.errors import (
 from relmap.lie import Group
 from relmap.network.parts import Edge, JointGroup
 from relmap.typing import ArrayLike, FloatArray
+from relmap.uncertain import UncertainPose
 
 if TYPE_CHECKING:
     from relmap.network.optimal import Progress, Solution
@@ -128,7 +129,7 @@ class RelationalMap:
 
     def _accept(self, at: object) -> None:
         """Check that ``at`` is an AT of the map's kind (fixing the kind on the first one)."""
-        if not isinstance(at, (AT, AT3)):
+        if not isinstance(at, UncertainPose):
             raise ArgumentTypeError(f"expected an AT or AT3, got {type(at).__name__}")
         if self._kind is None:
             self._kind = type(at)
@@ -457,7 +458,7 @@ class RelationalMap:
         self._check_frame(frame)
         arr = np.asarray(pose, dtype=np.float64)
         gaussian.check_finite(arr, "guess")
-        if self.at_type is AT3:
+        if self.at_type.dim == 3:
             if arr.shape == (7,):
                 arr = AT3.from_vector(arr).matrix
             elif arr.shape == (4, 4):
@@ -536,7 +537,7 @@ class RelationalMap:
 def _make_at(kind: type[AT] | type[AT3], mean: ArrayLike, cov: FloatArray) -> AT | AT3:
     """An AT of ``kind`` from a mean as users give it: ``(x, y, θ)``, or for AT3 a 4×4 matrix
     or ``[x, y, z, qx, qy, qz, qw]``."""
-    if kind is AT:
+    if kind.dim == 2:
         return AT(mean, cov)
     m = np.asarray(mean, dtype=np.float64)
     return AT3.from_matrix(m, cov) if m.shape[-2:] == (4, 4) else AT3.from_vector(m, cov)

@@ -28,7 +28,7 @@ from relmap import _core
 from relmap.at import AT
 from relmap.at3 import AT3
 from relmap.errors import NumericalError, SolverError, UnknownFrameError
-from relmap.gaussian import inverse_pd
+from relmap.gaussian import congruence, inverse_pd
 from relmap.lie import SE2, Group, se2, so3
 from relmap.network.problem import Parameterization, Problem, parameterize
 from relmap.network.sparse import SymmetricFactor, SymmetricPattern, selected_inverse_blocks
@@ -150,7 +150,7 @@ class Solution:
         J = np.zeros((b * k, b * k))
         for a in range(k):
             J[b * a : b * a + b, b * a : b * a + b] = Jf[a]
-        return J @ P_params @ J.T
+        return congruence(J, P_params)
 
     def marginals(self) -> FloatArray:
         """The marginal covariance of every frame's pose (relmap's chart), ``(n, dof, dof)``.
@@ -186,14 +186,14 @@ class Solution:
         else:
             cov = self._joint_cov_rows([a, b])
             J = np.hstack([Ja, Jb])
-        out = J @ cov @ J.T
+        out = congruence(J, cov)
         if not (np.all(np.isfinite(out)) and np.all(np.isfinite(d))):
             raise NumericalError(
                 f"the AT of frame {self.frames[b]!r} seen from {self.frames[a]!r} overflowed "
                 "(inf/NaN): the measurements are too large for floating point"
             )
         kind = AT if self.group is SE2 else AT3
-        return kind._trusted(d, 0.5 * (out + out.T))
+        return kind._trusted(d, out)
 
 
 def _information(cov: FloatArray, kind: IntArray) -> FloatArray:

@@ -35,7 +35,7 @@ from relmap.errors import NumericalError, ParameterError, UnknownFrameError
 from relmap.lie import se2
 from relmap.moments import check_method
 from relmap.network.blocks import blocks_between
-from relmap.network.reduce import Reduction, reduce_network
+from relmap.network.reduce import Reduction, position_trace, reduce_network
 
 if TYPE_CHECKING:
     from relmap.network.parts import MapView
@@ -94,12 +94,6 @@ class Estimate(NamedTuple):
     converged: bool | None = None  #: whether the joint solve met its stopping rule (optimal)
 
 
-def _position_trace(at: AT | AT3) -> float:
-    """Trace of the position covariance (m²): (x, y), or (x, y, z) in 3-D."""
-    k = 2 if isinstance(at, AT) else 3
-    return float(np.trace(at.cov[:k, :k]))
-
-
 def query(
     g: MapView,
     src: Frame,
@@ -107,7 +101,7 @@ def query(
     *,
     method: str = "auto",
     on_irreducible: str = "raise",
-    criterion: Callable[[AT | AT3], float] = _position_trace,
+    criterion: Callable[[AT | AT3], float] = position_trace,
     moments: str = "first_order",
     diagnose: bool = False,
     delta_y: str = "consistent",
@@ -148,7 +142,7 @@ def query(
             raise UnknownFrameError(f"no frame {frame!r} in the map")
     beyond = moments != "first_order" or diagnose
     what = f"moments={moments!r}" if moments != "first_order" else "diagnose=True"
-    if beyond and g.at_type is not AT:
+    if beyond and g.at_type.dim != 2:
         raise ParameterError(
             f"{what} is available for SE(2) maps only; this map holds 3-D ATs (first order)"
         )

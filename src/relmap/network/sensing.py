@@ -26,6 +26,7 @@ from relmap.at3 import AT3
 from relmap.errors import DisconnectedError, ParameterError, ShapeError, UnknownFrameError
 from relmap.network.query import Estimate, query
 from relmap.typing import ArrayLike, FloatArray
+from relmap.uncertain import UncertainPose
 
 if TYPE_CHECKING:
     from relmap.network.parts import EditableMap
@@ -125,7 +126,7 @@ def forecast_sensing(
     proposed = type(predicted)._trusted(predicted.mean, cov)
     trial.add(sensed[0], sensed[1], proposed, name=_fresh(trial, "proposed sensing"))
     after = query(trial, *of_interest, method=method)
-    k = 2 if isinstance(predicted, AT) else 3  # position block; the rotation block follows it
+    k = predicted.dim  # the position block; the rotation block follows it
     C0, C1 = before.at.cov, after.at.cov
     area = np.sqrt(np.linalg.det(C1[:k, :k]) / max(np.linalg.det(C0[:k, :k]), 1e-300))
     rot0, rot1 = np.trace(C0[k:, k:]), np.trace(C1[k:, k:])
@@ -167,7 +168,7 @@ def sense(
     :func:`glitch_test` at ``probability``. The map changes only if the reading is added.
     """
     gaussian.check_probability(min_visible, "min_visible")
-    if not isinstance(reading, (AT, AT3)):
+    if not isinstance(reading, UncertainPose):
         raise ParameterError(
             f"the reading must be an AT (or an AT3 in a 3-D map); got {type(reading).__name__}"
         )
@@ -191,7 +192,7 @@ def sense(
                 None,
                 None,
             )
-        if isinstance(predicted, AT3):
+        if predicted.dim != 2:
             raise ParameterError("field-of-view and range checks are planar; this map is 3-D")
         from relmap.decisions import in_view
 
