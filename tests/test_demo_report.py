@@ -1,8 +1,10 @@
 """`relmap demo`: the report builds, refers only to files that exist, its figures are not
-blank, and the numbers printed and shown are the library's."""
+blank, and the numbers printed and shown are the library's (one run of the command serves
+every test; `relmap demo` as a process of its own is run by .ci/run from the installed wheel)."""
 
 from __future__ import annotations
 
+import contextlib
 import io
 import re
 
@@ -10,7 +12,6 @@ import numpy as np
 import pytest
 
 from relmap import demo as d
-from relmap.demo_report import write_report
 
 pytestmark = pytest.mark.slow  # every test shares one built report (a full demo run)
 
@@ -19,12 +20,50 @@ SAMPLES = 2000  # reduced Monte Carlo sizes: the test checks plumbing, not stati
 
 @pytest.fixture(scope="module")
 def built(tmp_path_factory):
-    result = d.run(seed=3, samples=SAMPLES)
-    folder = tmp_path_factory.mktemp("report")
-    index = write_report(result, folder)
+    """One ``relmap demo`` (the command, run in this process): the demo's result (seen on its
+    way from :func:`relmap.demo.run` to the report), the report's index and what it printed."""
+    from relmap.cli import main
+
+    runs = []
+    real_run, real_print = d.run, d.print_demo
     out = io.StringIO()
-    d.print_demo(result, out)
-    return result, index, out.getvalue()
+
+    def run(*args, **kwargs):  # the command's own call, recorded
+        runs.append(real_run(*args, **kwargs))
+        return runs[-1]
+
+    def print_demo(demo, *args):  # its default stream is bound at import: say where to
+        real_print(demo, out)
+
+    folder = tmp_path_factory.mktemp("report") / "report"
+    with pytest.MonkeyPatch.context() as mp, contextlib.redirect_stdout(out):
+        mp.setattr(d, "run", run)
+        mp.setattr(d, "print_demo", print_demo)
+        code = main(["demo", "--seed", "3", "--samples", str(SAMPLES), "--out", str(folder)])
+    assert code == 0 and len(runs) == 1
+    return runs[0], folder / "index.html", out.getvalue()
+
+
+def test_demo_prints_the_library_results(built):
+    """The command prints the library's Fig. 1 compounds and merge, the Monte Carlo check and
+    where the report went."""
+    _, index, text = built
+    result = d.fig1()
+    rows = {
+        m.group(1).strip(): m
+        for m in re.finditer(r"^(\S+(?: = \S+ ⊕ \S+)?|G ⊗ Sᴿ|Sᴿ)\s+(\S+→\S+)\s+(.*)$", text, re.M)
+    }
+    for label, _, _, at in result.compounds:
+        numbers = [float(v) for v in rows[label].group(3).split()]
+        np.testing.assert_allclose(numbers[:2], at.mean[:2], atol=5e-4)
+        np.testing.assert_allclose(numbers[2], np.degrees(at.mean[2]), atol=5e-3)
+        e = at.ellipse(0.9)
+        np.testing.assert_allclose(numbers[6:8], [e.semi_major, e.semi_minor], atol=5e-5)
+    merged = [float(v) for v in rows["G ⊗ Sᴿ"].group(3).split()]
+    np.testing.assert_allclose(merged[:2], result.merged.mean[:2], atol=5e-4)
+    assert "Monte Carlo check of G" in text
+    assert index.is_file()
+    assert f"Report written to {index}" in text
 
 
 def test_report_refers_only_to_files_that_exist(built):

@@ -89,3 +89,27 @@ def test_free_functions_take_either_kind_and_refuse_a_mix(rng):
         rm.compound(q[0], q[1], moments="exact")
     with pytest.raises(ShapeError):
         rm.merge(q, rm.AT3.stack([q[0], q[0], q[0]]))
+
+
+@pytest.mark.parametrize("kind", ["AT", "AT3"])
+def test_what_generic_code_reads_instead_of_the_kind(rng, kind):
+    """``dim``, ``position_cov`` and ``vector``: the space's dimension (the translation's
+    length), the position block of the covariance, and the mean as files write it."""
+    a = _planar(rng, 4)
+    x = a if kind == "AT" else rm.AT3.from_planar(a)
+    n = 2 if kind == "AT" else 3
+    assert type(x).dim == x.dim == n
+    assert x.dim * (x.dim + 1) // 2 == x.group.dof
+    assert x._position().shape == (4, x.dim)  # the translation has dim entries
+    np.testing.assert_array_equal(x.position_cov, x.cov[:, :n, :n])
+    np.testing.assert_allclose(x.position_cov[:, :2, :2], a.cov[:, :2, :2], atol=1e-15)
+    if kind == "AT":
+        np.testing.assert_array_equal(x.vector, a.mean)
+    else:  # [x, y, z, qx, qy, qz, qw] of the planar pose: qz = sin(θ/2), qw = cos(θ/2)
+        half = a.mean[:, 2] / 2
+        sign = np.sign(np.cos(half))
+        expected = np.column_stack(
+            [a.mean[:, :2], np.zeros((4, 3)), sign * np.sin(half), sign * np.cos(half)]
+        )
+        np.testing.assert_allclose(x.vector, expected, atol=1e-12)
+        np.testing.assert_array_equal(rm.AT3.from_vector(x.vector, x.cov).vector, x.vector)

@@ -31,6 +31,7 @@ from relmap.at3 import AT3
 from relmap.errors import ArgumentTypeError, ChunkError, ParameterError, ShapeError
 from relmap.lie import SE2, Group
 from relmap.typing import FloatArray, SeedLike
+from relmap.uncertain import UncertainPose
 
 __all__ = [
     "Agreement",
@@ -175,7 +176,7 @@ def _whitener(cov: FloatArray) -> tuple[FloatArray, FloatArray]:
 
 def _check_inputs(inputs: tuple[object, ...]) -> None:
     for i, a in enumerate(inputs):
-        if not isinstance(a, (AT, AT3)):
+        if not isinstance(a, UncertainPose):
             raise ArgumentTypeError(f"input {i} is a {type(a).__name__}, not an AT or AT3")
 
 

@@ -134,7 +134,8 @@ class Trajectory:
     # ------------------------------------------------------------------- accessors
     @property
     def is_planar(self) -> bool:
-        return isinstance(self.poses, AT)
+        """Whether the poses are planar (AT, SE(2)) rather than 3-D (AT3)."""
+        return self.poses.dim == 2
 
     @property
     def cov(self) -> FloatArray | None:
@@ -144,7 +145,7 @@ class Trajectory:
     @property
     def matrices(self) -> FloatArray:
         """``(n, 4, 4)`` homogeneous poses (planar ones embedded at z = 0, about z)."""
-        if isinstance(self.poses, AT):
+        if self.is_planar:
             return embed_planar(self.poses.mean)
         return self.poses.matrix
 

@@ -43,9 +43,17 @@ class UncertainPose:
 
     __slots__ = ("_cov", "_mean")
     group: ClassVar[Group]  #: the pose group (generic code reads it)
+    #: the dimension n of the space the poses move in (SE(n): 2 for AT, 3 for AT3); the
+    #: covariance's position block is its first n × n (:attr:`position_cov`)
+    dim: ClassVar[int]
     _mean: FloatArray
     _cov: FloatArray
     __array_ufunc__ = None  # numpy defers to the pose: ``a @ ndarray`` is a TypeError, not a cast
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if "group" in vars(cls):  # SE(n) has n (n + 1) / 2 degrees of freedom
+            cls.dim = (math.isqrt(8 * cls.group.dof + 1) - 1) // 2
 
     # ------------------------------------------------------------------- storage
     def _set(self, mean: FloatArray, cov: FloatArray, batch: tuple[int, ...]) -> None:
@@ -129,6 +137,20 @@ class UncertainPose:
     def sigmas(self) -> FloatArray:
         """``(..., dof)`` standard deviations of the chart's coordinates."""
         return np.sqrt(np.diagonal(self._cov, axis1=-2, axis2=-1))
+
+    @property
+    def position_cov(self) -> FloatArray:
+        """``(..., n, n)`` the covariance of the position (n = :attr:`dim`), in the parent
+        frame."""
+        n = self.dim
+        return self._cov[..., :n, :n]
+
+    @property
+    def vector(self) -> FloatArray:
+        """The mean as JSON and text files write it, ``(..., k)``: the mean itself where it is
+        a vector (SE(2)'s ``(x, y, θ)``); a kind whose mean is a matrix overrides it (AT3:
+        ``[x, y, z, qx, qy, qz, qw]``)."""
+        return self._mean
 
     def _position(self) -> FloatArray:
         """``(..., n)`` the child origin in the parent frame (n = 2 or 3)."""

@@ -82,10 +82,10 @@ class Validation(NamedTuple):
     def summary(self) -> dict[str, Any]:
         """A JSON-ready dictionary: predicted and empirical moments and the statistics."""
         est, mc, a = self.estimate, self.samples, self.agreement
-        spatial = isinstance(est.at, AT3)
+        spatial = est.at.dim == 3
 
         def vec(at: AT | AT3) -> list[float]:
-            return [float(v) for v in (at.vector if isinstance(at, AT3) else at.mean)]
+            return [float(v) for v in at.vector]
 
         empirical = mc.as_at()
         return {
@@ -218,7 +218,7 @@ def plan(
     est = g.query(src, dst, method=method, moments=moments)
     seconds = time.perf_counter() - t0
     check = None
-    if est.method == "reduce" and isinstance(est.at, AT):
+    if est.method == "reduce" and est.at.dim == 2:  # exact moments are SE(2)'s
         from relmap.network.query import linearization_check
 
         check = linearization_check(g, src, dst)

@@ -25,6 +25,7 @@ import numpy as np
 from relmap.at import AT
 from relmap.at3 import AT3
 from relmap.errors import ParameterError
+from relmap.gaussian import congruence
 from relmap.trajectory import Trajectory, planar_from_matrices
 from relmap.typing import FloatArray
 
@@ -117,10 +118,8 @@ def _transformed(est: Trajectory, R: FloatArray, t: FloatArray, s: float) -> AT 
     if est.is_planar:
         B = np.zeros((3, 3))
         B[:2, :2], B[2, 2] = s * R[:2, :2], 1.0
-        cov = B @ est.poses.cov @ B.T
-        return AT._trusted(planar_from_matrices(M), cov)
+        return AT._trusted(planar_from_matrices(M), congruence(B, est.poses.cov))
     B = np.zeros((6, 6))
     B[:3, :3], B[3:, 3:] = s * R, R
-    cov = B @ est.poses.cov @ B.T
-    cov = 0.5 * (cov + np.swapaxes(cov, -1, -2))
+    cov = congruence(B, est.poses.cov)
     return Trajectory.from_matrices(M, None, cov if est.has_cov else None).poses

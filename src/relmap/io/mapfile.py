@@ -102,10 +102,12 @@ def _parse_json(path: Path, text: str) -> Any:
 
 
 def _yaml_loader():  # type: ignore[no-untyped-def]
-    """yaml's SafeLoader refusing duplicate keys (it would keep the last one silently)."""
+    """yaml's safe loader refusing duplicate keys (it would keep the last one silently): libyaml's
+    C parser where PyYAML has it (``CSafeLoader``; the pure-Python scanner is quadratic on some
+    inputs), the same safe constructor either way."""
     import yaml  # lazy: only map files need it
 
-    class Loader(yaml.SafeLoader):
+    class Loader(getattr(yaml, "CSafeLoader", yaml.SafeLoader)):  # type: ignore[misc]
         def construct_mapping(self, node, deep=False):  # type: ignore[no-untyped-def]
             seen: set[object] = set()
             for key_node, _ in node.value:
@@ -132,9 +134,10 @@ def _parse_yaml(path: Path, text: str) -> Any:
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         line = _line_of(text, mark.index) if mark is not None else None
-        raise FileFormatError(
-            path, f"invalid YAML: {getattr(exc, 'problem', None) or exc}", line=line
-        ) from None
+        problem = str(getattr(exc, "problem", None) or exc)
+        if "nesting depth" in problem:  # libyaml's limit (1000 levels), said as for JSON
+            problem = "nested too deeply"
+        raise FileFormatError(path, f"invalid YAML: {problem}", line=line) from None
     except ValueError as exc:  # an integer of more than 4300 digits
         raise FileFormatError(path, f"invalid YAML: {_too_long(exc)}") from None
     except RecursionError:
@@ -307,7 +310,7 @@ def write_records(
             "name": r.name,
             "from": _frame_for_file(r.src, r.name, "from"),
             "to": _frame_for_file(r.dst, r.name, "to"),
-            "mean": [float(v) for v in (r.at.vector if isinstance(r.at, AT3) else r.at.mean)],
+            "mean": [float(v) for v in r.at.vector],
             "cov": [[float(v) for v in row] for row in r.at.cov],
         }
         for r in records

@@ -109,6 +109,7 @@ from relmap.io.atomic import write_text_atomic
 from relmap.io.textfile import read_text
 from relmap.lie import SE3, Group, se2, se3, so3
 from relmap.typing import ArrayLike, FloatArray, IntArray
+from relmap.uncertain import UncertainPose
 
 __all__ = ["QUATERNION_ATOL", "PoseGraph", "file_information", "read_graph", "write_graph"]
 
@@ -767,6 +768,16 @@ def _values(values: FloatArray) -> FloatArray:
     return np.ascontiguousarray(values, dtype=np.float64)
 
 
+#: A pose group's body-frame chart (:meth:`~relmap.AT.to_body`) to its chart in g2o/TORO files:
+#: 2-D ``(x, y, θ)`` as it is; 3-D g2o ``(translation, quaternion vector part)`` from
+#: :meth:`relmap.AT3.to_body`'s ``(ω, v)`` (the quaternion's vector part is half the rotation),
+#: so that ``body_to_file @ body_to_chartᵀ = blkdiag(R_zᵀ, ½ R_zᵀ) = K⁻¹``.
+_BODY_TO_FILE = {
+    "SE(2)": np.eye(3),
+    "SE(3)": np.block([[np.zeros((3, 3)), np.eye(3)], [0.5 * np.eye(3), np.zeros((3, 3))]]),
+}
+
+
 def file_information(measurements: AT | AT3, format: GraphFormat = "g2o") -> FloatArray:
     """The information matrices a file holds for ``measurements`` (batch ``(m,)``, or one):
     the inverse of :func:`read_graph`'s conversion, for writing graphs built in relmap.
@@ -777,18 +788,15 @@ def file_information(measurements: AT | AT3, format: GraphFormat = "g2o") -> Flo
     information matrix: :class:`ParameterError` names the first. The legacy 3-D ``EDGE3`` format
     is read only (:class:`ParameterError`).
     """
-    if isinstance(measurements, AT):
-        cov_file = measurements.to_body()
-    elif isinstance(measurements, AT3):
-        if format != "g2o":
-            raise ParameterError(
-                f"3-D information can be written for format 'g2o' only; got {format!r} (the "
-                "legacy EDGE3 format is read only)"
-            )
-        Rt = np.swapaxes(np.asarray(measurements.rotation), -1, -2)
-        cov_file = gaussian.congruence(_g2o3_chart(Rt, 0.5), np.asarray(measurements.cov))
-    else:
+    if not isinstance(measurements, UncertainPose):
         raise TypeError(f"expected an AT or AT3, got {type(measurements).__name__}")
+    if measurements.dim == 3 and format != "g2o":
+        raise ParameterError(
+            f"3-D information can be written for format 'g2o' only; got {format!r} (the "
+            "legacy EDGE3 format is read only)"
+        )
+    body_to_file = _BODY_TO_FILE[measurements.group.name]
+    cov_file = gaussian.congruence(body_to_file, measurements.to_body())
     if format not in ("g2o", "toro"):
         raise ParameterError(f"unknown pose-graph format {format!r} (expected g2o or toro)")
     batch = cov_file.shape[:-2]

@@ -16,7 +16,7 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Callable, Hashable, Iterable, Iterator, Mapping, Sequence
 from types import MappingProxyType
-from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -32,7 +32,9 @@ from relmap.errors import (
     UnknownFrameError,
 )
 from relmap.lie import Group
+from relmap.network.parts import Edge, JointGroup
 from relmap.typing import ArrayLike, FloatArray
+from relmap.uncertain import UncertainPose
 
 if TYPE_CHECKING:
     from relmap.network.optimal import Progress, Solution
@@ -42,40 +44,6 @@ if TYPE_CHECKING:
 __all__ = ["Edge", "JointGroup", "RelationalMap"]
 
 Frame = Hashable
-
-
-class Edge:
-    """One AT of a map: ``at`` is where frame ``dst`` is, seen from frame ``src``.
-
-    ``group`` names the dependent group the AT belongs to, if any. An edge of a map built from
-    a batch (a pose-graph file) keeps a reference into the batch and makes its AT on first use.
-    """
-
-    __slots__ = ("_at", "_index", "_source", "dst", "group", "name", "src")
-
-    def __init__(
-        self,
-        name: str,
-        src: Frame,
-        dst: Frame,
-        at: AT | AT3,
-        group: str | None = None,
-        index: int | None = None,
-    ) -> None:
-        self.name, self.src, self.dst, self.group = name, src, dst, group
-        self._source, self._index = at, index  # index: position in a batched source AT
-        self._at: AT | AT3 | None = at if index is None else None
-
-    @property
-    def at(self) -> AT | AT3:
-        """The AT (a single one)."""
-        if self._at is None:
-            source = self._source
-            self._at = type(source)._trusted(source.mean[self._index], source.cov[self._index])
-        return self._at
-
-    def __repr__(self) -> str:
-        return f"Edge({self.name!r}: {self.src!r} → {self.dst!r}, {self.at!r})"
 
 
 class Record(Protocol):
@@ -99,14 +67,6 @@ class Graph(Protocol):
     edge_to: Any
     measurements: AT | AT3
     fixed: Any
-
-
-class JointGroup(NamedTuple):
-    """Dependent ATs with their joint covariance ``(dof·k, dof·k)`` (blocks in ``names`` order)."""
-
-    name: str
-    names: tuple[str, ...]
-    cov: FloatArray
 
 
 class RelationalMap:
@@ -169,7 +129,7 @@ class RelationalMap:
 
     def _accept(self, at: object) -> None:
         """Check that ``at`` is an AT of the map's kind (fixing the kind on the first one)."""
-        if not isinstance(at, (AT, AT3)):
+        if not isinstance(at, UncertainPose):
             raise ArgumentTypeError(f"expected an AT or AT3, got {type(at).__name__}")
         if self._kind is None:
             self._kind = type(at)
@@ -426,7 +386,8 @@ class RelationalMap:
         return self.submap(self.frames) if self._incident else RelationalMap()
 
     # ------------------------------------------------------- arrays for the solvers
-    # The interface the solvers (query, optimal) use: incidence, ends, order, arrays, guesses.
+    # The interface the solvers read (relmap.network.parts.MapView): at_type, frames, groups,
+    # anchor, has_frame, edge, incidence, ends, order, arrays, guesses, memo, memos.
     def incidence(self) -> Mapping[Frame, Mapping[str, None]]:
         """Frame → the names of its ATs (an ordered set), read-only."""
         return MappingProxyType(self._incident)
@@ -438,14 +399,6 @@ class RelationalMap:
     def order(self) -> dict[str, int]:
         """AT name → its position in insertion order (kept until the map changes)."""
         return self.memo("order", lambda: {name: i for i, name in enumerate(self._edges)})
-
-    def arrays(self, names: Sequence[str]) -> tuple[FloatArray, FloatArray]:
-        """Means ``(k, *point)`` and covariances ``(k, dof, dof)`` of the named ATs."""
-        return self._gather(names)
-
-    def guesses(self, frames: Sequence[Frame]) -> FloatArray | None:
-        """Initial poses of the frames in one common frame, if the map has one for each."""
-        return self._guess(frames)
 
     @property
     def anchor(self) -> Frame | None:
@@ -468,9 +421,9 @@ class RelationalMap:
 
         return solve_map(self, anchor, progress=progress, max_iterations=max_iterations, rtol=rtol)
 
-    def _gather(self, names: Sequence[str]) -> tuple[FloatArray, FloatArray]:
-        """Means (k, *point) and covariances (k, dof, dof) of the named ATs, gathered per
-        source batch."""
+    def arrays(self, names: Sequence[str]) -> tuple[FloatArray, FloatArray]:
+        """Means ``(k, *point)`` and covariances ``(k, dof, dof)`` of the named ATs, gathered
+        per source batch."""
         k = len(names)
         group = self.at_type.group
         edges = [self._edges[nm] for nm in names]
@@ -492,8 +445,8 @@ class RelationalMap:
             cov[positions] = source.cov[rows]
         return mean, cov
 
-    def _guess(self, frames: Sequence[Frame]) -> FloatArray | None:
-        """Initial poses of the frames in a common frame, if the map has one for each."""
+    def guesses(self, frames: Sequence[Frame]) -> FloatArray | None:
+        """Initial poses of the frames in one common frame, if the map has one for each."""
         if not self._guesses or any(f not in self._guesses for f in frames):
             return None
         return np.array([self._guesses[f] for f in frames])
@@ -505,7 +458,7 @@ class RelationalMap:
         self._check_frame(frame)
         arr = np.asarray(pose, dtype=np.float64)
         gaussian.check_finite(arr, "guess")
-        if self.at_type is AT3:
+        if self.at_type.dim == 3:
             if arr.shape == (7,):
                 arr = AT3.from_vector(arr).matrix
             elif arr.shape == (4, 4):
@@ -584,7 +537,7 @@ class RelationalMap:
 def _make_at(kind: type[AT] | type[AT3], mean: ArrayLike, cov: FloatArray) -> AT | AT3:
     """An AT of ``kind`` from a mean as users give it: ``(x, y, θ)``, or for AT3 a 4×4 matrix
     or ``[x, y, z, qx, qy, qz, qw]``."""
-    if kind is AT:
+    if kind.dim == 2:
         return AT(mean, cov)
     m = np.asarray(mean, dtype=np.float64)
     return AT3.from_matrix(m, cov) if m.shape[-2:] == (4, 4) else AT3.from_vector(m, cov)

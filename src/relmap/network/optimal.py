@@ -30,14 +30,14 @@ from relmap import _core
 from relmap.at import AT
 from relmap.at3 import AT3
 from relmap.errors import NumericalError, SolverError, UnknownFrameError
-from relmap.gaussian import inverse_pd
+from relmap.gaussian import congruence, inverse_pd
 from relmap.lie import SE2, Group
 from relmap.network.problem import Parameterization, Problem, parameterize
 from relmap.network.sparse import SymmetricFactor, SymmetricPattern, selected_inverse_blocks
 from relmap.typing import FloatArray, IntArray
 
 if TYPE_CHECKING:
-    from relmap.network.graph import RelationalMap
+    from relmap.network.parts import MapView
 
 __all__ = [
     "Solution",
@@ -166,7 +166,7 @@ class Solution:
         J = np.zeros((b * k, b * k))
         for a in range(k):
             J[b * a : b * a + b, b * a : b * a + b] = Jf[a]
-        return J @ P_params @ J.T
+        return congruence(J, P_params)
 
     def marginals(self) -> FloatArray:
         """The marginal covariance of every frame's pose (relmap's chart), ``(n, dof, dof)``.
@@ -202,14 +202,14 @@ class Solution:
         else:
             cov = self._joint_cov_rows([a, b])
             J = np.hstack([Ja, Jb])
-        out = J @ cov @ J.T
+        out = congruence(J, cov)
         if not (np.all(np.isfinite(out)) and np.all(np.isfinite(d))):
             raise NumericalError(
                 f"the AT of frame {self.frames[b]!r} seen from {self.frames[a]!r} overflowed "
                 "(inf/NaN): the measurements are too large for floating point"
             )
         kind = AT if self.group is SE2 else AT3
-        return kind._trusted(d, 0.5 * (out + out.T))
+        return kind._trusted(d, out)
 
 
 def _information(cov: FloatArray, kind: IntArray) -> FloatArray:
@@ -697,7 +697,7 @@ def _check_cost(cost: float, where: str) -> None:
 
 
 def problem_from_map(
-    g: RelationalMap,
+    g: MapView,
     names: Sequence[str],
     anchor: Frame,
     *,
@@ -710,8 +710,8 @@ def problem_from_map(
     re-expressed relative to the anchor (``keep_guess``: as given, the anchor at its own
     guess); otherwise poses compounded along a spanning tree, the anchor at the identity.
     ``frames``: the order of the problem's frames (default: the anchor, then as the ATs name
-    them). Uses the map's solver interface only (:meth:`RelationalMap.ends`, ``arrays``,
-    ``guesses``, ``groups``, ``at_type``).
+    them). Reads the map through :class:`~relmap.network.parts.MapView` only (``ends``,
+    ``arrays``, ``guesses``, ``groups``, ``at_type``).
     """
     ends = g.ends()
     index: dict[Frame, int] = (
@@ -750,7 +750,7 @@ def problem_from_map(
 
 
 def solve_map(
-    g: RelationalMap,
+    g: MapView,
     anchor: Frame | None = None,
     *,
     progress: Progress | None = None,
@@ -813,9 +813,7 @@ def solve_frames(
     return optimize(problem, progress=progress, max_iterations=max_iterations, **options)
 
 
-def _rows(
-    g: RelationalMap, names: Sequence[str], index: dict[Frame, int]
-) -> tuple[IntArray, IntArray]:
+def _rows(g: MapView, names: Sequence[str], index: dict[Frame, int]) -> tuple[IntArray, IntArray]:
     ends = g.ends()
     i = np.fromiter((index[ends[n][0]] for n in names), dtype=np.int64, count=len(names))
     j = np.fromiter((index[ends[n][1]] for n in names), dtype=np.int64, count=len(names))
@@ -892,13 +890,13 @@ def _tree_guess(n: int, i: IntArray, j: IntArray, z: FloatArray, group: Group = 
     return rel
 
 
-def solve_relative(g: RelationalMap, names: Sequence[str], entry: Frame, exit: Frame) -> Solved:
+def solve_relative(g: MapView, names: Sequence[str], entry: Frame, exit: Frame) -> Solved:
     """The AT of ``exit`` seen from ``entry``, from the joint estimate over the named ATs."""
     sol = solve_part(g, names, entry)
     return Solved(sol.relative(entry, exit), sol.iterations)
 
 
-def solve_part(g: RelationalMap, names: Sequence[str], anchor: Frame) -> Solution:
+def solve_part(g: MapView, names: Sequence[str], anchor: Frame) -> Solution:
     """The joint estimate over the named ATs, anchored at ``anchor``; kept on the map
     (:meth:`RelationalMap.memo`) until it changes, so that further queries in the same part
     reuse its factorization."""

@@ -35,10 +35,10 @@ from relmap.errors import NumericalError, ParameterError, UnknownFrameError
 from relmap.lie import se2
 from relmap.moments import check_method
 from relmap.network.blocks import blocks_between
-from relmap.network.reduce import Reduction, reduce_network
+from relmap.network.reduce import Reduction, position_trace, reduce_network
 
 if TYPE_CHECKING:
-    from relmap.network.graph import RelationalMap
+    from relmap.network.parts import MapView
 
 __all__ = ["METHODS", "Estimate", "LinearizationCheck", "linearization_check", "query"]
 
@@ -94,20 +94,14 @@ class Estimate(NamedTuple):
     converged: bool | None = None  #: whether the joint solve met its stopping rule (optimal)
 
 
-def _position_trace(at: AT | AT3) -> float:
-    """Trace of the position covariance (m²): (x, y), or (x, y, z) in 3-D."""
-    k = 2 if isinstance(at, AT) else 3
-    return float(np.trace(at.cov[:k, :k]))
-
-
 def query(
-    g: RelationalMap,
+    g: MapView,
     src: Frame,
     dst: Frame,
     *,
     method: str = "auto",
     on_irreducible: str = "raise",
-    criterion: Callable[[AT | AT3], float] = _position_trace,
+    criterion: Callable[[AT | AT3], float] = position_trace,
     moments: str = "first_order",
     diagnose: bool = False,
     delta_y: str = "consistent",
@@ -148,7 +142,7 @@ def query(
             raise UnknownFrameError(f"no frame {frame!r} in the map")
     beyond = moments != "first_order" or diagnose
     what = f"moments={moments!r}" if moments != "first_order" else "diagnose=True"
-    if beyond and g.at_type is not AT:
+    if beyond and g.at_type.dim != 2:
         raise ParameterError(
             f"{what} is available for SE(2) maps only; this map holds 3-D ATs (first order)"
         )
@@ -233,7 +227,7 @@ def query(
     return Estimate(total, "optimal", None, src, dst, iterations=iterations, converged=converged)
 
 
-def _from_kept_solve(g: RelationalMap, src: Frame, dst: Frame) -> Estimate | None:
+def _from_kept_solve(g: MapView, src: Frame, dst: Frame) -> Estimate | None:
     """The estimate from a joint solve kept on the map whose part holds both frames (two
     frames of one solved region: the blocks between them lie inside it), or None."""
     if src == dst:
@@ -273,7 +267,7 @@ def _compare(first: AT, exact: AT) -> LinearizationCheck:
 
 
 def linearization_check(
-    g: RelationalMap, src: Frame, dst: Frame, *, on_irreducible: str = "raise"
+    g: MapView, src: Frame, dst: Frame, *, on_irreducible: str = "raise"
 ) -> LinearizationCheck:
     """Predicted error of the first-order reduction from ``src`` to ``dst`` (SE(2) maps):
     ``query(g, src, dst, method="reduce", diagnose=True).linearization``."""
@@ -288,7 +282,7 @@ class _Region(NamedTuple):
     names: tuple[str, ...]
 
 
-def _solve_regions(g: RelationalMap, blocks: list) -> list[_Region]:  # type: ignore[type-arg]
+def _solve_regions(g: MapView, blocks: list) -> list[_Region]:  # type: ignore[type-arg]
     """Blocks to solve one by one; blocks tied by a dependent group are solved together."""
     regions = [_Region(b.entry, b.exit, b.names) for b in blocks]
     block_of = {n: i for i, r in enumerate(regions) for n in r.names}

@@ -159,6 +159,7 @@ from relmap.errors import (
     NumericalError,
     ParameterError,
 )
+from relmap.gaussian import congruence, generalized_inverse
 from relmap.lie import Group
 from relmap.typing import FloatArray
 
@@ -608,7 +609,7 @@ class _Reducer:
             else:
                 C1 = merge(C, self.series(st, [(kA, t), (kB, w)]))
             K = group.compose(A.mean, A.mean, jacobians=True)[2]  # ∂(A ⊕ b)/∂b
-            KCK = K @ C1.cov @ np.swapaxes(K, -1, -2)
+            KCK = congruence(K, C1.cov)
             covs = (
                 0.5 * (A1.cov + B1.cov - KCK),
                 0.5 * (-A1.cov + B1.cov + KCK),
@@ -789,11 +790,6 @@ def _chart_of_origin(group: Group, pose: FloatArray) -> FloatArray:
     return group.compose(eye, pose, jacobians=True)[1]
 
 
-def _congruence(M: FloatArray, C: FloatArray) -> FloatArray:
-    out = M @ C @ np.swapaxes(M, -1, -2)
-    return 0.5 * (out + np.swapaxes(out, -1, -2))
-
-
 def _consistent_star(
     group: Group,
     CA: FloatArray,
@@ -807,13 +803,11 @@ def _consistent_star(
     docstring).
 
     ``pt``, ``pv``: the corners t and v in w's frame (the star's o sits at w)."""
-    from relmap.gaussian import generalized_inverse
-
     Tt, Tv = _chart_of_origin(group, pt), _chart_of_origin(group, pv)
     Jv = group.between(pt, pv, jacobians=True)[2]  # ∂ between(t, v) / ∂v
-    SA = _congruence(np.linalg.inv(Tt), CA)
-    SB = _congruence(np.linalg.inv(Tv), CB)
-    SC = _congruence(np.linalg.inv(Jv @ Tv), CC)
+    SA = congruence(np.linalg.inv(Tt), CA)
+    SB = congruence(np.linalg.inv(Tv), CB)
+    SC = congruence(np.linalg.inv(Jv @ Tv), CC)
     G, _ = generalized_inverse(SA + SB + SC)
     Ptv = SA @ G @ SB
     Ptt = SA - SA @ G @ SA
@@ -822,7 +816,7 @@ def _consistent_star(
     R = SA @ GAB @ SB  # S_A ∥ S_B, the most X can carry
     R = 0.5 * (R + np.swapaxes(R, -1, -2))
     SX = _between_zero_and(0.5 * (Ptv + np.swapaxes(Ptv, -1, -2)), R)
-    covs = (SX, _congruence(Tv, Pvv - SX), _congruence(Tt, Ptt - SX))
+    covs = (SX, congruence(Tv, Pvv - SX), congruence(Tt, Ptt - SX))
     return covs, Tt @ (Ptv - SX) @ np.swapaxes(Tv, -1, -2)
 
 
@@ -835,19 +829,17 @@ def _between_zero_and(M: FloatArray, R: FloatArray, rtol: float = 1e-9) -> Float
     keep = lam > rtol * np.where(scale > 0, scale, 1.0)
     root = U * np.where(keep, np.sqrt(np.where(keep, lam, 1.0)), 0.0)[..., None, :]  # R^½
     iroot = U * np.where(keep, 1.0 / np.sqrt(np.where(keep, lam, 1.0)), 0.0)[..., None, :]
-    W = np.swapaxes(iroot, -1, -2) @ M @ iroot  # M relative to R, on R's range
-    mu, V = np.linalg.eigh(0.5 * (W + np.swapaxes(W, -1, -2)))
-    inside = root @ W @ np.swapaxes(root, -1, -2)  # M's part on R's range
+    W = congruence(np.swapaxes(iroot, -1, -2), M)  # M relative to R, on R's range
+    mu, V = np.linalg.eigh(W)
+    inside = congruence(root, W)  # M's part on R's range
     size = np.abs(M).max(axis=(-2, -1)) + np.abs(R).max(axis=(-2, -1))
     ok = (
         (mu.min(axis=-1) >= -rtol)
         & (mu.max(axis=-1) <= 1 + rtol)
         & (np.abs(M - inside).max(axis=(-2, -1)) <= rtol * size)
     )
-    clipped = root @ ((V * np.clip(mu, 0.0, 1.0)[..., None, :]) @ np.swapaxes(V, -1, -2))
-    clipped = clipped @ np.swapaxes(root, -1, -2)
-    out = np.where(ok[..., None, None], M, 0.5 * (clipped + np.swapaxes(clipped, -1, -2)))
-    return out
+    clipped = congruence(root, (V * np.clip(mu, 0.0, 1.0)[..., None, :]) @ np.swapaxes(V, -1, -2))
+    return np.where(ok[..., None, None], M, clipped)
 
 
 def _transform(
@@ -870,15 +862,12 @@ def _merge_weights(joint: FloatArray, b: int, k: int) -> list[FloatArray]:
     """First-order weights W_i of the best linear unbiased merge of k ATs with ``joint``
     covariance, ``δx̂ = Σ W_i δ_i`` (:func:`relmap.merge`: x̂ = z₁ - Cov(e₁, d) Cov(d)⁺ d,
     ``d_j = z_j ⊟ z₁``)."""
-    from relmap.gaussian import generalized_inverse
-
     eye = np.eye(b)
     D = np.zeros((b * (k - 1), b * k))
     for j in range(1, k):
         D[b * (j - 1) : b * j, :b] = -eye
         D[b * (j - 1) : b * j, b * j : b * j + b] = eye
-    S = D @ joint @ D.T
-    G, _ = generalized_inverse(0.5 * (S + np.swapaxes(S, -1, -2)))
+    G, _ = generalized_inverse(congruence(D, joint))
     K = joint[..., :b, :] @ D.T @ G
     Ks = [K[..., :, b * (j - 1) : b * j] for j in range(1, k)]
     return [eye + sum(Ks, np.zeros_like(Ks[0])), *(-Kj for Kj in Ks)]
@@ -893,7 +882,7 @@ def _consistent_mesh(
     is singular (an exactly known direction: no finite mesh)."""
     d, b = len(legs), group.dof
     T = [_chart_of_origin(group, leg.mean) for leg in legs]
-    S = [_congruence(np.linalg.inv(Ti), leg.cov) for Ti, leg in zip(T, legs, strict=True)]
+    S = [congruence(np.linalg.inv(Ti), leg.cov) for Ti, leg in zip(T, legs, strict=True)]
     # Directions every leg knows exactly (e.g. headings without error) stay exact: the mesh is
     # built on the other directions, U spanning them.
     lam, U = np.linalg.eigh(sum(S))
@@ -903,7 +892,7 @@ def _consistent_mesh(
         return None
     U = U[..., :, b - int(r.flat[0]) :]
     Ut = np.swapaxes(U, -1, -2)
-    S = [Ut @ Sk @ U for Sk in S]
+    S = [congruence(Ut, Sk) for Sk in S]
     c = U.shape[-1]
     # ξ_k - ξ_0 (k ≥ 1) seen through the star: Cov = S_0 + δ_km S_k
     P = np.concatenate(
@@ -934,7 +923,7 @@ def _consistent_mesh(
             return None  # no finite, positive definite AT carries this conductance
         mean, _, Jq = group.between(legs[p].mean, legs[q].mean, jacobians=True)
         Spq = U @ np.linalg.inv(Gpq) @ Ut
-        out.append(((p, q), mean, _congruence(Jq @ T[q], Spq)))
+        out.append(((p, q), mean, congruence(Jq @ T[q], Spq)))
     return out
 
 
@@ -952,10 +941,9 @@ def _sub(n: int) -> str:
     return str(n).translate(str.maketrans("0123456789", "₀₁₂₃₄₅₆₇₈₉"))
 
 
-def _position_trace(at: AT | AT3) -> float:
+def position_trace(at: AT | AT3) -> float:
     """Trace of the position block of the covariance (m²): (x, y), or (x, y, z) in 3-D."""
-    k = 2 if isinstance(at, AT) else 3
-    return float(np.trace(at.cov[..., :k, :k]))
+    return float(np.trace(at.position_cov, axis1=-2, axis2=-1))
 
 
 DELTA_Y = ("consistent", "paper")
@@ -974,7 +962,7 @@ def reduce_network(
     t: Frame,
     *,
     on_irreducible: str = "raise",
-    criterion: Callable[[AT | AT3], float] = _position_trace,
+    criterion: Callable[[AT | AT3], float] = position_trace,
     groups: Sequence[tuple[Sequence[str], np.ndarray]] = (),
     moments: str = "first_order",
     delta_y: str = "consistent",
@@ -1007,7 +995,7 @@ def reduce_network(
     if delta_y not in DELTA_Y:
         raise ParameterError(f"delta_y must be one of {', '.join(DELTA_Y)}; got {delta_y!r}")
     _moments.check_method(moments)
-    if moments != "first_order" and any(not isinstance(e[3], AT) for e in edges):
+    if moments != "first_order" and any(e[3].dim != 2 for e in edges):
         raise ParameterError(
             f"moments={moments!r} is available for SE(2) maps only (3-D ATs compound to first "
             "order); use moments='first_order'"

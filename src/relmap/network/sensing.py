@@ -24,11 +24,12 @@ from relmap import gaussian
 from relmap.at import AT, merge
 from relmap.at3 import AT3
 from relmap.errors import DisconnectedError, ParameterError, ShapeError, UnknownFrameError
+from relmap.network.query import Estimate, query
 from relmap.typing import ArrayLike, FloatArray
+from relmap.uncertain import UncertainPose
 
 if TYPE_CHECKING:
-    from relmap.network.graph import RelationalMap
-    from relmap.network.query import Estimate
+    from relmap.network.parts import EditableMap
 
 __all__ = [
     "GlitchTest",
@@ -104,7 +105,7 @@ class SensingForecast(NamedTuple):
 
 
 def forecast_sensing(
-    g: RelationalMap,
+    g: EditableMap,
     sensed: tuple[Frame, Frame],
     sensor_cov: ArrayLike,
     of_interest: tuple[Frame, Frame],
@@ -118,14 +119,14 @@ def forecast_sensing(
     ``sensor_cov``; the relation of interest is queried before and after. Nothing is read and
     the map is not changed.
     """
-    before = g.query(*of_interest, method=method)
-    predicted = g.query(*sensed, method=method).at
+    before = query(g, *of_interest, method=method)
+    predicted = query(g, *sensed, method=method).at
     cov = gaussian.validate_covariance(sensor_cov, dim=predicted.group.dof, name="sensor cov")
     trial = g.copy()
     proposed = type(predicted)._trusted(predicted.mean, cov)
     trial.add(sensed[0], sensed[1], proposed, name=_fresh(trial, "proposed sensing"))
-    after = trial.query(*of_interest, method=method)
-    k = 2 if isinstance(predicted, AT) else 3  # position block; the rotation block follows it
+    after = query(trial, *of_interest, method=method)
+    k = predicted.dim  # the position block; the rotation block follows it
     C0, C1 = before.at.cov, after.at.cov
     area = np.sqrt(np.linalg.det(C1[:k, :k]) / max(np.linalg.det(C0[:k, :k]), 1e-300))
     rot0, rot1 = np.trace(C0[k:, k:]), np.trace(C1[k:, k:])
@@ -147,7 +148,7 @@ class SensingDecision(NamedTuple):
 
 
 def sense(
-    g: RelationalMap,
+    g: EditableMap,
     src: Frame,
     dst: Frame,
     reading: AT | AT3,
@@ -167,7 +168,7 @@ def sense(
     :func:`glitch_test` at ``probability``. The map changes only if the reading is added.
     """
     gaussian.check_probability(min_visible, "min_visible")
-    if not isinstance(reading, (AT, AT3)):
+    if not isinstance(reading, UncertainPose):
         raise ParameterError(
             f"the reading must be an AT (or an AT3 in a 3-D map); got {type(reading).__name__}"
         )
@@ -177,7 +178,7 @@ def sense(
         ):
             raise ParameterError(f"{label} must be a finite number; got {value!r}")
     try:
-        predicted: AT | AT3 | None = g.query(src, dst, method=method).at
+        predicted: AT | AT3 | None = query(g, src, dst, method=method).at
     except (DisconnectedError, UnknownFrameError):
         predicted = None  # a new frame, or frames not yet related: nothing to predict
     visible = None
@@ -191,7 +192,7 @@ def sense(
                 None,
                 None,
             )
-        if isinstance(predicted, AT3):
+        if predicted.dim != 2:
             raise ParameterError("field-of-view and range checks are planar; this map is 3-D")
         from relmap.decisions import in_view
 
@@ -250,7 +251,7 @@ def sense(
     )
 
 
-def _fresh(g: RelationalMap, base: str) -> str:
+def _fresh(g: EditableMap, base: str) -> str:
     name, k = base, 1
     while name in g:
         k += 1

@@ -35,7 +35,7 @@ Noise models (the covariance of one step):
 from __future__ import annotations
 
 import math
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 
@@ -197,6 +197,21 @@ class _Noise:
         args = ", ".join(f"{f}={getattr(self, f)}" for f in self._fields)
         return f"{type(self).__name__}({args})"
 
+    def entries(self, motion: FloatArray, drive: DiffDrive | None = None) -> Sym2:
+        """The distinct entries ``(s00, s01, s11)`` of the covariance of ``(Δs, Δθ)``."""
+        raise NotImplementedError
+
+    def step_covariance(
+        self, motion: FloatArray, integration: Integration, drive: DiffDrive | None = None
+    ) -> FloatArray:
+        """Covariance (..., 3, 3) of the step Δ in the robot frame, ``J Σ Jᵀ`` with
+        ``J = ∂Δ/∂(Δs, Δθ)`` and Σ the covariance of ``(Δs, Δθ)`` (:meth:`entries`)."""
+        ds, dt = motion[..., 0], motion[..., 1]
+        a, b, da, db = _increment_parts(dt, integration)
+        s00, s01, s11 = self.entries(motion, drive)
+        # J's rows (a, ds·da), (b, ds·db), (0, 1)
+        return sym3.to_matrix(sym3.congruence_3x2(a, ds * da, b, ds * db, s00, s01, s11), ds.shape)
+
 
 class WheelNoise(_Noise):
     """Independent wheel errors: ``Σu = diag(σ² + k|Δφl|, σ² + k|Δφr|)`` (rad², lecture Eq. 12).
@@ -257,7 +272,9 @@ class AlphaNoise(_Noise):
     a3: float
     a4: float
 
-    def step_covariance(self, motion: FloatArray, integration: Integration) -> FloatArray:
+    def step_covariance(
+        self, motion: FloatArray, integration: Integration, drive: DiffDrive | None = None
+    ) -> FloatArray:
         """Covariance (..., 3, 3) of the step Δ (midpoint integration only)."""
         if integration != "midpoint":
             raise ParameterError("the α-model is defined for midpoint (rot-trans-rot) steps")
@@ -282,86 +299,12 @@ Noise = WheelNoise | DistanceNoise | AlphaNoise
 def _step_ats(
     motion: FloatArray, noise: Noise, integration: Integration, drive: DiffDrive | None
 ) -> AT:
-    """The steps as ATs (batch of the motion's leading axes), in the robot frame."""
-    ds: Any
-    dt: Any
-    if motion.ndim == 1:  # one step: Python floats, far cheaper to combine than numpy scalars
-        ds, dt = motion.tolist()
-    else:
-        ds, dt = motion[..., 0], motion[..., 1]
-    a, b, da, db = _increment_parts(dt, integration)
+    """The steps as ATs (batch of the motion's leading axes), in the robot frame: the step
+    (:func:`increment`) and its covariance (the model's ``step_covariance``)."""
+    ds, dt = motion[..., 0], motion[..., 1]
+    a, b, _, _ = _increment_parts(dt, integration)
     delta = stack_last([ds * a, ds * b, dt], motion.shape[:-1])
-    if isinstance(noise, AlphaNoise):
-        return AT._trusted(delta, noise.step_covariance(motion, integration))
-    s00, s01, s11 = noise.entries(motion, drive)
-    if motion.ndim == 1:
-        s00, s01, s11 = (float(v) for v in (s00, s01, s11))  # type: ignore[assignment]
-    # J S Jᵀ with J's rows (a, ds·da), (b, ds·db), (0, 1)
-    cov = sym3.to_matrix(
-        sym3.congruence_3x2(a, ds * da, b, ds * db, s00, s01, s11), delta.shape[:-1]
-    )
-    return AT._trusted(delta, cov)
-
-
-def _step_single(
-    motion: ArrayLike, noise: Noise, integration: Integration, drive: DiffDrive | None
-) -> tuple[tuple[float, float, float], tuple[float, ...]] | None:
-    """One step as Python floats, for a single filter's prediction: the step ``(Δx, Δy, Δθ)``
-    in the robot frame and the distinct entries ``(c00, c01, c02, c11, c12, c22)`` of its
-    covariance — the numbers :func:`_step_ats` gives, without its arrays. None unless
-    ``motion`` is one finite pair and the model one this path covers (the α-model is not):
-    the general path then validates (and raises) as usual.
-    """
-    if isinstance(motion, np.ndarray):
-        if motion.shape != (2,) or motion.dtype.kind not in "fiu":
-            return None
-        u0, u1 = motion.tolist()
-    elif isinstance(motion, list | tuple) and len(motion) == 2:
-        u0, u1 = motion
-        if type(u0) not in (float, int) or type(u1) not in (float, int):
-            return None
-    else:
-        return None
-    if not (math.isfinite(u0) and math.isfinite(u1)):
-        return None
-    if drive is not None:  # Eq. 9, as DiffDrive.motion's product with the wheel map
-        r, b = drive.wheel_radius, drive.baseline
-        ds, dt = float(u0 * (r / 2) + u1 * (r / 2)), float(u0 * (-r / b) + u1 * (r / b))
-    else:
-        ds, dt = float(u0), float(u1)
-    if isinstance(noise, DistanceNoise):
-        s00, s01 = noise.k_s * abs(ds), 0.0
-        s11 = noise.k_theta * abs(dt) + noise.k_theta_s * abs(ds)
-    elif isinstance(noise, WheelNoise) and drive is not None:
-        r, b = drive.wheel_radius, drive.baseline
-        vl = noise.sigma**2 + noise.k * abs((ds - b * dt / 2) / r)
-        vr = noise.sigma**2 + noise.k * abs((ds + b * dt / 2) / r)
-        s00, s01, s11 = r * r / 4 * (vl + vr), r * r / (2 * b) * (vr - vl), (r / b) ** 2 * (vl + vr)
-    else:
-        return None
-    if integration == "midpoint":
-        a, b_ = math.cos(dt / 2), math.sin(dt / 2)
-        da, db = -b_ / 2, a / 2
-    elif integration == "arc":
-        a, b_, da, db = _arc_parts(dt)
-    else:
-        return None
-    # J S Jᵀ as in _step_ats
-    return (ds * a, ds * b_, dt), sym3.congruence_3x2(a, ds * da, b_, ds * db, s00, s01, s11)
-
-
-def _arc_parts(dt: float) -> tuple[float, float, float, float]:
-    """:func:`_increment_parts` of the arc for one step, in Python floats."""
-    if abs(dt) < _ARC_SERIES:
-        t2 = dt * dt
-        return (
-            1 - t2 / 6 + t2 * t2 / 120,
-            dt / 2 - dt * t2 / 24 + dt * t2 * t2 / 720,
-            -dt / 3 + dt * t2 / 30,
-            0.5 - t2 / 8 + t2 * t2 / 144,
-        )
-    s, c, h = math.sin(dt), math.cos(dt), math.sin(dt / 2)
-    return s / dt, 2 * h**2 / dt, (dt * c - s) / (dt * dt), (dt * s - 2 * h**2) / (dt * dt)
+    return AT._trusted(delta, noise.step_covariance(motion, integration, drive))
 
 
 def step(
