@@ -261,10 +261,10 @@ def test_keep_modes_and_summary_do_not_hold_every_state():
 
 
 # ----------------------------------------------------------------- likelihood and robustness
-def test_loglik_is_the_gaussian_or_student_t_density_of_the_stacked_innovation():
-    from scipy import stats
-
-    rng = np.random.default_rng(8)
+def three_readings(rng):
+    """One time stamp with readings of landmarks 0-2 about a prior ``state``: its log, the
+    stacked innovation ``y``, Jacobian ``Hs``, noise ``R`` and ``S = Hs P Hsᵀ + R`` (Eqs. 20-26
+    written out)."""
     state = rm.AT([0.2, 0.1, 0.3], np.diag([0.05, 0.04, 0.01]))
     z = SENSOR.predict(state.mean, LANDMARKS[:3]) + rng.normal(size=(3, 2)) * [0.3, 0.05]
     log = ekf.Log(np.array([0.0]), np.zeros((0, 2)), np.zeros(3, np.int64), z, np.arange(3))
@@ -274,6 +274,13 @@ def test_loglik_is_the_gaussian_or_student_t_density_of_the_stacked_innovation()
     Hs = H.reshape(-1, 3)
     R = np.diag(np.tile([SENSOR.sigma_range**2, SENSOR.sigma_bearing**2], 3))
     S = Hs @ state.cov @ Hs.T + R
+    return state, log, y, Hs, R, S
+
+
+def test_loglik_is_the_gaussian_or_student_t_density_of_the_stacked_innovation():
+    from scipy import stats
+
+    state, log, y, Hs, R, S = three_readings(np.random.default_rng(8))
     gauss = ekf.run(log, LANDMARKS, params_of(), start=state, gate=0.999999)
     assert (gauss.status == ekf.Status.USED).all()
     assert gauss.loglik == pytest.approx(
@@ -301,16 +308,7 @@ def test_inflation_scales_the_update_but_not_the_gate_nor_the_likelihood():
     likelihood with R (the textbook update, Eqs. 26-28, written out)."""
     from scipy import stats
 
-    rng = np.random.default_rng(9)
-    state = rm.AT([0.2, 0.1, 0.3], np.diag([0.05, 0.04, 0.01]))
-    z = SENSOR.predict(state.mean, LANDMARKS[:3]) + rng.normal(size=(3, 2)) * [0.3, 0.05]
-    log = ekf.Log(np.array([0.0]), np.zeros((0, 2)), np.zeros(3, np.int64), z, np.arange(3))
-    h, H, _ = SENSOR.predict(state.mean, LANDMARKS[:3], jacobians=True)
-    y = (z - h).reshape(-1)
-    y[1::2] = se2.wrap_angle(y[1::2])
-    Hs = H.reshape(-1, 3)
-    R = np.diag(np.tile([SENSOR.sigma_range**2, SENSOR.sigma_bearing**2], 3))
-    S = Hs @ state.cov @ Hs.T + R
+    state, log, y, Hs, R, S = three_readings(np.random.default_rng(9))
     c = 2.5
     tr = ekf.run(log, LANDMARKS, params_of()._replace(inflation=c), start=state, gate=0.999999)
     assert (tr.status == ekf.Status.USED).all()

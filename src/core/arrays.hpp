@@ -27,6 +27,17 @@ nb::ndarray<nb::numpy, T> new_array(std::initializer_list<size_t> shape) {
     return nb::ndarray<nb::numpy, T>(data, shape, owner);
 }
 
+// The normal equations' scatter targets in range (or ValueError): n_slots slots into the CSC
+// data of nnz entries (nnz: the spill slot) and n_g gradient indices into size (size: spill).
+inline void check_targets(const int64_t* slots, int64_t n_slots, const int64_t* g_index,
+                          int64_t n_g, int64_t nnz, int64_t size) {
+    for (int64_t e = 0; e < n_slots; ++e)
+        if (slots[e] < 0 || slots[e] > nnz) throw nb::value_error("slot out of range");
+    for (int64_t e = 0; e < n_g; ++e)
+        if (g_index[e] < 0 || g_index[e] > size)
+            throw nb::value_error("gradient index out of range");
+}
+
 // A NumPy copy of a vector.
 template <class T>
 nb::ndarray<nb::numpy, T> vector_array(const std::vector<T>& v) {

@@ -183,12 +183,8 @@ void register_linearize(nb::module_& m) {
                 static_cast<int64_t>(slots.shape(1)) != 4 * b * b ||
                 static_cast<int64_t>(g_index.shape(0)) != 2 * b * count)
                 throw nb::value_error("slots (m, 4 b²) and g_index (2 b m) expected");
-            for (int64_t e = 0; e < count * 4 * b * b; ++e)
-                if (slots.data()[e] < 0 || slots.data()[e] > nnz)
-                    throw nb::value_error("slot out of range");
-            for (int64_t e = 0; e < 2 * b * count; ++e)
-                if (g_index.data()[e] < 0 || g_index.data()[e] > size)
-                    throw nb::value_error("gradient index out of range");
+            check_targets(slots.data(), count * 4 * b * b, g_index.data(), 2 * b * count, nnz,
+                          size);
             auto data = new_array({static_cast<size_t>(nnz + 1)});
             auto grad = new_array({static_cast<size_t>(size + 1)});
             double cost;
@@ -250,12 +246,7 @@ void register_linearize(nb::module_& m) {
             if (static_cast<int64_t>(slots.shape(0)) != count || slots.shape(1) != 36 ||
                 static_cast<int64_t>(g_index.shape(0)) != 6 * count)
                 throw nb::value_error("slots (m, 36) and g_index (6 m) expected");
-            for (int64_t e = 0; e < count * 36; ++e)
-                if (slots.data()[e] < 0 || slots.data()[e] > nnz)
-                    throw nb::value_error("slot out of range");
-            for (int64_t e = 0; e < 6 * count; ++e)
-                if (g_index.data()[e] < 0 || g_index.data()[e] > size)
-                    throw nb::value_error("gradient index out of range");
+            check_targets(slots.data(), count * 36, g_index.data(), 6 * count, nnz, size);
             auto data = new_array({static_cast<size_t>(nnz + 1)});
             auto grad = new_array({static_cast<size_t>(size + 1)});
             double cost;

@@ -252,12 +252,8 @@ void register_linearize3(nb::module_& m) {
                 throw nb::value_error("W (m, 6, 6) expected");
             if (slots.shape(0) != count || slots.shape(1) != 144 || g_index.shape(0) != 12 * count)
                 throw nb::value_error("slots (m, 144) and g_index (12 m) expected");
-            for (size_t e = 0; e < count * 144; ++e)
-                if (slots.data()[e] < 0 || slots.data()[e] > nnz)
-                    throw nb::value_error("slot out of range");
-            for (size_t e = 0; e < 12 * count; ++e)
-                if (g_index.data()[e] < 0 || g_index.data()[e] > size)
-                    throw nb::value_error("gradient index out of range");
+            check_targets(slots.data(), static_cast<int64_t>(count * 144), g_index.data(),
+                          static_cast<int64_t>(12 * count), nnz, size);
             auto data = new_array({static_cast<size_t>(nnz + 1)});
             auto grad = new_array({static_cast<size_t>(size + 1)});
             double cost;
