@@ -420,7 +420,8 @@ def _localize(args: argparse.Namespace) -> int:
         source = (
             f"this run's innovations (clock offset {cal.delay:g} s"
             + (f", range scale {cal.scale:g}" if ranges_only else "")
-            + f"; σ ×{cal.inflation:.2f} for correlated readings, ρ {cal.correlation[0]:.2f})"
+            + f"; update σ ×{cal.inflation:.2f} for correlated readings, ρ "
+            + f"{cal.correlation[0]:.2f})"
         )
     else:
         source = cal.trained_on + " against its ground truth"
@@ -439,8 +440,8 @@ def _localize(args: argparse.Namespace) -> int:
         + (f", {r['ignored']} ignored (not landmarks)" if r["ignored"] else "")
         + f"; NIS/dof {run.anis:.2f} (1 if consistent"
         + (
-            f"; below 1 by design when correlated readings are inflated, here σ "
-            f"×{cal.inflation:.2f})"
+            f"; below 1 by design when correlated readings are inflated in the update, "
+            f"here σ ×{cal.inflation:.2f})"
             if auto and cal.inflation > 1.05
             else ")"
         )
