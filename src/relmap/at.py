@@ -419,22 +419,13 @@ def _merge_correlated(
             f"{exc}: the cross-covariances are impossible for these ATs' covariances"
         ) from None
     # BLUE from the first AT and the differences d_j = z_j ⊟ z_1 (x cancels from them):
-    # x̂ = z_1 - Cov(e_1, d) Cov(d)⁺ d, C = C_1 - Cov(e_1, d) Cov(d)⁺ Cov(e_1, d)ᵀ.
-    eye = np.eye(b)
-    D = np.zeros((b * (k - 1), b * k))
-    for j in range(1, k):
-        D[b * (j - 1) : b * j, :b] = -eye
-        D[b * (j - 1) : b * j, b * j : b * j + b] = eye
-    Dt = D.T
-    S = D @ joint @ Dt
-    X = joint[..., :b, :] @ Dt  # Cov(e_1, d)
-    G, null = gaussian.generalized_inverse(0.5 * (S + np.swapaxes(S, -1, -2)))
+    # x̂ = z_1 - K d, C = C_1 - K Xᵀ, K = Cov(e_1, d) Cov(d)⁺, X = Cov(e_1, d).
+    K, X, null = gaussian.difference_merge_gain(joint, b, k)
     mean0 = np.broadcast_to(ats[0].mean, (*shape, *group.point_shape))
     d = np.concatenate(
         [np.broadcast_to(group.minus(a.mean, ats[0].mean), (*shape, b)) for a in ats[1:]], -1
     )
     gaussian.check_agreement(d, null, atol=atol, what="the correlated ATs")
-    K = X @ G
     mean = group.plus(mean0, -np.einsum("...ij,...j->...i", K, d))
     C = joint[..., :b, :b] - K @ np.swapaxes(X, -1, -2)
     C = 0.5 * (C + np.swapaxes(C, -1, -2))
