@@ -15,7 +15,8 @@ chooses a kind by ``isinstance``.
 
 The helpers below validate once, at the edge: :func:`same_kind` (arguments of one kind),
 :func:`checked_cross_cov` (a dependent pair's cross-covariance), :func:`chain_axis` (a chain's
-axis, of a batch shape :func:`chain_batch_axis`), :func:`batch_shape_of`; :func:`check_result` checks relmap's own results for overflow.
+axis; of a batch shape, :func:`chain_batch_axis`), :func:`batch_shape_of`; :func:`check_result`
+checks relmap's own results for overflow.
 """
 
 from __future__ import annotations
