@@ -274,8 +274,8 @@ def predict(
 
     ``model`` a relmap.robot noise model: odometry of a pose AT, ``u = (Δs, Δθ)`` (or wheel
     increments with ``drive``); a model whose ``core_params`` are given (DistanceNoise with
-    midpoint integration) is the core's built-in model, the others give the step's AT through :mod:`relmap.robot`. ``model`` a
-    :class:`Motion`: any ``f`` (see there).
+    midpoint integration) is the core's built-in model, the others give the step's AT through
+    :mod:`relmap.robot`. ``model`` a :class:`Motion`: any ``f`` (see there).
     """
     x, P = _arrays(state)
     if isinstance(model, Motion):
