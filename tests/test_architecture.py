@@ -265,15 +265,7 @@ def test_the_solvers_read_a_map_through_its_stated_interface():
 TWIN_STATEMENTS, TWIN_LINES = 3, 4
 #: Copies still in src/, each to go (the integrator removes an entry when its fix lands; the
 #: check below fails both on a new copy and on a listed one that is gone): functions -> why.
-KNOWN_TWINS: dict[frozenset[str], str] = {
-    frozenset({"relmap.at._merge_correlated", "relmap.network.reduce._merge_weights"}): (
-        "the merge's difference operator D (d_j = z_j ⊟ z_1) built twice: one helper of the "
-        "BLUE merge in relmap.at (or gaussian) for both"
-    ),
-    frozenset({"relmap.moments.chain_moments", "relmap.moments.unscented_chain"}): (
-        "the chain's axis checks written twice; relmap.uncertain.chain_axis states them once"
-    ),
-}
+KNOWN_TWINS: dict[frozenset[str], str] = {}
 
 
 _SHAPES: dict[ast.stmt, tuple[str, list[str]]] = {}

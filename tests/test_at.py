@@ -440,3 +440,30 @@ def test_merge_monte_carlo_error_distribution():
     mc = montecarlo.simulate_merge(a, b, c, n=100_000, seed=37).compare(merged)
     assert np.all(mc.cov_rel_error < 5 * mc.cov_rel_standard_error)
     assert np.all(np.abs(mc.mean_error) < 5 * mc.mean_standard_error)
+
+
+@pytest.mark.parametrize("how", ["independent", "cross_cov", "joint_cov"])
+def test_merge_of_a_batch_sharing_its_covariances_computes_the_gain_once(rng, how):
+    """ATs built from one covariance each (stored once, broadcast): the merge's gain is
+    computed once (the result's covariance is still one, stride 0) and every element is the
+    information-form merge (Eq. 8-10) of its means."""
+    Ca, Cb = random_covs(rng, (), scale=0.05), random_covs(rng, (), scale=0.05)
+    X = 0.3 * np.linalg.cholesky(Ca) @ np.linalg.cholesky(Cb).T if how != "independent" else 0 * Ca
+    ma = rng.normal(scale=0.5, size=(50, 3))
+    a = rm.AT(ma, Ca)
+    b = rm.AT(se2.plus(ma, rng.normal(scale=0.05, size=(50, 3))), Cb)
+    kwargs = {
+        "independent": {},
+        "cross_cov": {"cross_cov": X},
+        "joint_cov": {"joint_cov": np.block([[Ca, X], [X.T, Cb]])},
+    }[how]
+    m = rm.merge(a, b, **kwargs)
+    assert m.batch_shape == (50,) and m.cov.strides[0] == 0
+    # GLS with A = [I; I] on the joint covariance, the second mean written as first ⊞ d
+    Si = np.linalg.inv(np.block([[Ca, X], [X.T, Cb]]))
+    A = np.vstack([np.eye(3), np.eye(3)])
+    C = np.linalg.inv(A.T @ Si @ A)
+    np.testing.assert_allclose(m.cov[0], C, rtol=1e-9, atol=1e-14)
+    d = se2.minus(b.mean, a.mean)
+    step = np.einsum("ij,...j->...i", C @ A.T @ Si[:, 3:], d)
+    assert_poses_close(m.mean, se2.plus(a.mean, step), atol=1e-12)

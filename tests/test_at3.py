@@ -400,3 +400,18 @@ def test_compound_and_reverse_that_overflow_raise(where):
         np.delete(T, where, 0), np.broadcast_to(0.01 * np.eye(6), (999, 6, 6))
     )
     assert np.isfinite((fine @ fine).cov).all()
+
+
+def test_merge3_of_a_batch_sharing_its_covariances_computes_the_gains_once(rng):
+    """AT3s of one covariance each (stored once): the gains are computed once (the result's
+    covariance stays stride 0) and, for equal means, are the information form (I_a + I_b)⁻¹."""
+    L1, L2 = rng.normal(scale=0.1, size=(6, 6)), rng.normal(scale=0.1, size=(6, 6))
+    Ca, Cb = L1 @ L1.T + 1e-4 * np.eye(6), L2 @ L2.T + 1e-4 * np.eye(6)
+    R = Rotation.random(8, random_state=3).as_matrix()
+    t = rng.normal(size=(8, 3))
+    m = rm.merge(rm.AT3(t, R, Ca), rm.AT3(t, R, Cb))
+    assert m.batch_shape == (8,) and m.cov.strides[0] == 0
+    np.testing.assert_allclose(
+        m.cov[0], np.linalg.inv(np.linalg.inv(Ca) + np.linalg.inv(Cb)), rtol=1e-9, atol=1e-14
+    )
+    np.testing.assert_allclose(m.translation, t, atol=1e-12)

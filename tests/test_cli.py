@@ -46,18 +46,32 @@ def test_import_stays_light():
 
 
 def test_help_imports_neither_numpy_nor_scipy():
-    """`relmap --help` starts light: the package's names are imported on first use only."""
+    """`relmap --help` starts light: the package's names are imported on first use only, and
+    the trajectory commands' parsers (relmap.cli_trajectory) are built only when they run."""
     code = (
         "import sys; from relmap.cli import main\n"
         "try:\n    main(['--help'])\nexcept SystemExit:\n    pass\n"
         "print([m for m in sys.modules if m.split('.')[0] in ('numpy', 'scipy', 'relmap') "
-        "and m not in ('relmap', 'relmap._version', 'relmap.cli', 'relmap.errors', "
-        "'relmap.cli_trajectory')], "
+        "and m not in ('relmap', 'relmap._version', 'relmap.cli', 'relmap.errors')], "
         "file=sys.stderr)"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0 and "usage: relmap" in out.stdout
+    assert all(name in out.stdout for name in ("eval", "traj", "convert"))
     assert out.stderr.strip() == "[]", out.stderr
+
+
+def test_a_trajectory_commands_parser_is_built_when_it_runs():
+    """`relmap eval --help` builds eval's parser (its options are there)."""
+    out = _run("eval", "--help")
+    assert out.returncode == 0 and "--pairs-from-reference" in out.stdout
+
+
+def test_relmap_typing_does_not_import_numpy_random():
+    """The type aliases cost numpy alone: numpy.random is imported where randomness is drawn."""
+    code = "import sys, relmap.typing; print('numpy.random' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert out.stdout.strip() == "False", out.stdout + out.stderr
 
 
 @pytest.mark.real_data

@@ -258,3 +258,35 @@ def test_inverse_pd_equals_lapack_on_badly_scaled_matrices(n):
     err = np.abs(unit - ref).max(axis=(1, 2)) / np.abs(ref).max(axis=(1, 2))
     assert (err <= 50 * cond * np.finfo(float).eps).all()
     assert gaussian.inverse_pd(C[0]).shape == (n, n)
+
+
+@pytest.mark.parametrize("k", [2, 3, 4])
+def test_difference_merge_gain_is_the_generalized_least_squares_merge(rng, k):
+    """x̂ = z₁ - K d and C = C₁ - K Xᵀ are the GLS estimate of one vector measured k times
+    with correlated errors: C = (Aᵀ Σ⁻¹ A)⁻¹, x̂ = C Aᵀ Σ⁻¹ z, A = [I; …; I] (batched)."""
+    b = 3
+    joint = random_covs(rng, (5,), n=b * k)
+    z = rng.normal(size=(5, k, b))
+    K, X, null = gaussian.difference_merge_gain(joint, b, k)
+    assert K.shape == X.shape == (5, b, b * (k - 1))
+    assert not null.any()
+    d = (z[:, 1:] - z[:, :1]).reshape(5, b * (k - 1))
+    mean = z[:, 0] - np.einsum("...ij,...j->...i", K, d)
+    cov = joint[:, :b, :b] - K @ np.swapaxes(X, -1, -2)
+    A = np.tile(np.eye(b), (k, 1))
+    info = A.T @ np.linalg.inv(joint) @ A
+    gls_cov = np.linalg.inv(info)
+    gls_mean = np.einsum(
+        "...ij,...j->...i", gls_cov @ A.T @ np.linalg.inv(joint), z.reshape(5, b * k)
+    )
+    np.testing.assert_allclose(cov, gls_cov, rtol=1e-8, atol=1e-12)
+    np.testing.assert_allclose(mean, gls_mean, rtol=1e-8, atol=1e-10)
+
+
+def test_difference_merge_gain_finds_an_exactly_known_difference():
+    """Two estimates both exact along x: their difference's x is exactly known (Cov(d) has a
+    null direction), which check_agreement then tests."""
+    joint = np.diag([0.0, 1.0, 0.0, 2.0])
+    _, _, null = gaussian.difference_merge_gain(joint, 2, 2)
+    np.testing.assert_allclose(np.abs(null[:, 0]), [1.0, 0.0])
+    assert not null[:, 1].any()

@@ -300,3 +300,21 @@ def test_linearization_error_predicts_the_first_order_error():
     assert large.cov_rel_error[0] == 0.0  # one link: nothing to linearize
     # The first-order mean is too far along the chain: it ignores E[cos θ] < 1.
     assert large.mean_error[-1, 0] > 0
+
+
+@pytest.mark.parametrize("chain", [mo.chain_moments, mo.unscented_chain])
+def test_a_chains_axis_is_checked_once_for_both_chains(chain):
+    """chain_moments and unscented_chain check the axis as compound_chain does
+    (relmap.uncertain.chain_batch_axis): a batch axis, an integer in range, one step."""
+    m, C = np.zeros((4, 3)), np.broadcast_to(0.01 * np.eye(3), (4, 3, 3))
+    with pytest.raises(ShapeError, match="at least one batch axis"):
+        chain(m[0], C[0])
+    with pytest.raises(ParameterError, match="integer"):
+        chain(m, C, axis=0.5)
+    with pytest.raises(ParameterError, match="integer"):
+        chain(m, C, axis=True)
+    with pytest.raises(ShapeError, match="out of range"):
+        chain(m, C, axis=1)
+    with pytest.raises(ShapeError, match="at least one step"):
+        chain(m[:0], C[:0])
+    assert chain(m, C, axis=-1).mean.shape == (4, 3)

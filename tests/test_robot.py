@@ -246,3 +246,33 @@ def test_arm_errors():
         ARM.forward([0.1, 0.2, 0.3])
     with pytest.raises(rm.errors.NotPositiveSemidefiniteError):
         ARM.gripper([0.1, 0.2], [[1.0, 2.0], [2.0, 1.0]])
+
+
+@pytest.mark.parametrize("integration", ["midpoint", "arc"])
+def test_distance_noise_step_covariance_is_j_sigma_jt(rng, integration):
+    """The step's covariance (the core's with midpoint integration) is J diag(var Δs, var Δθ) Jᵀ
+    with J = ∂Δ/∂(Δs, Δθ) (Eqs. 10-13), J taken numerically here; batched and unbatched."""
+    from relmap.robot.motion import DistanceNoise, increment
+
+    noise = DistanceNoise(0.01, 0.02, 0.003)
+    m = np.column_stack([rng.uniform(-1.0, 2.0, 5), rng.uniform(-0.8, 0.8, 5)])
+    C = noise.step_covariance(m, integration)
+    for mi, Ci in zip(m, C, strict=True):
+        J = numerical_jacobian(lambda v: increment(v, integration), mi)
+        S = np.diag([0.01 * abs(mi[0]), 0.02 * abs(mi[1]) + 0.003 * abs(mi[0])])
+        np.testing.assert_allclose(Ci, J @ S @ J.T, rtol=1e-6, atol=1e-12)
+        np.testing.assert_allclose(noise.step_covariance(mi, integration), Ci, rtol=1e-12)
+
+
+def test_only_distance_noise_with_midpoint_steps_is_the_cores_model():
+    """core_params: the core's parameter row (as long as relmap.ekf.NoiseParameters) for
+    DistanceNoise with midpoint integration, None otherwise."""
+    from relmap.ekf import NoiseParameters
+    from relmap.robot.motion import AlphaNoise, DistanceNoise, WheelNoise
+
+    row = DistanceNoise(0.01, 0.02, 0.003).core_params("midpoint")
+    assert row.shape == (1, len(NoiseParameters._fields))
+    np.testing.assert_array_equal(row[0, :3], [0.01, 0.02, 0.003])
+    assert DistanceNoise(0.01).core_params("arc") is None
+    assert WheelNoise(0.01).core_params("midpoint") is None
+    assert AlphaNoise(0.01).core_params("midpoint") is None

@@ -24,6 +24,10 @@
 
 #include <nanobind/stl/optional.h>
 
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
 #include "dense.hpp"  // RELMAP_MULTIVERSION
 
 namespace relmap {
@@ -36,8 +40,9 @@ using CovOut = nb::ndarray<nb::numpy, double, nb::shape<6, 6, -1>, nb::c_contig>
 
 // Batch elements per chunk (lanes). Each chunk reads about a hundred entry planes of the batch
 // at once; long runs per plane (2 KB here) keep the hardware prefetchers streaming, which
-// measured 2.3× faster per pair than chunks of 32 lanes (bench_se3.py). A chunk's blocks (about
-// 13 × 9 × W doubles, 240 KB) live in a per-thread workspace on the heap, not on the stack.
+// measured 2.3× faster per pair than chunks of 32 lanes (bench_se3.py). Contiguous inputs are
+// read in place (In3); a chunk's computed blocks (9 × 9 × W doubles, 166 KB) and the copies of
+// inputs that cannot be read in place live in a per-thread workspace on the heap.
 constexpr size_t W = 256;
 
 using Lanes = double[W];
@@ -48,10 +53,24 @@ struct V3 {
     Lanes v[3];
 };
 
-// The blocks of one chunk: allocated once per thread, reused by every call.
+// An input's 3×3 block or 3-vector of one chunk, read in place: m[3 i + j][lane] (lanes
+// contiguous). Inputs whose batch axis is contiguous are read where they are; others (strided,
+// broadcast, or a chunk that is not a whole number of vectors) are first copied into a block of
+// the workspace (see view).
+struct In3 {
+    const double* m[9];
+};
+struct InV {
+    const double* v[3];
+};
+
+// The blocks of one chunk: allocated once per thread, reused by every call; `in` holds the
+// copies of inputs that cannot be read in place.
 struct Work {
-    M3 m[13];
-    V3 v[3];
+    M3 m[9];
+    V3 v[1];
+    M3 in[10];
+    V3 in_v[2];
     Lanes nan;  // the overflow watch of the outputs (see watch)
 };
 
@@ -97,11 +116,56 @@ void load_column(const A& a, size_t c, size_t n0, size_t w, V3& out) {
     }
 }
 
-inline void put(double* out, size_t N, size_t entry, size_t n0, size_t w, const double* lanes) {
-    std::copy(lanes, lanes + w, out + entry * N + n0);
+// Rows (r0..r0+3, c0..c0+3) of a chunk as an input block: in place where the batch axis is
+// contiguous and the chunk is whole vectors (no padding lanes to zero), else copied into spare.
+template <class A>
+In3 view(const A& a, size_t r0, size_t c0, size_t n0, size_t w, M3& spare) {
+    In3 out;
+    if (a.stride(2) == 1 && lanes(w) == w) {
+        const double* p = a.data() + int64_t(n0);
+        for (size_t i = 0; i < 3; ++i)
+            for (size_t j = 0; j < 3; ++j)
+                out.m[3 * i + j] = p + int64_t(r0 + i) * a.stride(0) + int64_t(c0 + j) * a.stride(1);
+        return out;
+    }
+    load(a, r0, c0, n0, w, spare);
+    for (size_t k = 0; k < 9; ++k) out.m[k] = spare.m[k];
+    return out;
 }
 
-inline void mul(size_t n, const M3& a, const M3& b, M3& o) {  // o = a b (o distinct from a, b)
+template <class A>
+InV view_column(const A& a, size_t c, size_t n0, size_t w, V3& spare) {
+    InV out;
+    if (a.stride(2) == 1 && lanes(w) == w) {
+        const double* p = a.data() + int64_t(n0) + int64_t(c) * a.stride(1);
+        for (size_t i = 0; i < 3; ++i) out.v[i] = p + int64_t(i) * a.stride(0);
+        return out;
+    }
+    load_column(a, c, n0, w, spare);
+    for (size_t i = 0; i < 3; ++i) out.v[i] = spare.v[i];
+    return out;
+}
+
+// A chunk's lanes into an output plane. The outputs are new arrays, written once and not read
+// here: non-temporal (streaming) stores where the machine has them, so that writing them does not
+// first read their cache lines from memory (a third of the traffic of a compound).
+inline void put(double* out, size_t N, size_t entry, size_t n0, size_t w, const double* lanes) {
+    double* o = out + entry * N + n0;
+#if defined(__SSE2__)
+    size_t l = 0;
+    if (reinterpret_cast<uintptr_t>(o) % 16 != 0 && w > 0) {  // to a 16-byte boundary
+        o[0] = lanes[0];
+        l = 1;
+    }
+    for (; l + 2 <= w; l += 2) _mm_stream_pd(o + l, _mm_loadu_pd(lanes + l));
+    if (l < w) o[l] = lanes[l];
+#else
+    std::copy(lanes, lanes + w, o);
+#endif
+}
+
+template <class A, class B>
+inline void mul(size_t n, const A& a, const B& b, M3& o) {  // o = a b (o distinct from a, b)
     for (size_t i = 0; i < 3; ++i)
         for (size_t j = 0; j < 3; ++j)
             for (size_t l = 0; l < n; ++l)
@@ -109,7 +173,8 @@ inline void mul(size_t n, const M3& a, const M3& b, M3& o) {  // o = a b (o dist
                                     a.m[3 * i + 2][l] * b.m[6 + j][l];
 }
 
-inline void mul_t(size_t n, const M3& a, const M3& b, M3& o) {  // o = a bᵀ
+template <class A, class B>
+inline void mul_t(size_t n, const A& a, const B& b, M3& o) {  // o = a bᵀ
     for (size_t i = 0; i < 3; ++i)
         for (size_t j = 0; j < 3; ++j)
             for (size_t l = 0; l < n; ++l)
@@ -118,7 +183,8 @@ inline void mul_t(size_t n, const M3& a, const M3& b, M3& o) {  // o = a bᵀ
                                     a.m[3 * i + 2][l] * b.m[3 * j + 2][l];
 }
 
-inline void t_mul(size_t n, const M3& a, const M3& b, M3& o) {  // o = aᵀ b
+template <class A, class B>
+inline void t_mul(size_t n, const A& a, const B& b, M3& o) {  // o = aᵀ b
     for (size_t i = 0; i < 3; ++i)
         for (size_t j = 0; j < 3; ++j)
             for (size_t l = 0; l < n; ++l)
@@ -126,7 +192,8 @@ inline void t_mul(size_t n, const M3& a, const M3& b, M3& o) {  // o = aᵀ b
                                     a.m[6 + i][l] * b.m[6 + j][l];
 }
 
-inline void add_to(size_t n, M3& a, const M3& b) {  // a += b
+template <class B>
+inline void add_to(size_t n, M3& a, const B& b) {  // a += b
     for (size_t k = 0; k < 9; ++k)
         for (size_t l = 0; l < n; ++l) a.m[k][l] += b.m[k][l];
 }
@@ -137,7 +204,8 @@ inline void add_t_to(size_t n, M3& a, const M3& b) {  // a += bᵀ
             for (size_t l = 0; l < n; ++l) a.m[3 * i + j][l] += b.m[3 * j + i][l];
 }
 
-inline void hat(size_t n, const V3& u, double sign, M3& o) {  // o = sign [u]×
+template <class V>
+inline void hat(size_t n, const V& u, double sign, M3& o) {  // o = sign [u]×
     for (size_t l = 0; l < n; ++l) {
         o.m[0][l] = o.m[4][l] = o.m[8][l] = 0.0;
         o.m[1][l] = -sign * u.v[2][l];
@@ -150,7 +218,8 @@ inline void hat(size_t n, const V3& u, double sign, M3& o) {  // o = sign [u]×
 }
 
 // R M Rᵀ (rotate, R_left = false: Rᵀ M R) into o; tmp is scratch.
-inline void rotate(size_t n, const M3& R, const M3& M, bool transpose, M3& tmp, M3& o) {
+template <class Rot, class Mat>
+inline void rotate(size_t n, const Rot& R, const Mat& M, bool transpose, M3& tmp, M3& o) {
     if (transpose) {
         t_mul(n, R, M, tmp);
         mul(n, tmp, R, o);
@@ -162,7 +231,9 @@ inline void rotate(size_t n, const M3& R, const M3& M, bool transpose, M3& tmp, 
 
 // The shear [[I, S], [0, I]] C [[I, S], [0, I]]ᵀ of C = [[A, B], [Bᵀ, D]]: its block (0, 1)
 // B + S D into e, then (0, 0) A + S Bᵀ + e Sᵀ into a; block (1, 1) stays D. tmp is scratch.
-inline void shear(size_t n, const M3& S, const M3& A, const M3& B, const M3& D, M3& tmp, M3& a, M3& e) {
+template <class Ab, class Bb, class Db>
+inline void shear(size_t n, const M3& S, const Ab& A, const Bb& B, const Db& D, M3& tmp, M3& a,
+                  M3& e) {
     mul(n, S, D, e);
     add_to(n, e, B);
     mul_t(n, S, B, a);
@@ -219,6 +290,13 @@ void write_pose(double* out, size_t N, size_t n0, size_t w, const M3& R, const V
     put(out, N, 15, n0, w, one);
 }
 
+// Orders the streaming stores of put before the arrays are handed to Python.
+inline void fence() {
+#if defined(__SSE2__)
+    _mm_sfence();
+#endif
+}
+
 size_t batch_size(size_t n, std::initializer_list<size_t> others) {
     for (size_t m : others)
         if (m != n) throw nb::value_error("relmap._core: batch sizes differ");
@@ -246,14 +324,14 @@ nb::tuple compound3(Pose Ta, Cov Ca, Pose Tb, Cov Cb, std::optional<Cov> X) {
         Work& work = workspace();
         Lanes& nan = work.nan;
         std::fill(nan, nan + W, 0.0);
-        auto& [Ra, Rb, R, S, a, e, d, blk, tmp, k11, k12, x21, x22] = work.m;
-        auto& [ta, tb, t] = work.v;
+        auto& [R, S, a, e, d, blk, tmp, k11, k12] = work.m;
+        auto& t = work.v[0];
+        M3* sp = work.in;
         for (size_t n0 = 0; n0 < N; n0 += W) {
             const size_t w = std::min(W, N - n0), n = lanes(w);
-            load(Ta, 0, 0, n0, w, Ra);
-            load(Tb, 0, 0, n0, w, Rb);
-            load_column(Ta, 3, n0, w, ta);
-            load_column(Tb, 3, n0, w, tb);
+            const In3 Ra = view(Ta, 0, 0, n0, w, sp[0]), Rb = view(Tb, 0, 0, n0, w, sp[1]);
+            const InV ta = view_column(Ta, 3, n0, w, work.in_v[0]);
+            const InV tb = view_column(Tb, 3, n0, w, work.in_v[1]);
             // the mean: (Ra Rb, ta + u) with u = Ra tb
             mul(n, Ra, Rb, R);
             for (size_t i = 0; i < 3; ++i)
@@ -265,33 +343,24 @@ nb::tuple compound3(Pose Ta, Cov Ca, Pose Tb, Cov Cb, std::optional<Cov> X) {
                 for (size_t l = 0; l < n; ++l) t.v[i][l] += ta.v[i][l];
             write_pose(To, N, n0, w, R, t, nan);
             // J_a C_a J_aᵀ: the shear; block (1, 1) is D_a
-            M3& A = R;  // R is written out: reuse its storage
-            load(Ca, 0, 0, n0, w, A);
-            load(Ca, 0, 3, n0, w, blk);
-            load(Ca, 3, 3, n0, w, d);
-            shear(n, S, A, blk, d, tmp, a, e);
+            const In3 Da = view(Ca, 3, 3, n0, w, sp[4]);
+            shear(n, S, view(Ca, 0, 0, n0, w, sp[2]), view(Ca, 0, 3, n0, w, sp[3]), Da, tmp, a, e);
             // + J_b C_b J_bᵀ: each block rotated by Ra
-            load(Cb, 0, 0, n0, w, blk);
-            rotate(n, Ra, blk, false, tmp, Rb);
-            add_to(n, a, Rb);
-            load(Cb, 0, 3, n0, w, blk);
-            rotate(n, Ra, blk, false, tmp, Rb);
-            add_to(n, e, Rb);
-            load(Cb, 3, 3, n0, w, blk);
-            rotate(n, Ra, blk, false, tmp, Rb);
-            add_to(n, d, Rb);
+            rotate(n, Ra, view(Cb, 0, 0, n0, w, sp[5]), false, tmp, blk);
+            add_to(n, a, blk);
+            rotate(n, Ra, view(Cb, 0, 3, n0, w, sp[6]), false, tmp, blk);
+            add_to(n, e, blk);
+            rotate(n, Ra, view(Cb, 3, 3, n0, w, sp[7]), false, tmp, d);
+            add_to(n, d, Da);  // D_a + Ra D_b Raᵀ
             if (X) {  // + K + Kᵀ, K = J_a X J_bᵀ = [[X11 + S X21, X12 + S X22], [X21, X22]] Raᵀ
-                load(*X, 3, 0, n0, w, x21);
-                load(*X, 3, 3, n0, w, x22);
-                load(*X, 0, 0, n0, w, blk);
+                const In3 x21 = view(*X, 3, 0, n0, w, sp[8]), x22 = view(*X, 3, 3, n0, w, sp[9]);
                 mul(n, S, x21, k11);
-                add_to(n, k11, blk);
+                add_to(n, k11, view(*X, 0, 0, n0, w, sp[5]));
                 mul_t(n, k11, Ra, tmp);  // K11
                 add_to(n, a, tmp);
                 add_t_to(n, a, tmp);
-                load(*X, 0, 3, n0, w, blk);
                 mul(n, S, x22, k12);
-                add_to(n, k12, blk);
+                add_to(n, k12, view(*X, 0, 3, n0, w, sp[6]));
                 mul_t(n, k12, Ra, tmp);  // K12
                 add_to(n, e, tmp);
                 mul_t(n, x21, Ra, tmp);  // K21
@@ -302,6 +371,7 @@ nb::tuple compound3(Pose Ta, Cov Ca, Pose Tb, Cov Cb, std::optional<Cov> X) {
             }
             write_cov(Co, N, n0, w, a, e, d, nan);
         }
+        fence();
         ok = finite(nan);
     }
     return nb::make_tuple(owned<PoseOut, 4, 4>(To, N), owned<CovOut, 6, 6>(Co, N), ok);
@@ -319,14 +389,14 @@ nb::tuple reverse3(Pose T, Cov C) {
         Work& work = workspace();
         Lanes& nan = work.nan;
         std::fill(nan, nan + W, 0.0);
-        auto& [R, Rt, S, A, B, D, a, e, tmp, o1, o2, o3, spare] = work.m;
-        auto& [t, v, spare_v] = work.v;
+        auto& [Rt, S, a, e, tmp, o1, o2, o3, spare] = work.m;
+        auto& v = work.v[0];
+        M3* sp = work.in;
         (void)spare;
-        (void)spare_v;
         for (size_t n0 = 0; n0 < N; n0 += W) {
             const size_t w = std::min(W, N - n0), n = lanes(w);
-            load(T, 0, 0, n0, w, R);
-            load_column(T, 3, n0, w, t);
+            const In3 R = view(T, 0, 0, n0, w, sp[0]);
+            const InV t = view_column(T, 3, n0, w, work.in_v[0]);
             for (size_t i = 0; i < 3; ++i)
                 for (size_t j = 0; j < 3; ++j)
                     for (size_t l = 0; l < n; ++l) Rt.m[3 * i + j][l] = R.m[3 * j + i][l];
@@ -335,16 +405,15 @@ nb::tuple reverse3(Pose T, Cov C) {
                     v.v[i][l] = -(R.m[i][l] * t.v[0][l] + R.m[3 + i][l] * t.v[1][l] +
                                   R.m[6 + i][l] * t.v[2][l]);
             write_pose(To, N, n0, w, Rt, v, nan);
-            load(C, 0, 0, n0, w, A);
-            load(C, 0, 3, n0, w, B);
-            load(C, 3, 3, n0, w, D);
+            const In3 D = view(C, 3, 3, n0, w, sp[3]);
             hat(n, t, 1.0, S);  // S = [t]×
-            shear(n, S, A, B, D, tmp, a, e);
+            shear(n, S, view(C, 0, 0, n0, w, sp[1]), view(C, 0, 3, n0, w, sp[2]), D, tmp, a, e);
             rotate(n, R, a, true, tmp, o1);  // Rᵀ X R for each block
             rotate(n, R, e, true, tmp, o2);
             rotate(n, R, D, true, tmp, o3);
             write_cov(Co, N, n0, w, o1, o2, o3, nan);
         }
+        fence();
         ok = finite(nan);
     }
     return nb::make_tuple(owned<PoseOut, 4, 4>(To, N), owned<CovOut, 6, 6>(Co, N), ok);

@@ -55,3 +55,14 @@ def read_only(arr: FloatArray, shape: tuple[int, ...]) -> FloatArray:
     view = arr.view()
     view.flags.writeable = False
     return view
+
+
+def compact(arr: FloatArray, core: int) -> FloatArray:
+    """The smallest view of ``arr`` that broadcasts back to it: every batch axis (all but the
+    last ``core``) with stride 0 cut to length 1. A covariance shared by a batch (an AT built
+    from one covariance) then costs one computation, not one per element."""
+    index = tuple(
+        slice(0, 1) if stride == 0 and n > 1 else slice(None)
+        for n, stride in zip(arr.shape[: arr.ndim - core], arr.strides, strict=False)
+    )
+    return arr[index] if index and any(s != slice(None) for s in index) else arr

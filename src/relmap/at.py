@@ -29,7 +29,7 @@ import numpy as np
 from relmap import _sym3 as sym3
 from relmap import gaussian
 from relmap import moments as _moments
-from relmap._layout import components_outermost, stack_last
+from relmap._layout import compact, components_outermost, stack_last
 from relmap.errors import ParameterError, ShapeError
 from relmap.gaussian import DEFAULT_RTOL
 from relmap.lie import SE2, se2
@@ -391,11 +391,10 @@ def _merge_correlated(
         if X.shape[-2:] != (b, b):
             raise ShapeError(f"cross_cov must have shape (..., {b}, {b}); got {X.shape}")
         gaussian.check_finite(X, "cross_cov")
-        C1, C2 = (
-            np.broadcast_to(ats[0].cov, (*shape, b, b)),
-            np.broadcast_to(ats[1].cov, (*shape, b, b)),
-        )
-        X = np.broadcast_to(X, (*shape, b, b))
+        # the gains on the covariances' own batch shape (once for a covariance shared by all)
+        C1, C2 = compact(ats[0].cov, 2), compact(ats[1].cov, 2)
+        own = gaussian.broadcast("merge", C1.shape[:-2], C2.shape[:-2], X.shape[:-2])
+        C1, C2, X = (np.broadcast_to(M, (*own, b, b)) for M in (C1, C2, X))
         joint = np.block([[C1, X], [np.swapaxes(X, -1, -2), C2]])
         name = "the joint covariance of the two ATs (with cross_cov)"
     else:
@@ -404,14 +403,19 @@ def _merge_correlated(
             raise ShapeError(
                 f"joint_cov of {k} ATs must have shape (..., {b * k}, {b * k}); got {joint.shape}"
             )
-        joint = np.broadcast_to(joint, (*shape, b * k, b * k))
+        own = gaussian.broadcast(
+            "merge", joint.shape[:-2], *(compact(a.cov, 2).shape[:-2] for a in ats)
+        )
+        joint = np.broadcast_to(joint, (*own, b * k, b * k))
         name = "joint_cov"
         for i, a in enumerate(ats):
             block = joint[..., b * i : b * i + b, b * i : b * i + b]
-            if not np.allclose(block, a.cov, rtol=1e-9, atol=1e-12):
+            if not np.allclose(block, compact(a.cov, 2), rtol=1e-9, atol=1e-12):
                 raise ShapeError(
                     f"joint_cov's diagonal block {i} differs from the covariance of AT #{i}"
                 )
+    if gaussian.broadcast("merge", own, shape) != shape:
+        raise ShapeError(f"{name} has batch shape {own}; the ATs' is {shape}")
     try:
         joint = gaussian.validate_covariance(joint, name=name)
     except NotPositiveSemidefiniteError as exc:
@@ -419,22 +423,13 @@ def _merge_correlated(
             f"{exc}: the cross-covariances are impossible for these ATs' covariances"
         ) from None
     # BLUE from the first AT and the differences d_j = z_j ⊟ z_1 (x cancels from them):
-    # x̂ = z_1 - Cov(e_1, d) Cov(d)⁺ d, C = C_1 - Cov(e_1, d) Cov(d)⁺ Cov(e_1, d)ᵀ.
-    eye = np.eye(b)
-    D = np.zeros((b * (k - 1), b * k))
-    for j in range(1, k):
-        D[b * (j - 1) : b * j, :b] = -eye
-        D[b * (j - 1) : b * j, b * j : b * j + b] = eye
-    Dt = D.T
-    S = D @ joint @ Dt
-    X = joint[..., :b, :] @ Dt  # Cov(e_1, d)
-    G, null = gaussian.generalized_inverse(0.5 * (S + np.swapaxes(S, -1, -2)))
+    # x̂ = z_1 - K d, C = C_1 - K Xᵀ, K = Cov(e_1, d) Cov(d)⁺, X = Cov(e_1, d).
+    K, X, null = gaussian.difference_merge_gain(joint, b, k)
     mean0 = np.broadcast_to(ats[0].mean, (*shape, *group.point_shape))
     d = np.concatenate(
         [np.broadcast_to(group.minus(a.mean, ats[0].mean), (*shape, b)) for a in ats[1:]], -1
     )
     gaussian.check_agreement(d, null, atol=atol, what="the correlated ATs")
-    K = X @ G
     mean = group.plus(mean0, -np.einsum("...ij,...j->...i", K, d))
     C = joint[..., :b, :b] - K @ np.swapaxes(X, -1, -2)
     C = 0.5 * (C + np.swapaxes(C, -1, -2))
@@ -442,11 +437,12 @@ def _merge_correlated(
 
 
 def _merge_pair(a: AT, b: AT, atol: float, position: int) -> AT:
+    # the gain from the covariances as stored: once for a covariance the batch shares
     mean, cov = gaussian.fuse(
         a.mean,
-        a.cov,
+        compact(a.cov, 2),
         b.mean,
-        b.cov,
+        compact(b.cov, 2),
         minus=se2.minus,
         plus=se2.plus,
         atol=atol,

@@ -26,7 +26,7 @@ from typing import Literal, overload
 import numpy as np
 
 from relmap import _core, gaussian, uncertain
-from relmap._layout import components_outermost
+from relmap._layout import compact, components_outermost
 from relmap.errors import ArgumentTypeError, ParameterError, ShapeError
 from relmap.gaussian import DEFAULT_RTOL
 from relmap.lie import SE2, SE3, se3, so3
@@ -459,9 +459,10 @@ def merge3(*ats: AT3, atol: float = 1e-9, max_iterations: int = 50) -> AT3:
 def _merge_at_common_pose(ats: Sequence[AT3], atol: float, max_iterations: int) -> AT3:
     """:func:`merge3` of two or more checked AT3s."""
     # the gains depend on the covariances only: compute them once
-    gains, C = [], ats[0]._cov
+    # (on the covariances' own batch shape: once for a covariance the batch shares)
+    gains, C = [], compact(ats[0]._cov, 2)
     for b in ats[1:]:
-        gains.append(gaussian.fusion(C, b._cov))
+        gains.append(gaussian.fusion(C, compact(b._cov, 2)))
         C = gains[-1].cov
     X = ats[0]._mean
     for _ in range(max_iterations):

@@ -515,8 +515,18 @@ def _output_folder(text: str) -> str:
     return text
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of the ``relmap`` command."""
+#: The trajectory commands (:mod:`relmap.cli_trajectory`) and their help lines: ``relmap --help``
+#: lists them without importing that module or building their parsers.
+TRAJECTORY_COMMANDS = {
+    "eval": "score an estimated trajectory against a reference: APE, RPE (as evo) and NEES",
+    "traj": "summarize (and plot) trajectory files",
+    "convert": "convert a trajectory between formats",
+}
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The argument parser of the ``relmap`` command; of the trajectory commands only
+    ``command``'s is built (all of them for None)."""
     from relmap import __version__
 
     parser = _Parser(
@@ -703,9 +713,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     loc.set_defaults(run=_localize, calibrate_from=None)
 
-    from relmap.cli_trajectory import add_parsers
+    for name, text in TRAJECTORY_COMMANDS.items():  # listed always, built when they run
+        command_parser = sub.add_parser(name, help=text)
+        if command is None or command == name:
+            from relmap.cli_trajectory import add_arguments
 
-    add_parsers(sub)  # eval, traj, convert
+            add_arguments(name, command_parser)
 
     for command in sub.choices.values():  # --debug after the command too
         command.add_argument(
@@ -723,7 +736,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     :class:`relmap.errors.NumericalError`, or an unexpected error, which is a bug). ``--debug``
     prints the traceback too. A closed pipe (``relmap … | head``) ends the command quietly.
     """
-    args = build_parser().parse_args(argv)
+    words = sys.argv[1:] if argv is None else list(argv)
+    command = next((w for w in words if not w.startswith("-")), "")
+    args = build_parser(command).parse_args(words)
     prog = f"relmap {args.command}"
     try:
         with warnings.catch_warnings():

@@ -1,5 +1,6 @@
-"""The trajectory sub-commands of ``relmap``: ``eval``, ``traj``, ``convert`` (registered by
-:func:`add_parsers` from :mod:`relmap.cli`). Work is imported lazily: the command starts fast."""
+"""The trajectory sub-commands of ``relmap``: ``eval``, ``traj``, ``convert``. :mod:`relmap.cli`
+lists them (``relmap.cli.TRAJECTORY_COMMANDS``) and has :func:`add_arguments` build the parser
+of the one that runs only; their work is imported lazily: the command starts fast."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from typing import Any
 
 from relmap.errors import ParameterError
 
-__all__ = ["add_parsers", "write_localization", "write_solution"]
+__all__ = ["add_arguments", "write_localization", "write_solution"]
 
 
 def _read(path: str, topic: str | None, times: str | None = None) -> Any:
@@ -198,16 +199,21 @@ def write_solution(path: str, graph: Any, poses: Any, covariances: Any = None) -
     write_trajectory(path, traj)
 
 
-def add_parsers(sub: Any) -> None:
-    """Register ``eval``, ``traj`` and ``convert`` on the ``relmap`` sub-parsers."""
-    ev = sub.add_parser(
-        "eval",
-        help="score an estimated trajectory against a reference: APE, RPE (as evo) and NEES",
-        description="Associate the estimate with the reference by time stamps, align it, and "
+def add_arguments(command: str, parser: argparse.ArgumentParser) -> None:
+    """Build the parser of trajectory command ``command`` (``eval``, ``traj`` or ``convert``),
+    registered with its help line by :func:`relmap.cli.build_parser`."""
+    {"eval": _eval_arguments, "traj": _traj_arguments, "convert": _convert_arguments}[command](
+        parser
+    )
+
+
+def _eval_arguments(ev: argparse.ArgumentParser) -> None:
+    ev.description = (
+        "Associate the estimate with the reference by time stamps, align it, and "
         "report the absolute (APE) and relative (RPE) pose errors with evo's definitions, and, "
         "when the estimate carries a covariance, its consistency (NEES, ANEES, coverage). "
         "Formats are recognised from the files' content: TUM, KITTI, EuRoC CSV, relmap, g2o, "
-        "ROS 1/2 bags.",
+        "ROS 1/2 bags."
     )
     ev.add_argument("ref", metavar="REF", help="reference (ground truth) trajectory")
     ev.add_argument("est", metavar="EST", help="estimated trajectory")
@@ -254,11 +260,9 @@ def add_parsers(sub: Any) -> None:
     ev.add_argument("--json", action="store_true", help="print one JSON object")
     ev.set_defaults(run=_eval)
 
-    tr = sub.add_parser(
-        "traj",
-        help="summarize (and plot) trajectory files",
-        description="Poses, duration, path length, covariance present or not.",
-    )
+
+def _traj_arguments(tr: argparse.ArgumentParser) -> None:
+    tr.description = "Poses, duration, path length, covariance present or not."
     tr.add_argument("files", nargs="+", metavar="FILE")
     tr.add_argument(
         "--topic", action="append", metavar="T", help="bag topic(s) or /tf:PARENT.CHILD"
@@ -270,11 +274,11 @@ def add_parsers(sub: Any) -> None:
     tr.add_argument("--json", action="store_true", help="print a JSON list")
     tr.set_defaults(run=_traj)
 
-    cv = sub.add_parser(
-        "convert",
-        help="convert a trajectory between formats",
-        description="Read any trajectory format relmap knows; write TUM, KITTI, "
-        "EuRoC or relmap's format (with covariance).",
+
+def _convert_arguments(cv: argparse.ArgumentParser) -> None:
+    cv.description = (
+        "Read any trajectory format relmap knows; write TUM, KITTI, "
+        "EuRoC or relmap's format (with covariance)."
     )
     cv.add_argument("input", metavar="IN")
     cv.add_argument("output", metavar="OUT")

@@ -249,16 +249,6 @@ def _ones(B: int, m: int) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=64)
-def _odometry_params(k_s: float, k_theta: float, k_theta_s: float) -> FloatArray:
-    """The core's parameter row (1, 12) of an odometry noise (read-only, cached)."""
-    p = np.zeros((1, _N_PARAMS))
-    p[0, :3] = (k_s, k_theta, k_theta_s)
-    p[0, 11] = 1.0
-    p.flags.writeable = False
-    return p
-
-
-@functools.lru_cache(maxsize=64)
 def _sensor_params(
     sigma_r: float, sigma_b: float, mount: tuple[float, ...], nu: float
 ) -> FloatArray:
@@ -283,9 +273,9 @@ def predict(
     """The prediction (Eq. 13) of ``state`` (..., n) by input ``u`` (..., k) through ``model``.
 
     ``model`` a relmap.robot noise model: odometry of a pose AT, ``u = (Δs, Δθ)`` (or wheel
-    increments with ``drive``); DistanceNoise with midpoint integration is the core's built-in
-    model, the others give the step's AT through :mod:`relmap.robot`. ``model`` a
-    :class:`Motion`: any ``f`` (see there).
+    increments with ``drive``); a model whose ``core_params`` are given (DistanceNoise with
+    midpoint integration) is the core's built-in model, the others give the step's AT through
+    :mod:`relmap.robot`. ``model`` a :class:`Motion`: any ``f`` (see there).
     """
     x, P = _arrays(state)
     if isinstance(model, Motion):
@@ -308,8 +298,8 @@ def predict(
     m = _pairs(u, "motion")
     if drive is not None:
         m = drive.motion(m)
-    if isinstance(model, DistanceNoise) and integration == "midpoint":
-        k = _odometry_params(model.k_s, model.k_theta, model.k_theta_s)
+    k = model.core_params(integration)
+    if k is not None:  # the core's built-in odometry model
         if x.ndim == 1 and m.ndim == 1:  # one filter, one step: no broadcasting
             xo, Po = _core.ekf_predict_odometry(x[None], P[None], m[None], k)
             return AT._trusted(xo[0], Po[0])

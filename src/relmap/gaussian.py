@@ -345,6 +345,26 @@ def fusion(cov1: ArrayLike, cov2: ArrayLike) -> Fusion:
     return Fusion(K, null, congruence(I_K, C1) + congruence(K, C2))  # Joseph form
 
 
+def difference_merge_gain(
+    joint: FloatArray, b: int, k: int
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The best linear unbiased merge of k correlated estimates z_1 … z_k of one b-vector with
+    ``joint`` covariance (..., b k, b k), written on the first estimate and the differences
+    ``d_j = z_j ⊟ z_1`` (j = 2 … k; the true value cancels from them):
+    ``x̂ = z_1 - K d``, ``C = C_1 - K Xᵀ`` with ``X = Cov(e_1, d)``, ``K = X Cov(d)⁺``.
+
+    Returns ``(K, X, null)``: K and X (..., b, b (k-1)) and the null space of Cov(d) (the
+    differences' exactly known directions, for :func:`check_agreement`)."""
+    eye = np.eye(b)
+    D = np.zeros((b * (k - 1), b * k))
+    for j in range(1, k):
+        D[b * (j - 1) : b * j, :b] = -eye
+        D[b * (j - 1) : b * j, b * j : b * j + b] = eye
+    G, null = generalized_inverse(congruence(D, joint))
+    X = joint[..., :b, :] @ D.T
+    return X @ G, X, null
+
+
 def check_agreement(
     innovation: FloatArray, null: FloatArray, *, atol: float, what: str, components: str = ""
 ) -> None:

@@ -293,7 +293,7 @@ def score(estimate: AT, truth: ArrayLike, *, rejected: int = 0) -> Score:
         )
     e = se2.minus(x, estimate.mean)
     pos2 = e[:, 0] ** 2 + e[:, 1] ** 2
-    d2_pos = _quadratic(e[:, :2], estimate.cov[:, :2, :2])
+    d2_pos = gaussian.mahalanobis2(e[:, :2], 0.0, estimate.cov[:, :2, :2])
     return Score(
         rmse_position=float(np.sqrt(pos2.mean())),
         rmse_heading=float(np.sqrt((e[:, 2] ** 2).mean())),
@@ -304,12 +304,7 @@ def score(estimate: AT, truth: ArrayLike, *, rejected: int = 0) -> Score:
 
 
 def _nees(estimate: AT, truth: FloatArray) -> FloatArray:
-    return _quadratic(se2.minus(truth, estimate.mean), estimate.cov)
-
-
-def _quadratic(e: FloatArray, cov: FloatArray) -> FloatArray:
-    """``eᵀ C⁻¹ e`` per row, for positive-definite C (the filters start with Σ₀ > 0)."""
-    return np.einsum("...i,...i->...", e, np.linalg.solve(cov, e[..., None])[..., 0])
+    return gaussian.mahalanobis2(se2.minus(truth, estimate.mean), 0.0, estimate.cov)
 
 
 # -------------------------------------------------------------------------- calibration

@@ -45,7 +45,7 @@ from relmap.lie import se2
 from relmap.lie.group import SE2 as SE2_GROUP
 from relmap.propagate import EUCLIDEAN, SE2, Chart, Moments, unscented
 from relmap.typing import ArrayLike, FloatArray
-from relmap.uncertain import UncertainPose, chain_axis, same_kind
+from relmap.uncertain import UncertainPose, chain_axis, chain_batch_axis, same_kind
 
 __all__ = [
     "Linearization",
@@ -166,6 +166,16 @@ def chain_moments(mean: ArrayLike, cov: ArrayLike, *, axis: int = -1) -> Moments
     Cost: O(n log n) work over the chain, log₂ n vectorized levels, batched over the other
     axes (10 000 links in a few milliseconds).
     """
+    m, C, axis = _links(mean, cov, axis, "chain_moments")
+    out_mean, out_cov = _chain(np.moveaxis(m, axis, 0), np.moveaxis(C, axis, 0))
+    return Moments(np.moveaxis(out_mean, 0, axis), np.moveaxis(out_cov, 0, axis))
+
+
+def _links(
+    mean: ArrayLike, cov: ArrayLike, axis: object, what: str
+) -> tuple[FloatArray, FloatArray, int]:
+    """A chain's links ``mean (..., 3)`` and ``cov (..., 3, 3)`` broadcast to one batch shape,
+    and its ``axis`` checked (:func:`relmap.uncertain.chain_batch_axis`)."""
     m, C = _poses(mean, cov, "chain")
     try:
         batch = np.broadcast_shapes(m.shape[:-1], C.shape[:-2])
@@ -173,15 +183,8 @@ def chain_moments(mean: ArrayLike, cov: ArrayLike, *, axis: int = -1) -> Moments
         raise ShapeError(
             f"mean batch shape {m.shape[:-1]} and cov batch shape {C.shape[:-2]} do not broadcast"
         ) from None
-    if not batch:
-        raise ShapeError("a chain needs at least one batch axis (the links)")
-    if not -len(batch) <= axis < len(batch):
-        raise ShapeError(f"axis {axis} is out of range for batch shape {batch}")
-    axis %= len(batch)
-    m = np.moveaxis(np.broadcast_to(m, (*batch, 3)), axis, 0)
-    C = np.moveaxis(np.broadcast_to(C, (*batch, 3, 3)), axis, 0)
-    out_mean, out_cov = _chain(m, C)
-    return Moments(np.moveaxis(out_mean, 0, axis), np.moveaxis(out_cov, 0, axis))
+    axis = chain_batch_axis(batch, axis, what, "links")
+    return np.broadcast_to(m, (*batch, 3)), np.broadcast_to(C, (*batch, 3, 3)), axis
 
 
 def _chain(m: FloatArray, C: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -433,16 +436,9 @@ def unscented_chain(
     Both average the output in the SE(2) chart (heading wrapped). :func:`chain_moments` is
     exact and O(n log n).
     """
-    m, C = _poses(mean, cov, "chain")
-    batch = np.broadcast_shapes(m.shape[:-1], C.shape[:-2])
-    if not batch:
-        raise ShapeError("a chain needs at least one batch axis (the links)")
-    if not -len(batch) <= axis < len(batch):
-        raise ShapeError(f"axis {axis} is out of range for batch shape {batch}")
-    axis %= len(batch)
+    m, C, axis = _links(mean, cov, axis, "unscented_chain")
     if scheme == "sequential":
-        m = np.moveaxis(np.broadcast_to(m, (*batch, 3)), axis, 0)
-        C = np.moveaxis(np.broadcast_to(C, (*batch, 3, 3)), axis, 0)
+        m, C = np.moveaxis(m, axis, 0), np.moveaxis(C, axis, 0)
         out_m, out_C = np.empty_like(m), np.empty_like(C)
         out_m[0], out_C[0] = m[0], C[0]
         for k in range(1, m.shape[0]):
@@ -450,8 +446,8 @@ def unscented_chain(
         return Moments(np.moveaxis(out_m, 0, axis), np.moveaxis(out_C, 0, axis))
     if scheme != "joint":
         raise ParameterError(f"scheme must be 'sequential' or 'joint'; got {scheme!r}")
-    m = np.moveaxis(np.broadcast_to(m, (*batch, 3)), axis, -2)  # (..., n, 3)
-    C = np.moveaxis(np.broadcast_to(C, (*batch, 3, 3)), axis, -3)  # (..., n, 3, 3)
+    m = np.moveaxis(m, axis, -2)  # (..., n, 3)
+    C = np.moveaxis(C, axis, -3)  # (..., n, 3, 3)
     n = m.shape[-2]
     rest = m.shape[:-2]
     S = np.zeros((*rest, n, 3, n, 3))

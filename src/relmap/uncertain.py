@@ -14,8 +14,9 @@ position (Appendix A). Each kind supplies its operations as four hooks — ``_co
 chooses a kind by ``isinstance``.
 
 The helpers below validate once, at the edge: :func:`same_kind` (arguments of one kind),
-:func:`checked_cross_cov` (a dependent pair's cross-covariance), :func:`chain_axis`,
-:func:`batch_shape_of`; :func:`check_result` checks relmap's own results for overflow.
+:func:`checked_cross_cov` (a dependent pair's cross-covariance), :func:`chain_axis` (a chain's
+axis; of a batch shape, :func:`chain_batch_axis`), :func:`batch_shape_of`; :func:`check_result`
+checks relmap's own results for overflow.
 """
 
 from __future__ import annotations
@@ -280,21 +281,26 @@ def checked_cross_cov(Ca: FloatArray, Cb: FloatArray, value: ArrayLike, n: int) 
 
 
 def chain_axis(steps: UncertainPose, axis: object, what: str) -> int:
-    """The chain's batch ``axis`` of ``steps`` as a non-negative int, checked: ``steps`` has a
-    batch axis, ``axis`` is an integer in range, and the chain has at least one step."""
-    name = type(steps).__name__
-    if steps.ndim == 0:
-        raise ShapeError(f"{what} needs an {name} with at least one batch axis (the chain)")
+    """The chain's batch ``axis`` of ``steps`` as a non-negative int, checked by
+    :func:`chain_batch_axis`."""
+    return chain_batch_axis(steps.batch_shape, axis, what, f"an {type(steps).__name__}")
+
+
+def chain_batch_axis(batch: tuple[int, ...], axis: object, what: str, name: str) -> int:
+    """The chain's ``axis`` of batch shape ``batch`` as a non-negative int, checked: there is a
+    batch axis, ``axis`` is an integer in range, and the chain has at least one step.
+    ``what`` names the operation, ``name`` its input (for the errors)."""
+    if not batch:
+        raise ShapeError(f"{what} needs {name} with at least one batch axis (the chain)")
     if isinstance(axis, bool) or not isinstance(axis, (int, np.integer)):
         raise ParameterError(f"axis must be an integer; got {axis!r}")
-    if not -steps.ndim <= axis < steps.ndim:
-        raise ShapeError(f"axis {axis} is out of range for batch shape {steps.batch_shape}")
-    if steps.batch_shape[axis] == 0:
+    if not -len(batch) <= axis < len(batch):
+        raise ShapeError(f"axis {axis} is out of range for batch shape {batch}")
+    if batch[axis] == 0:
         raise ShapeError(
-            f"compound_chain needs at least one step along axis {axis}; batch shape "
-            f"{steps.batch_shape} has none"
+            f"{what} needs at least one step along axis {axis}; batch shape {batch} has none"
         )
-    return int(axis) % steps.ndim
+    return int(axis) % len(batch)
 
 
 def batch_shape_of(shape: object) -> tuple[int, ...]:

@@ -159,7 +159,7 @@ from relmap.errors import (
     NumericalError,
     ParameterError,
 )
-from relmap.gaussian import congruence, generalized_inverse
+from relmap.gaussian import congruence, difference_merge_gain, generalized_inverse
 from relmap.lie import Group
 from relmap.typing import FloatArray
 
@@ -862,15 +862,9 @@ def _merge_weights(joint: FloatArray, b: int, k: int) -> list[FloatArray]:
     """First-order weights W_i of the best linear unbiased merge of k ATs with ``joint``
     covariance, ``δx̂ = Σ W_i δ_i`` (:func:`relmap.merge`: x̂ = z₁ - Cov(e₁, d) Cov(d)⁺ d,
     ``d_j = z_j ⊟ z₁``)."""
-    eye = np.eye(b)
-    D = np.zeros((b * (k - 1), b * k))
-    for j in range(1, k):
-        D[b * (j - 1) : b * j, :b] = -eye
-        D[b * (j - 1) : b * j, b * j : b * j + b] = eye
-    G, _ = generalized_inverse(congruence(D, joint))
-    K = joint[..., :b, :] @ D.T @ G
+    K, _, _ = difference_merge_gain(joint, b, k)
     Ks = [K[..., :, b * (j - 1) : b * j] for j in range(1, k)]
-    return [eye + sum(Ks, np.zeros_like(Ks[0])), *(-Kj for Kj in Ks)]
+    return [np.eye(b) + sum(Ks, np.zeros_like(Ks[0])), *(-Kj for Kj in Ks)]
 
 
 def _consistent_mesh(

@@ -34,11 +34,13 @@ Noise models (the covariance of one step):
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Literal
 
 import numpy as np
 
+from relmap import _core
 from relmap import _sym3 as sym3
 from relmap._layout import components_outermost, matrix, stack_last
 from relmap.at import AT, compound, compound_chain
@@ -201,6 +203,11 @@ class _Noise:
         """The distinct entries ``(s00, s01, s11)`` of the covariance of ``(Δs, Δθ)``."""
         raise NotImplementedError
 
+    def core_params(self, integration: Integration) -> FloatArray | None:
+        """The compiled core's parameter row (1, 12) of this odometry model when the core has
+        it built in (:class:`DistanceNoise` with midpoint integration), else None."""
+        return None
+
     def step_covariance(
         self, motion: FloatArray, integration: Integration, drive: DiffDrive | None = None
     ) -> FloatArray:
@@ -257,9 +264,49 @@ class DistanceNoise(_Noise):
         ds, dt = np.abs(motion[..., 0]), np.abs(motion[..., 1])
         return (self.k_s * ds, np.zeros_like(ds), self.k_theta * dt + self.k_theta_s * ds)
 
+    def core_params(self, integration: Integration) -> FloatArray | None:
+        """The compiled core's parameter row (1, 12) of this model with midpoint integration
+        (the core's built-in odometry, :func:`relmap.ekf.predict`), else None."""
+        if integration != "midpoint":
+            return None
+        return _odometry_params(self.k_s, self.k_theta, self.k_theta_s)
+
+    def step_covariance(
+        self, motion: FloatArray, integration: Integration, drive: DiffDrive | None = None
+    ) -> FloatArray:
+        """Covariance (..., 3, 3) of the step Δ in the robot frame, ``J Σ Jᵀ`` (Eqs. 10-13).
+
+        With midpoint integration it is the compiled core's (the EKF's built-in model, one
+        implementation): its prediction from the origin with no uncertainty, ``P⁻ = Q = J Σ Jᵀ``.
+        """
+        k = self.core_params(integration)
+        if k is None:
+            return super().step_covariance(motion, integration, drive)
+        m = np.ascontiguousarray(np.reshape(motion, (-1, 2)), dtype=np.float64)
+        B = m.shape[0]
+        _, C = _core.ekf_predict_odometry(
+            np.zeros((B, 3)), np.zeros((B, 3, 3)), m, np.repeat(k, B, axis=0)
+        )
+        return C.reshape(*np.shape(motion)[:-1], 3, 3)
+
     def covariance(self, motion: FloatArray, drive: DiffDrive | None = None) -> FloatArray:
         """The covariance (..., 2, 2) of ``(Δs, Δθ)``."""
         return _sym2(self.entries(np.asarray(motion, dtype=np.float64), drive))
+
+
+#: The length of the core's parameter row (relmap.ekf.NoiseParameters' fields, the core's Param).
+CORE_PARAMS = 12
+
+
+@functools.lru_cache(maxsize=64)
+def _odometry_params(k_s: float, k_theta: float, k_theta_s: float) -> FloatArray:
+    """The core's parameter row (1, 12) of an odometry noise (read-only, cached): the rates
+    first, the update's σ factor (last) 1."""
+    p = np.zeros((1, CORE_PARAMS))
+    p[0, :3] = (k_s, k_theta, k_theta_s)
+    p[0, -1] = 1.0
+    p.flags.writeable = False
+    return p
 
 
 class AlphaNoise(_Noise):
