@@ -61,10 +61,16 @@ def start(t0: float) -> rm.AT:
 def test_recovers_the_simulated_noise() -> None:
     """σ_r and σ_b within 10%, the odometry's k_s and k_theta within 20%. Measured on this seed
     (8000 steps, 1600 scans): σ_r -2.1%, σ_b -2.8%, k_s -7.9%, k_theta +13.4%; seeds 2-4 gave
-    k_s +12%, +7%, -2% and k_theta +18%, -2%, 0% (σ within 0.5% to 11%): the spread is the
-    estimator's (one run's worth of data, on a ridge where turning noise per radian and per
-    metre trade), not the search's. k_theta_s (turning noise per metre) came out 0.0001
-    against 0.002 and is checked only through the filter's consistency."""
+    k_s +12%, +7%, -2% and k_theta +18%, -2%, 0% (σ within 0.5% to 11%). The search is not at
+    fault (the likelihood is higher at the fitted noise than at the simulated on seeds 1 and 2:
+    benchmarks/study_inflation.py sim). k_theta is off because this path does not separate
+    turning noise per radian from turning noise per metre: the mean |Δθ| and |Δs| per step are
+    both 0.03, so k_theta_s fell to 0.0001 (seed 1) and 0.0007 (seed 2) against 0.002, and
+    k_theta grew to make up the heading variance. What the data does fix is the heading
+    variance per step at the mean motion, k_theta·mean|Δθ| + k_theta_s·mean|Δs|: -4.8%,
+    +3.6%, -6.3% on seeds 1-3, checked here within 10% (seed 4: +12%, with σ_b -10.7%: bearing
+    error taken for heading noise; there 2Δ log-likelihood fitted - simulated is 52, beyond
+    the χ²₅ spread of an unbiased fit, so the EKF's linearized S, not chance, moves it)."""
     rec, truth = simulate(1, steps=8000)
     cal = ac.calibrate(rec, LANDMARKS, start=start, landmark_signatures=np.arange(len(LANDMARKS)))
     p = cal.parameters
@@ -74,6 +80,9 @@ def test_recovers_the_simulated_noise() -> None:
     for got, want, rel in ((p.k_s, NOISE.k_s, 0.2), (p.sigma_r, SIGMA_R, 0.1),
                            (p.k_theta, NOISE.k_theta, 0.2), (p.sigma_b, SIGMA_B, 0.1)):  # fmt: skip
         assert got == pytest.approx(want, rel=rel)
+    dtheta, ds = np.abs(rec.w).mean() * 0.1, np.abs(rec.v).mean() * 0.1  # per 0.1 s step
+    heading = p.k_theta * dtheta + p.k_theta_s * ds
+    assert heading == pytest.approx(NOISE.k_theta * dtheta + NOISE.k_theta_s * ds, rel=0.1)
     # and the calibrated filter is consistent against the truth
     log = rec.log(cal.delay)
     tr = ekf.run(log, LANDMARKS, p, start=start(0.0), landmark_signatures=np.arange(9))
