@@ -809,6 +809,7 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
             continue;
         q = &w.mixed[i];
         chosen[i] = q;
+        landmark[i] = static_cast<int32_t>(q->l);
         pair_d2[i] = q->d2;
         upred.back() = &w.mixpred[i];
     }
@@ -859,6 +860,7 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
             totals.nis += nis;
             totals.dof += D;
             totals.updates += 1;
+            for (const Pair* q : update) totals.ambiguous += q == &w.mixed[q->i];
         } else {
             for (const Pair* q : update) status[q->i] = DEGENERATE;
         }
@@ -936,7 +938,7 @@ nb::dict totals_dict(const std::vector<Totals>& t) {
     const size_t B = t.size();
     auto loglik = new_array({B}), nis = new_array({B});
     auto dof = new_array<int64_t>({B}), updates = new_array<int64_t>({B});
-    auto overflow = new_array<int64_t>({B});
+    auto overflow = new_array<int64_t>({B}), ambiguous = new_array<int64_t>({B});
     auto counts = new_array<int64_t>({B, static_cast<size_t>(N_STATUS)});
     for (size_t b = 0; b < B; ++b) {
         loglik.data()[b] = t[b].loglik;
@@ -944,6 +946,7 @@ nb::dict totals_dict(const std::vector<Totals>& t) {
         dof.data()[b] = t[b].dof;
         updates.data()[b] = t[b].updates;
         overflow.data()[b] = t[b].overflow;
+        ambiguous.data()[b] = t[b].ambiguous;
         for (int s = 0; s < N_STATUS; ++s) counts.data()[b * N_STATUS + s] = t[b].counts[s];
     }
     nb::dict out;
@@ -952,6 +955,7 @@ nb::dict totals_dict(const std::vector<Totals>& t) {
     out["dof"] = dof;
     out["updates"] = updates;
     out["overflow"] = overflow;
+    out["ambiguous"] = ambiguous;
     out["counts"] = counts;
     return out;
 }
