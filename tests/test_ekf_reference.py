@@ -126,7 +126,6 @@ def reference(state, readings, sensor, landmarks, *, associate="mahalanobis",
         vm[..., 1] = se2.wrap_angle(vm[..., 1])
         dm = np.einsum("...a,...ab,...b->...", vm, np.linalg.inv(Sm), vm)
         pair_d2 = np.where(mixed, dm, pair_d2)
-        landmark = np.where(mixed, top, landmark)
     new = _stacked(state, z, hr, Hr, Rr, used)
     return new, np.where(paired, landmark, -1), np.where(paired, pair_d2, nearest), status
 

@@ -362,8 +362,8 @@ inline bool pair_block(int d, double* delta, double* P, const Pair& q, const Pre
 // (bearings taken relative to the most probable one). One candidate of β ≈ 1 gives its own
 // pair back; a cluster of landmarks closer than the reading can tell apart gives their centroid
 // with their spread as noise, never one of them chosen wrongly with full confidence. Writes
-// the virtual landmark's prediction (S = H P Hᵀ + R) and its pair (innovation, d²; landmark
-// the one of largest β); false if its S is not positive definite.
+// the virtual landmark's prediction (S = H P Hᵀ + R) and its pair (innovation, d²); false if
+// its S is not positive definite.
 bool mix_reading(const Pair* const* c, int k, const Predicted* pred, const double* P,
                  int d, Predicted& mp, Pair& mq) {
     double beta[64], lmax = -INF;
@@ -807,9 +807,9 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
         if (!mix_reading(cands.data(), static_cast<int>(cands.size()), pred, P, d, w.mixpred[i],
                          w.mixed[i]))
             continue;
+        w.mixed[i].l = q->l;  // the reading's landmark stays the one its association chose
         q = &w.mixed[i];
         chosen[i] = q;
-        landmark[i] = static_cast<int32_t>(q->l);
         pair_d2[i] = q->d2;
         upred.back() = &w.mixpred[i];
     }

@@ -29,7 +29,8 @@ state at every filter time is kept (``keep="all"``).
   when the pose is uncertain: a reading with several landmarks inside its gate (Mahalanobis,
   JCBB) enters the update as the mixture of them (:func:`relmap.ekf.correct_landmarks`;
   ``ambiguous`` counts them), so a wrong pairing costs a weaker update, not a wrong one.
-  ``wrong`` counts the used readings whose (most probable) landmark is not their barcode's.
+  ``wrong`` counts the used readings whose landmark (the association's choice; for an
+  ambiguous one, the mixture's candidate it was paired with) is not their barcode's.
   The readings of other robots are still dropped by barcode: offered to the filter, most of
   them pass the χ² gate of some landmark (the robots drive among the landmarks), the
   autocalibration takes them for noise (σ several times larger) and the position RMSE grows to
