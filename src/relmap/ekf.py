@@ -552,10 +552,11 @@ def correct_landmarks(
     association probabilities ``β_j ∝ |S_j|^(-1/2) exp(-d²_j/2)`` (probabilistic data
     association, Bar-Shalom & Tse 1975, without clutter: the gate has rejected the rest), as a
     reading of one virtual landmark with ``ẑ = Σ β_j h_j``, ``H = Σ β_j H_j`` and
-    ``R = Σ β_j R_j + Σ β_j (h_j - ẑ)(h_j - ẑ)ᵀ``; its landmark is still the one its association
-    chose (its status likewise), its ``y``, ``S`` and d² are the virtual landmark's. (Landmarks closer together than a
-    reading can tell apart then give their centroid with their spread as noise, not one of them
-    taken wrongly with full confidence; one candidate of β ≈ 1 gives its own update.)
+    ``R = Σ β_j R_j + Σ β_j (h_j - ẑ)(h_j - ẑ)ᵀ``; its landmark (and status) stay the ones its
+    association chose, its ``y``, ``S`` and d² are the virtual landmark's. (Landmarks closer
+    together than a reading can tell apart then give their centroid with their spread as noise,
+    not one of them taken wrongly with full confidence; one candidate of β ≈ 1 gives its own
+    update.)
     ``valid`` (..., m) marks padding (ABSENT); NaN or non-positive ranges are INVALID. The used
     pairs form one stacked update (Eqs. 26-28, Joseph form); ``nu`` finite: Student-t readings
     (module notes).
