@@ -29,6 +29,10 @@ state at every filter time is kept (``keep="all"``).
   when the pose is uncertain: a reading with several landmarks inside its gate (Mahalanobis,
   JCBB) enters the update as the mixture of them (:func:`relmap.ekf.correct_landmarks`;
   ``ambiguous`` counts them), so a wrong pairing costs a weaker update, not a wrong one.
+  Measured on mrclam6, robots 1-5 (autocalibrated): position RMSE Mahalanobis 0.200, 0.209,
+  0.162, 0.278, 0.152 m, JCBB 0.200, 0.223, 0.175, 0.280, 0.155 m against signatures' 0.163,
+  0.223, 0.168, 0.300, 0.144 m (at most 1.23x), coverage_90 0.93-1.00 (before the mixture:
+  Mahalanobis 0.901 m on robot 2, coverage 0.70 on robot 3; JCBB up to 1.97x).
   ``wrong`` counts the used readings whose landmark (the association's choice; for an
   ambiguous one, the mixture's candidate it was paired with) is not their barcode's.
   The readings of other robots are still dropped by barcode: offered to the filter, most of
