@@ -130,7 +130,7 @@ def _trace(y: np.ndarray, S: np.ndarray, *, status: np.ndarray | None = None) ->
     st = np.zeros(n, np.int64) if status is None else status
     z = np.zeros(0)
     return ekf.Trace(z, z, z, y, S, z, st, np.zeros(n, np.int64), np.float64(0), np.float64(0),
-                     np.int64(0), np.int64(0), np.zeros(7, np.int64))  # fmt: skip
+                     np.int64(0), np.int64(0), np.zeros(7, np.int64), np.int64(0))  # fmt: skip
 
 
 def test_bad_input_is_a_clear_error() -> None:

@@ -193,3 +193,61 @@ def test_bad_input():
         ekf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS, associate="signatures")
     with pytest.raises(ParameterError):
         ekf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS, gate=1.0)
+
+
+def mixture_update(state: rm.AT, z: np.ndarray, cluster: np.ndarray) -> rm.AT:
+    """A reading of one landmark of ``cluster``, which one unknown, written out: association
+    probabilities β_j ∝ |S_j|^(-1/2) exp(-d²_j/2), the moment-matched virtual landmark
+    ẑ = Σβ h_j, H = Σβ H_j, R = Σβ R_j + Σβ (h_j - ẑ)(h_j - ẑ)ᵀ, then Eqs. 26-28."""
+    h, H, _ = SENSOR.predict(state.mean, cluster, jacobians=True)
+    R = SENSOR.noise(h[:, 0])
+    S = H @ state.cov @ np.swapaxes(H, -1, -2) + R
+    v = z - h
+    v[:, 1] = se2.wrap_angle(v[:, 1])
+    d2 = np.einsum("ji,jik,jk->j", v, np.linalg.inv(S), v)
+    beta = np.exp(-0.5 * d2) / np.sqrt(np.linalg.det(S))
+    beta /= beta.sum()
+    zhat = beta @ h
+    e = h - zhat
+    Hm = np.einsum("j,jab->ab", beta, H)
+    Rm = np.einsum("j,jab->ab", beta, R) + np.einsum("j,ja,jb->ab", beta, e, e)
+    Sm = Hm @ state.cov @ Hm.T + Rm
+    K = state.cov @ Hm.T @ np.linalg.inv(Sm)
+    y = z - zhat
+    y[1] = se2.wrap_angle(y[1])
+    return rm.AT._trusted(se2.plus(state.mean, K @ y), state.cov - K @ Sm @ K.T)
+
+
+@pytest.mark.parametrize("associate", ["mahalanobis", "jcbb"])
+def test_a_reading_of_an_ambiguous_cluster_is_the_mixture_of_its_landmarks(associate):
+    # two landmarks 0.1 m apart at 3 m: both inside the gate of a reading of either
+    cluster = np.array([[3.0, 1.0], [3.0, 1.1]])
+    z = SENSOR.predict(PRIOR.mean, cluster[:1])
+    up = ekf.correct_landmarks(PRIOR, z, SENSOR, cluster, associate=associate)
+    assert up.status.tolist() == [ekf.Status.USED]
+    want = mixture_update(PRIOR, z[0], cluster)
+    np.testing.assert_allclose(up.state.mean, want.mean, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(up.state.cov, want.cov, rtol=1e-9, atol=1e-12)
+    # neither landmark taken with full confidence: the update lies between the two
+    one = [manual_update(PRIOR, z, [0]).mean]
+    lm = LANDMARKS.copy()
+    LANDMARKS[0] = cluster[1]
+    try:
+        one.append(manual_update(PRIOR, z, [0]).mean)
+    finally:
+        LANDMARKS[:] = lm
+    lo, hi = np.minimum(*one), np.maximum(*one)
+    assert ((up.state.mean >= lo - 1e-12) & (up.state.mean <= hi + 1e-12)).all()
+    # and it is less sure than a reading of a known landmark
+    assert np.linalg.det(up.state.cov) > np.linalg.det(manual_update(PRIOR, z, [0]).cov)
+
+
+def test_a_lone_candidate_inside_the_gate_is_its_own_update():
+    # the second landmark far outside the gate: the plain update (Eqs. 26-28)
+    cluster = np.array([[3.0, 1.0], [3.0, 4.0]])
+    z = SENSOR.predict(PRIOR.mean, cluster[:1])
+    up = ekf.correct_landmarks(PRIOR, z, SENSOR, cluster, associate="mahalanobis")
+    assert up.status.tolist() == [ekf.Status.USED]
+    want = manual_update(PRIOR, z, [0])  # LANDMARKS[0] is cluster[0]
+    np.testing.assert_allclose(up.state.mean, want.mean, rtol=1e-10)
+    np.testing.assert_allclose(up.state.cov, want.cov, rtol=1e-9, atol=1e-12)

@@ -2,7 +2,9 @@
 
 The reference below is the plain algorithm written in numpy: predict every landmark's reading,
 the m×L innovations and Mahalanobis distances, greedy one-to-one pairing over the whole matrix
-(or Eq. 21), χ² gate, one stacked 2k×2k update in Joseph form. The core (the shortcut of
+(or Eq. 21), χ² gate, a reading with several landmarks inside its gate replaced by the
+moment-matched mixture of them (relmap.ekf.correct_landmarks), one stacked 2k×2k update in
+Joseph form. The core (the shortcut of
 distinct nearest landmarks, the sorted greedy, signature lookup by binary search, candidates
 pruned by a range-only bound on d², the stacked update done as k 2×2 blocks in turn) must give
 the same pairings and statuses exactly and the same states to rounding.
@@ -95,13 +97,36 @@ def reference(state, readings, sensor, landmarks, *, associate="mahalanobis",
     )
     nearest = np.where(np.isfinite(cost), d2, np.inf).min(axis=-1)
     lk = np.maximum(landmark, 0)
-    new = _stacked(
-        state, z,
-        np.take_along_axis(h, lk[..., None], axis=-2),
-        np.take_along_axis(H, lk[..., None, None], axis=-3),
-        np.take_along_axis(R, lk[..., None, None], axis=-3),
-        used,
-    )  # fmt: skip
+    hr = np.take_along_axis(h, lk[..., None], axis=-2)
+    Hr = np.take_along_axis(H, lk[..., None, None], axis=-3)
+    Rr = np.take_along_axis(R, lk[..., None, None], axis=-3)
+    if associate != "euclidean":  # several landmarks in the gate: their mixture, moment-matched
+        inside = np.isfinite(cost) & (d2 <= gate2)
+        mixed = used & (inside.sum(axis=-1) >= 2)
+        logb = np.where(inside, -0.5 * d2 - 0.5 * np.log(np.linalg.det(S))[..., None, :], -np.inf)
+        top = np.argmax(np.where(mixed[..., None], logb, 0.0), axis=-1)
+        top_logb = np.take_along_axis(logb, top[..., None], axis=-1)
+        beta = np.where(mixed[..., None], np.exp(logb - np.where(mixed[..., None], top_logb, 0)), 0)
+        beta /= np.where(mixed, beta.sum(axis=-1), 1.0)[..., None]
+        hb = np.take_along_axis(h, top[..., None], axis=-2)  # (..., m, 2)
+        dh = h[..., None, :, :] - hb[..., :, None, :]  # (..., m, L, 2) relative to the top one
+        dh[..., 1] = se2.wrap_angle(dh[..., 1])
+        mean_dh = np.einsum("...ml,...mla->...ma", beta, dh)
+        e = dh - mean_dh[..., None, :]
+        zhat = hb + mean_dh
+        Hbar = np.einsum("...ml,...lab->...mab", beta, H)
+        Rbar = np.einsum("...ml,...lab->...mab", beta, R) + np.einsum(
+            "...ml,...mla,...mlb->...mab", beta, e, e
+        )
+        hr = np.where(mixed[..., None], zhat, hr)
+        Hr = np.where(mixed[..., None, None], Hbar, Hr)
+        Rr = np.where(mixed[..., None, None], Rbar, Rr)
+        Sm = Hr @ state.cov[..., None, :, :] @ np.swapaxes(Hr, -1, -2) + Rr
+        vm = z - hr
+        vm[..., 1] = se2.wrap_angle(vm[..., 1])
+        dm = np.einsum("...a,...ab,...b->...", vm, np.linalg.inv(Sm), vm)
+        pair_d2 = np.where(mixed, dm, pair_d2)
+    new = _stacked(state, z, hr, Hr, Rr, used)
     return new, np.where(paired, landmark, -1), np.where(paired, pair_d2, nearest), status
 
 

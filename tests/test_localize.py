@@ -129,6 +129,7 @@ def test_signature_ekf_consistency_is_reported_within_broad_bands(signature_runs
         r = run.readings
         assert s.rejected == r["gated"] + r["lost"] + r["degenerate"]
         assert r["wrong"] == 0  # signatures name the landmark
+        assert r["ambiguous"] == 0  # one landmark per barcode: never a mixture
         assert r["used"] == int((run.trace.status == ekf.Status.USED).sum())
         # the filter's own check, without truth: NIS per component, below 1 by the whitening
         assert 0.02 < run.anis < 1.5, k
@@ -422,10 +423,11 @@ def test_a_plaza_run_without_range_readings_is_refused_not_calibrated_to_nan(pla
 def test_association_modes_report_what_they_paired_wrongly(mrclam, signature_runs):
     """Robot 1 with unknown correspondences, each mode calibrated with its own association:
     Mahalanobis and JCBB pair the readings by distance alone; the barcodes count the wrong
-    pairs afterwards. Measured on robot 1: RMSE 0.186 m (Mahalanobis, 1.15x), 0.221 m (JCBB,
-    1.36x: short of issue 14's 1.25x) against 0.163 m, coverage_90 0.90 and 0.91; the map has
-    clusters of landmarks 0.15-0.3 m apart. (With the signature filter's noise instead,
-    Mahalanobis reached 0.43 m: the association needs the noise found under it.)"""
+    pairs afterwards. The map has clusters of landmarks 0.15-0.3 m apart: most used readings
+    have several landmarks inside their gate and enter the update as their mixture
+    (``ambiguous``). Issue 14's target: RMSE <= 1.25x the signatures one, coverage_90 >= 0.8
+    (measured on robot 1 before the mixture: 1.15x and 1.36x (JCBB), after it: see the
+    docstring of relmap.localize)."""
     from relmap.localize import localize_mrclam
 
     sig = signature_runs[1]
@@ -433,12 +435,14 @@ def test_association_modes_report_what_they_paired_wrongly(mrclam, signature_run
         run = localize_mrclam(mrclam, 1, associate=mode)
         r = run.readings
         assert run.associate == mode
-        assert run.score.rmse_position < 1.5 * sig.score.rmse_position, mode
-        assert run.score.coverage_90 > 0.8, mode
-        assert 0 < r["wrong"] < 0.3 * r["used"], mode  # measured 290 and 263 of ~1470
+        assert run.score.rmse_position <= 1.25 * sig.score.rmse_position, mode
+        assert run.score.coverage_90 >= 0.8, mode
+        assert 0 < r["wrong"] < 0.3 * r["used"], mode
+        assert 0 < r["ambiguous"] <= r["used"], mode
         used = run.trace.status == ekf.Status.USED
         assert r["wrong"] == int((run.trace.landmark[used] != sig.trace.landmark[used]).sum())
         assert run.summary()["readings"]["wrong"] == r["wrong"]
+        assert run.summary()["readings"]["ambiguous"] == r["ambiguous"]
 
 
 def test_euclidean_association_warns_when_it_goes_wrong(mrclam, signature_runs):

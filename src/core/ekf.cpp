@@ -290,9 +290,11 @@ inline double range_variance(double r, const double* p, const Options& opt) {
 
 // A landmark's predicted reading from the filter's sensor pose: h (d), H (d × 3), S (d × d),
 // R's diagonal (d); ok false for 0/0 (the landmark at the sensor, or S not positive definite).
+// Rx: R's off-diagonal entry (0 for a landmark's reading; a mixture's spread, see mix_reading).
 struct Predicted {
     double h[2], H[6], S[4], R[2], det;
     bool ok;
+    double Rx = 0.0;
 };
 
 // A reading-landmark pair.
@@ -345,9 +347,72 @@ inline double mahalanobis2(const Predicted& pr, const double* v, int d) {
 // kalman_block), with the pair's noise R (d, diagonal) divided by weight w.
 inline bool pair_block(int d, double* delta, double* P, const Pair& q, const Predicted& pr,
                        double w, double& nis, double& logdet) {
-    const double R[4] = {pr.R[0] / w, 0.0, 0.0, d == 2 ? pr.R[1] / w : 0.0};
+    const double R[4] = {pr.R[0] / w, pr.Rx / w, pr.Rx / w, d == 2 ? pr.R[1] / w : 0.0};
     if (d == 2) return kalman_block<3, 2>(3, 2, delta, P, q.v, pr.H, R, nullptr, nis, logdet);
     return kalman_block<3, 1>(3, 1, delta, P, q.v, pr.H, R, nullptr, nis, logdet);
+}
+
+// A reading with k >= 2 landmarks inside its gate (candidates c[0..k), pairs of one reading i)
+// is of one of them, which one unknown: its likelihood is the mixture Σ β_j N(z; h_j, S_j) with
+// the association probabilities β_j ∝ |S_j|^(-1/2) exp(-d²_j / 2) (Bayes with equal priors,
+// the probabilistic data association of Bar-Shalom & Tse 1975 without clutter: the gate has
+// already rejected what is far from every landmark). It enters the update moment-matched, as a
+// reading of one virtual landmark: ẑ = Σ β_j h_j, H = Σ β_j H_j and noise
+// R = Σ β_j R_j + Σ β_j (h_j - ẑ)(h_j - ẑ)ᵀ, the spread of the candidates' predictions
+// (bearings taken relative to the most probable one). One candidate of β ≈ 1 gives its own
+// pair back; a cluster of landmarks closer than the reading can tell apart gives their centroid
+// with their spread as noise, never one of them chosen wrongly with full confidence. Writes
+// the virtual landmark's prediction (S = H P Hᵀ + R) and its pair (innovation, d²); false if
+// its S is not positive definite.
+bool mix_reading(const Pair* const* c, int k, const Predicted* pred, const double* P,
+                 int d, Predicted& mp, Pair& mq) {
+    double beta[64], lmax = -INF;
+    const int kk = std::min(k, 64);
+    int best = 0;
+    for (int j = 0; j < kk; ++j) {
+        beta[j] = -0.5 * c[j]->d2 - 0.5 * std::log(pred[c[j]->l].det);
+        if (beta[j] > lmax) lmax = beta[j], best = j;
+    }
+    double sum = 0.0;
+    for (int j = 0; j < kk; ++j) sum += (beta[j] = std::exp(beta[j] - lmax));
+    const Predicted& pb = pred[c[best]->l];
+    double dh[64][2];
+    for (int a = 0; a < 2; ++a) mp.h[a] = 0.0, mp.R[a] = 0.0;
+    for (int a = 0; a < 6; ++a) mp.H[a] = 0.0;
+    for (int j = 0; j < kk; ++j) {
+        const Predicted& pj = pred[c[j]->l];
+        beta[j] /= sum;
+        dh[j][0] = pj.h[0] - pb.h[0];
+        dh[j][1] = d == 2 ? wrap(pj.h[1] - pb.h[1]) : 0.0;
+        for (int a = 0; a < d; ++a) mp.h[a] += beta[j] * dh[j][a], mp.R[a] += beta[j] * pj.R[a];
+        for (int a = 0; a < 3 * d; ++a) mp.H[a] += beta[j] * pj.H[a];
+    }
+    mp.Rx = 0.0;
+    for (int j = 0; j < kk; ++j) {
+        const double e0 = dh[j][0] - mp.h[0], e1 = dh[j][1] - mp.h[1];
+        mp.R[0] += beta[j] * e0 * e0;
+        if (d == 2) mp.R[1] += beta[j] * e1 * e1, mp.Rx += beta[j] * e0 * e1;
+    }
+    // ẑ relative to the best candidate's prediction; the innovation z ⊖ ẑ
+    mq = *c[best];
+    mq.v[0] = c[best]->v[0] - mp.h[0];
+    mq.v[1] = d == 2 ? wrap(c[best]->v[1] - mp.h[1]) : 0.0;
+    mp.h[0] += pb.h[0];
+    if (d == 2) mp.h[1] = wrap(pb.h[1] + mp.h[1]);
+    double HP[6];
+    for (int a = 0; a < d; ++a)
+        for (int j = 0; j < 3; ++j)
+            HP[a * 3 + j] = mp.H[a * 3] * P[j] + mp.H[a * 3 + 1] * P[3 + j] +
+                            mp.H[a * 3 + 2] * P[6 + j];
+    for (int a = 0; a < d; ++a)
+        for (int b = 0; b <= a; ++b)
+            mp.S[a * d + b] = mp.S[b * d + a] = (a == b ? mp.R[a] : mp.Rx) +
+                HP[a * 3] * mp.H[b * 3] + HP[a * 3 + 1] * mp.H[b * 3 + 1] +
+                HP[a * 3 + 2] * mp.H[b * 3 + 2];
+    mp.det = d == 2 ? mp.S[0] * mp.S[3] - mp.S[1] * mp.S[1] : mp.S[0];
+    mp.ok = mp.det > 0.0 && std::isfinite(mp.det) && mp.S[0] > 0.0;
+    if (mp.ok) mq.d2 = mahalanobis2(mp, mq.v, d);
+    return mp.ok;
 }
 
 // The joint d² of a set of pairs: the stacked innovation against its stacked S, pair by pair.
@@ -421,9 +486,11 @@ struct Work {
     std::vector<double> nearest, zc, pair_d2, range, inv_bound, keys;
     std::vector<Predicted> pred;
     std::vector<char> done, taken;
-    std::vector<Pair> pairs;
+    std::vector<Pair> pairs, mixed;  // mixed: a reading's mixture pair (mix_reading)
+    std::vector<Predicted> mixpred;  // and its virtual landmark's prediction
     std::vector<int64_t> row_start, lo, hi, owner, near;
     std::vector<const Pair*> chosen, update, best, order;
+    std::vector<const Predicted*> upred;  // the prediction of each pair of update
 };
 
 // This thread's scratch, looked up once per call: not inlined, so the compiler cannot redo the
@@ -560,7 +627,7 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
                 }
                 // a margin for rounding: the bound is a bound of the exact values
                 auto limit = [&](double least) {
-                    const double t = opt.method == JCBB ? std::max(least, opt.gate2) : least;
+                    const double t = by_d2 ? std::max(least, opt.gate2) : least;
                     return t * (1.0 + 1e-9) + 1e-300;
                 };
                 double least = value(i, ci[first]);
@@ -721,6 +788,31 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
             pair_d2[i] = chosen[i]->d2;
         }
     }
+    // A used reading with more than one landmark inside its gate (Mahalanobis cost or JCBB:
+    // not Euclidean Eq. 22 nor Eq. 21, which stay as the lecture has them) enters the update
+    // as the mixture of its candidates (mix_reading); with signatures there is one candidate.
+    w.mixed.resize(m);
+    w.mixpred.resize(m);
+    std::vector<const Predicted*>& upred = w.upred;
+    upred.clear();
+    for (const Pair*& q : update) {
+        upred.push_back(&pred[q->l]);
+        if (!(by_d2 && opt.method != PER_LANDMARK)) continue;
+        const int64_t i = q->i;
+        std::vector<const Pair*>& cands = w.order;
+        cands.clear();
+        for (int64_t k = row_start[i]; k < row_start[i + 1]; ++k)
+            if (pairs[k].d2 <= opt.gate2) cands.push_back(&pairs[k]);
+        if (cands.size() < 2) continue;
+        if (!mix_reading(cands.data(), static_cast<int>(cands.size()), pred, P, d, w.mixpred[i],
+                         w.mixed[i]))
+            continue;
+        w.mixed[i].l = q->l;  // the reading's landmark stays the one its association chose
+        q = &w.mixed[i];
+        chosen[i] = q;
+        pair_d2[i] = q->d2;
+        upred.back() = &w.mixpred[i];
+    }
     // The correction with the used pairs (Eqs. 26-28), one per time stamp: their stacked
     // update, done pair by pair (kalman_block: each pair's noise is its own, so R is block
     // diagonal and the 2 × 2 blocks in turn are the stacked 2k × 2k update).
@@ -735,17 +827,18 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
         double delta[3] = {0.0, 0.0, 0.0}, Pn[9], nis = 0.0, logdet = 0.0;
         std::copy(P, P + 9, Pn);
         bool ok = true;
-        for (const Pair* q : update) {
+        for (size_t u = 0; u < update.size(); ++u) {
+            const Pair* q = update[u];
             // Student-t readings: the reading's weight (ν + d)/(ν + d²) scales R by its inverse
             const double wgt = (robust ? (p[NU] + d) / (p[NU] + q->d2) : 1.0) / c2;
-            ok = ok && pair_block(d, delta, Pn, *q, pred[q->l], wgt, nis, logdet);
+            ok = ok && pair_block(d, delta, Pn, *q, *upred[u], wgt, nis, logdet);
         }
         if (reweighted && ok) {  // the likelihood is that of S with R itself, not reweighted
             double dl[3] = {0.0, 0.0, 0.0}, Pl[9];
             std::copy(P, P + 9, Pl);
             nis = logdet = 0.0;
-            for (const Pair* q : update)
-                ok = ok && pair_block(d, dl, Pl, *q, pred[q->l], 1.0, nis, logdet);
+            for (size_t u = 0; u < update.size(); ++u)
+                ok = ok && pair_block(d, dl, Pl, *update[u], *upred[u], 1.0, nis, logdet);
         }
         for (int k = 0; k < 9; ++k) ok = ok && std::isfinite(Pn[k]);
         for (int k = 0; k < 3; ++k) ok = ok && std::isfinite(delta[k]);
@@ -767,6 +860,7 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
             totals.nis += nis;
             totals.dof += D;
             totals.updates += 1;
+            for (const Pair* q : update) totals.ambiguous += q == &w.mixed[q->i];
         } else {
             for (const Pair* q : update) status[q->i] = DEGENERATE;
         }
@@ -781,7 +875,9 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
         if (out.y)
             for (int a = 0; a < d; ++a) out.y[i * d + a] = has ? q->v[a] : NaN;
         if (out.S)
-            for (int a = 0; a < d * d; ++a) out.S[i * d * d + a] = has ? pred[q->l].S[a] : NaN;
+            for (int a = 0; a < d * d; ++a)
+                out.S[i * d * d + a] =
+                    !has ? NaN : (q == &w.mixed[i] ? w.mixpred[i].S[a] : pred[q->l].S[a]);
     }
 }
 
@@ -842,7 +938,7 @@ nb::dict totals_dict(const std::vector<Totals>& t) {
     const size_t B = t.size();
     auto loglik = new_array({B}), nis = new_array({B});
     auto dof = new_array<int64_t>({B}), updates = new_array<int64_t>({B});
-    auto overflow = new_array<int64_t>({B});
+    auto overflow = new_array<int64_t>({B}), ambiguous = new_array<int64_t>({B});
     auto counts = new_array<int64_t>({B, static_cast<size_t>(N_STATUS)});
     for (size_t b = 0; b < B; ++b) {
         loglik.data()[b] = t[b].loglik;
@@ -850,6 +946,7 @@ nb::dict totals_dict(const std::vector<Totals>& t) {
         dof.data()[b] = t[b].dof;
         updates.data()[b] = t[b].updates;
         overflow.data()[b] = t[b].overflow;
+        ambiguous.data()[b] = t[b].ambiguous;
         for (int s = 0; s < N_STATUS; ++s) counts.data()[b * N_STATUS + s] = t[b].counts[s];
     }
     nb::dict out;
@@ -858,6 +955,7 @@ nb::dict totals_dict(const std::vector<Totals>& t) {
     out["dof"] = dof;
     out["updates"] = updates;
     out["overflow"] = overflow;
+    out["ambiguous"] = ambiguous;
     out["counts"] = counts;
     return out;
 }

@@ -101,6 +101,7 @@ struct Totals {
     int64_t dof = 0;       // Σ dim y
     int64_t updates = 0;   // time stamps with a correction
     int64_t overflow = -1; // first time index with a non-finite state (-1: none)
+    int64_t ambiguous = 0; // used readings with several landmarks in the gate (a mixture)
     int64_t counts[N_STATUS] = {};
 };
 

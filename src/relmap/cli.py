@@ -435,7 +435,10 @@ def _localize(args: argparse.Namespace) -> int:
     )
     r = run.readings
     print(
-        f"  readings: {r['used']} used, {run.score.rejected} rejected"
+        f"  readings: {r['used']} used"
+        + (f" ({r['ambiguous']} ambiguous: the mixture of the landmarks in their gate)"
+           if r.get("ambiguous") else "")
+        + f", {run.score.rejected} rejected"
         + (f", {r['wrong']} paired with the wrong landmark" if r["wrong"] else "")
         + (f", {r['ignored']} ignored (not landmarks)" if r["ignored"] else "")
         + f"; NIS/dof {run.anis:.2f} (1 if consistent"

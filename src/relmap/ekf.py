@@ -31,7 +31,8 @@ the same code, with no Python loop over filters or steps.
   association (:class:`Association`: signatures, Mahalanobis Eq. 23 or Euclidean Eq. 22
   nearest neighbour one to one, or the lecture's Eq. 21 per landmark (:class:`Pairing`), or
   joint compatibility branch and bound, JCBB, Neira & Tardós 2001), the χ² gate (Eq. 25),
-  and one stacked update of all the readings of the time stamp. Every reading gets a
+  and one stacked update of all the readings of the time stamp; a reading with several
+  landmarks inside its gate enters it as the mixture of them (see there). Every reading gets a
   :class:`Status`.
 
 **Runs.** :func:`run` replays a whole :class:`Log` (odometry steps between the filter's times,
@@ -535,9 +536,20 @@ def correct_landmarks(
     ``mahalanobis`` (Eq. 23) and ``euclidean`` (Eq. 22) with the nearest landmark, ``jcbb`` the
     largest jointly compatible set. Signatures, when given, restrict the candidates under every
     method. :class:`Pairing` one to one (greedy, cheapest pair first; the others LOST) or per
-    landmark (Eq. 21). Pairs with ``d² > χ²_d(gate)`` are GATED (Eq. 25). ``valid`` (..., m)
-    marks padding (ABSENT); NaN or non-positive ranges are INVALID. The used pairs form one
-    stacked update (Eqs. 26-28, Joseph form); ``nu`` finite: Student-t readings (module notes).
+    landmark (Eq. 21). Pairs with ``d² > χ²_d(gate)`` are GATED (Eq. 25). A used reading with
+    several landmarks inside its gate (Mahalanobis and JCBB) is of one of them, which one
+    unknown: it enters the update moment-matched to the mixture of their likelihoods, with the
+    association probabilities ``β_j ∝ |S_j|^(-1/2) exp(-d²_j/2)`` (probabilistic data
+    association, Bar-Shalom & Tse 1975, without clutter: the gate has rejected the rest), as a
+    reading of one virtual landmark with ``ẑ = Σ β_j h_j``, ``H = Σ β_j H_j`` and
+    ``R = Σ β_j R_j + Σ β_j (h_j - ẑ)(h_j - ẑ)ᵀ``; its landmark (and status) stay the ones its
+    association chose, its ``y``, ``S`` and d² are the virtual landmark's. (Landmarks closer
+    together than a reading can tell apart then give their centroid with their spread as noise,
+    not one of them taken wrongly with full confidence; one candidate of β ≈ 1 gives its own
+    update.)
+    ``valid`` (..., m) marks padding (ABSENT); NaN or non-positive ranges are INVALID. The used
+    pairs form one stacked update (Eqs. 26-28, Joseph form); ``nu`` finite: Student-t readings
+    (module notes).
     """
     d = 1 if range_only else 2
     z = np.asarray(readings, dtype=np.float64)
@@ -671,7 +683,9 @@ class Trace(NamedTuple):
     :class:`Status`), ``landmark`` (row, -1: none). Per filter (*batch): ``loglik`` the sum of the
     log-likelihoods of the stacked innovations (Gaussian, or Student-t with scale S), ``nis``
     the sum of their ``yᵀS⁻¹y`` over ``dof`` components (NIS/dof ≈ 1 when consistent),
-    ``updates`` time stamps corrected, ``counts`` (*batch, 7) readings per status.
+    ``updates`` time stamps corrected, ``counts`` (*batch, 7) readings per status,
+    ``ambiguous`` used readings that had several landmarks inside their gate and entered the
+    update as the mixture of them (:func:`correct_landmarks`).
     """
 
     t: FloatArray
@@ -687,6 +701,7 @@ class Trace(NamedTuple):
     dof: IntArray
     updates: IntArray
     counts: IntArray
+    ambiguous: IntArray
 
     def estimate(self) -> AT:
         """The kept states as an AT batch (*batch, T)."""
@@ -783,5 +798,5 @@ def run(
         y, S, r["d2"].reshape(*batch, Mo), r["status"].reshape(*batch, Mo),
         r["landmark"].reshape(*batch, Mo), r["loglik"].reshape(batch), r["nis"].reshape(batch),
         r["dof"].reshape(batch), r["updates"].reshape(batch),
-        r["counts"].reshape(*batch, len(Status)),
+        r["counts"].reshape(*batch, len(Status)), r["ambiguous"].reshape(batch),
     )  # fmt: skip
