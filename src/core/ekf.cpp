@@ -613,7 +613,7 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
             double* const keys = w.keys.data();
             int64_t* const near = w.near.data();  // candidates (positions) that may matter
             int64_t nn = 0;
-            if (all) {
+            if (all || n == 1) {  // (a single candidate is the cheapest: nothing to prune)
                 for (int64_t k = 0; k < n; ++k) near[nn++] = k;
             } else {
                 if (opt.signatures)

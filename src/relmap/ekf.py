@@ -163,11 +163,21 @@ _NOISE_MODELS = {"constant": 0, "proportional": 1, "quadratic": 2}
 
 
 def _option(kind: type[enum.Enum], value: object, name: str) -> enum.Enum:
+    try:  # a dict look-up: an enum's call costs microseconds, and options come every step
+        return _MEMBERS[kind][value]
+    except (KeyError, TypeError):
+        pass
     try:
         return kind(value)
     except ValueError:
         names = ", ".join(str(m.value) for m in kind)  # type: ignore[attr-defined]
         raise ParameterError(f"{name} must be one of {names}; got {value!r}") from None
+
+
+#: each option's members by value (a str enum's member hashes and compares as its value)
+_MEMBERS: dict[type[enum.Enum], dict[object, enum.Enum]] = {
+    kind: {m.value: m for m in kind} for kind in (Association, Pairing, Keep, SensorKind)
+}
 
 
 # ------------------------------------------------------------------------------ beliefs
@@ -512,6 +522,15 @@ def _map(
     return lm, sig
 
 
+def _rows(a: ArrayLike, dtype: type, batch: tuple[int, ...], m: int) -> np.ndarray:
+    """``a`` broadcast to ``(*batch, m)`` as a C-contiguous ``(B, m)`` array of ``dtype``
+    (no broadcast when it has that shape already: np.broadcast_to costs microseconds)."""
+    arr = np.asarray(a, dtype=dtype)
+    if arr.shape != (*batch, m):
+        arr = np.broadcast_to(arr, (*batch, m))
+    return np.ascontiguousarray(arr.reshape(math.prod(batch), m))
+
+
 def correct_landmarks(
     state: AT,
     readings: ArrayLike,
@@ -571,13 +590,13 @@ def correct_landmarks(
         if signatures is not None:
             batch = np.broadcast_shapes(batch, np.shape(signatures)[:-1])
     B = math.prod(batch)
-    present = _ones(B, m) if valid is None else (
-        np.broadcast_to(np.asarray(valid, bool), (*batch, m)).reshape(B, m).astype(np.uint8)
+    present = _ones(B, m) if valid is None else _rows(valid, bool, batch, m).view(np.uint8)
+    sig = np.zeros((B, m), np.int64) if signatures is None else _rows(
+        signatures, np.int64, batch, m
     )  # fmt: skip
-    sig = np.zeros((B, m), np.int64) if signatures is None else np.ascontiguousarray(
-        np.broadcast_to(np.asarray(signatures, dtype=np.int64), (*batch, m)).reshape(B, m)
-    )  # fmt: skip
-    params = _sensor_params(sensor.sigma_range, sensor.sigma_bearing, tuple(sensor.mount), nu)
+    params = _sensor_params(
+        sensor.sigma_range, sensor.sigma_bearing, tuple(sensor.mount.tolist()), float(nu)
+    )
     if B != 1:
         params = np.repeat(params, B, axis=0)
     gate2, joint = _gates(gate, d, m if a is Association.JCBB else 0)

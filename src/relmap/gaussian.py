@@ -119,6 +119,8 @@ def check_tolerance(value: float, name: str) -> float:
 
 def check_finite(arr: FloatArray, name: str) -> None:
     """Raise :class:`NonFiniteError` naming the first NaN/inf entry of ``arr``."""
+    if np.isfinite(arr).all():  # (the common case in one pass)
+        return
     bad = ~np.isfinite(arr)
     if bad.any():
         index = tuple(int(i) for i in np.argwhere(bad)[0])
