@@ -303,6 +303,23 @@ struct Pair {
     int64_t i, l;
 };
 
+// The innovation covariance S = H P Hᵀ + R of a predicted reading (d × d; R diagonal
+// but for Rx off it), its determinant, and whether S is positive definite.
+void innovation_cov(Predicted& out, const double* P, int d) {
+    double HP[6];
+    for (int a = 0; a < d; ++a)
+        for (int j = 0; j < 3; ++j)
+            HP[a * 3 + j] = out.H[a * 3] * P[j] + out.H[a * 3 + 1] * P[3 + j] +
+                            out.H[a * 3 + 2] * P[6 + j];
+    for (int a = 0; a < d; ++a)
+        for (int b = 0; b <= a; ++b)
+            out.S[a * d + b] = out.S[b * d + a] = (a == b ? out.R[a] : out.Rx) +
+                HP[a * 3] * out.H[b * 3] + HP[a * 3 + 1] * out.H[b * 3 + 1] +
+                HP[a * 3 + 2] * out.H[b * 3 + 2];
+    out.det = d == 2 ? out.S[0] * out.S[3] - out.S[1] * out.S[1] : out.S[0];
+    out.ok = out.det > 0.0 && std::isfinite(out.det) && out.S[0] > 0.0;
+}
+
 void predict_landmark(const SensorPose& sp, const double* P, const double* lm, const double* p,
                       const Options& opt, int d, Predicted& out) {
     const double dx = lm[0] - sp.x, dy = lm[1] - sp.y, ox = sp.ox, oy = sp.oy;
@@ -324,18 +341,8 @@ void predict_landmark(const SensorPose& sp, const double* P, const double* lm, c
         out.H[5] = -(dy * oy + dx * ox) / q - 1.0;
         out.R[1] = (p[SIGMA_B] * scale) * (p[SIGMA_B] * scale);
     }
-    double HP[6];
-    for (int a = 0; a < d; ++a)
-        for (int j = 0; j < 3; ++j)
-            HP[a * 3 + j] = out.H[a * 3] * P[j] + out.H[a * 3 + 1] * P[3 + j] +
-                            out.H[a * 3 + 2] * P[6 + j];
-    for (int a = 0; a < d; ++a)
-        for (int b = 0; b <= a; ++b)
-            out.S[a * d + b] = out.S[b * d + a] = (a == b ? out.R[a] : 0.0) +
-                HP[a * 3] * out.H[b * 3] + HP[a * 3 + 1] * out.H[b * 3 + 1] +
-                HP[a * 3 + 2] * out.H[b * 3 + 2];
-    out.det = d == 2 ? out.S[0] * out.S[3] - out.S[1] * out.S[1] : out.S[0];
-    out.ok = out.det > 0.0 && std::isfinite(out.det) && out.S[0] > 0.0;
+    out.Rx = 0.0;
+    innovation_cov(out, P, d);
 }
 
 inline double mahalanobis2(const Predicted& pr, const double* v, int d) {
@@ -399,18 +406,7 @@ bool mix_reading(const Pair* const* c, int k, const Predicted* pred, const doubl
     mq.v[1] = d == 2 ? wrap(c[best]->v[1] - mp.h[1]) : 0.0;
     mp.h[0] += pb.h[0];
     if (d == 2) mp.h[1] = wrap(pb.h[1] + mp.h[1]);
-    double HP[6];
-    for (int a = 0; a < d; ++a)
-        for (int j = 0; j < 3; ++j)
-            HP[a * 3 + j] = mp.H[a * 3] * P[j] + mp.H[a * 3 + 1] * P[3 + j] +
-                            mp.H[a * 3 + 2] * P[6 + j];
-    for (int a = 0; a < d; ++a)
-        for (int b = 0; b <= a; ++b)
-            mp.S[a * d + b] = mp.S[b * d + a] = (a == b ? mp.R[a] : mp.Rx) +
-                HP[a * 3] * mp.H[b * 3] + HP[a * 3 + 1] * mp.H[b * 3 + 1] +
-                HP[a * 3 + 2] * mp.H[b * 3 + 2];
-    mp.det = d == 2 ? mp.S[0] * mp.S[3] - mp.S[1] * mp.S[1] : mp.S[0];
-    mp.ok = mp.det > 0.0 && std::isfinite(mp.det) && mp.S[0] > 0.0;
+    innovation_cov(mp, P, d);
     if (mp.ok) mq.d2 = mahalanobis2(mp, mq.v, d);
     return mp.ok;
 }
