@@ -165,11 +165,7 @@ _NOISE_MODELS = {"constant": 0, "proportional": 1, "quadratic": 2}
 def _option(kind: type[enum.Enum], value: object, name: str) -> enum.Enum:
     try:  # a dict look-up: an enum's call costs microseconds, and options come every step
         return _MEMBERS[kind][value]
-    except (KeyError, TypeError):
-        pass
-    try:
-        return kind(value)
-    except ValueError:
+    except (KeyError, TypeError):  # (TypeError: an unhashable value)
         names = ", ".join(str(m.value) for m in kind)  # type: ignore[attr-defined]
         raise ParameterError(f"{name} must be one of {names}; got {value!r}") from None
 

@@ -121,10 +121,8 @@ def check_finite(arr: FloatArray, name: str) -> None:
     """Raise :class:`NonFiniteError` naming the first NaN/inf entry of ``arr``."""
     if np.isfinite(arr).all():  # (the common case in one pass)
         return
-    bad = ~np.isfinite(arr)
-    if bad.any():
-        index = tuple(int(i) for i in np.argwhere(bad)[0])
-        raise NonFiniteError(f"{name}{_where(index)} is {arr[index]}: values must be finite")
+    index = tuple(int(i) for i in np.argwhere(~np.isfinite(arr))[0])
+    raise NonFiniteError(f"{name}{_where(index)} is {arr[index]}: values must be finite")
 
 
 def check_probability(p: ArrayLike, name: str = "probability") -> FloatArray:
