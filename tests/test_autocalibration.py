@@ -16,41 +16,67 @@ from relmap.robot import DistanceNoise, increment
 from relmap.sensors import RangeBearingSensor
 
 NOISE = DistanceNoise(0.01, 0.01, 0.002)
-SIGMA_R, SIGMA_B = 0.1, 0.02
+SIGMA_R, SIGMA_B = 0.02, 0.005  # a laser scanner's landmarks: 2 cm, 0.3°
 LANDMARKS = np.array([[x, y] for x in (-6.0, 0.0, 6.0) for y in (-6.0, 0.0, 6.0)])
-START_POSE = np.array([4.0, 0.0, np.pi / 2])
+#: The route: the corners of a 3 m square about the central landmark, driven counter-clockwise
+#: (A B C D A) then clockwise (A D C B A), again and again.
+CORNERS = np.array([[1.5, -1.5], [1.5, 1.5], [-1.5, 1.5], [-1.5, -1.5]])
+ROUTE = np.concatenate([CORNERS, CORNERS[:1], CORNERS[:0:-1]])
+START_POSE = np.array([1.5, -1.5, np.pi / 2])
+#: Driving speed (m/s), turning rate in place (rad/s), the readings' range limits (m).
+SPEED, TURN, RANGES = 0.3, 0.3, (1.0, 5.0)
 
 
-def simulate(seed: int, steps: int = 3000, dt: float = 0.1, every: int = 5):
-    """A robot weaving among 9 landmarks (speed 0.1-0.5 m/s, turn rate switching between 0.4
-    and -0.2 rad/s, so that turning and driving noise can be told apart): odometry velocities
-    at 10 Hz with DistanceNoise NOISE (the logged step is the commanded one, the robot's true
-    step noisy), range-bearing readings of every landmark between 1 m and 8 m each ``every``
-    steps with white noise (SIGMA_R, SIGMA_B). Returns the recording and the true poses at the
-    odometry times. (Closer than 1 m the bearing is too nonlinear for the EKF's S: with
-    readings down to 0.2 m the likelihood at the simulated noise peaked at σ_b 10% too high.)"""
-    rng = np.random.default_rng(seed)
+def simulate(seed: int, steps: int = 3000, dt: float = 0.1, every: int = 2):
+    """One run of :func:`simulate_runs`: its recording and true poses."""
+    return simulate_runs(np.random.default_rng(seed), 1, steps, dt, every)[0]
+
+
+def simulate_runs(rng: np.random.Generator, runs: int, steps: int, dt: float = 0.1,
+                  every: int = 2) -> list[tuple[ac.Recording, np.ndarray]]:  # fmt: skip
+    """Runs of a differential-drive robot patrolling :data:`ROUTE` as such a robot does: at
+    each corner it turns in place to face the next one (at :data:`TURN`), then drives straight
+    to it (at :data:`SPEED`), each plan made from its true pose. So the odometry noise of
+    turning in place (``k_theta``) and of driving (``k_s``, ``k_theta_s``) come in separate
+    steps, 40% of the time turning, and each is identifiable (a path that turns while driving,
+    at one mean rate, leaves ``k_theta`` and ``k_theta_s`` on a ridge). Each run starts from a
+    draw of :func:`start`'s prior. Odometry at 1/``dt`` Hz, the commanded step logged and the
+    true one drawn with DistanceNoise NOISE (independent Δs, Δθ) and composed by the midpoint
+    rule, written out here (``x += Δs cos(θ + Δθ/2)``, …); range-bearing readings of the
+    landmarks within :data:`RANGES` every ``every`` steps with white noise (SIGMA_R, SIGMA_B).
+    Returns each run's recording and its true poses at the odometry times (steps + 1, 3)."""
     t = np.arange(steps + 1) * dt
-    v = 0.3 + 0.2 * np.sin(2 * np.pi * t / 37.0)
-    w = 0.1 + 0.3 * np.sign(np.sin(2 * np.pi * t / 11.0))  # turns that start and stop
-    truth = [START_POSE]
-    for k in range(steps):
-        step = np.array([v[k] * dt, w[k] * dt])
-        noisy = step + rng.multivariate_normal([0, 0], NOISE.covariance(step))
-        truth.append(se2.compose(truth[-1], increment(noisy)))
-    truth = np.array(truth)
-    sensor = RangeBearingSensor(0.0, 0.0)
-    rt, z, sig = [], [], []
-    for k in range(every, steps + 1, every):
-        zz = sensor.predict(truth[k], LANDMARKS)
-        seen = np.flatnonzero((zz[:, 0] > 1.0) & (zz[:, 0] < 8.0))
-        noisy = zz[seen] + rng.normal(size=(len(seen), 2)) * [SIGMA_R, SIGMA_B]
-        rt += [t[k]] * len(seen)
-        z.append(noisy)
-        sig.append(seen)
-    rec = ac.Recording(t, v, w, np.array(rt),
-                       np.concatenate(z), np.concatenate(sig), float(t[-1]))  # fmt: skip
-    return rec, truth
+    at = np.arange(every, steps + 1, every)
+    out = []
+    for x0 in start(0.0).sample(runs, seed=rng):
+        truth = np.empty((steps + 1, 3))
+        truth[0] = x0
+        cmd = np.zeros((steps + 1, 2))  # (v, ω), each held until the next record
+        k, goal = 0, 1
+        while k < steps:  # at a corner: turn in place to face the next one, then drive there
+            x = truth[k]
+            d = ROUTE[goal % len(ROUTE)] - x[:2]
+            turn = float(se2.wrap_angle(np.arctan2(d[1], d[0]) - x[2]))
+            n = int(np.ceil(abs(turn) / (TURN * dt)))
+            m = int(np.ceil(np.hypot(*d) / (SPEED * dt)))
+            plan = np.array([(0.0, turn / max(n, 1))] * n + [(np.hypot(*d) / m, 0.0)] * m)
+            plan = plan[: steps - k]  # the steps (Δs, Δθ)
+            j = len(plan)
+            sd = np.sqrt(np.diagonal(NOISE.covariance(plan), axis1=-2, axis2=-1))
+            ds, dth = (plan + sd * rng.normal(size=plan.shape)).T  # the true steps
+            theta = x[2] + np.concatenate([[0.0], np.cumsum(dth)])
+            mid = theta[:-1] + dth / 2
+            truth[k + 1 : k + 1 + j, 0] = x[0] + np.cumsum(ds * np.cos(mid))
+            truth[k + 1 : k + 1 + j, 1] = x[1] + np.cumsum(ds * np.sin(mid))
+            truth[k + 1 : k + 1 + j, 2] = se2.wrap_angle(theta[1:])
+            cmd[k : k + j] = plan / dt
+            k, goal = k + j, goal + 1
+        zz = RangeBearingSensor(0.0, 0.0).predict(truth[at][:, None, :], LANDMARKS)
+        i, landmark = np.nonzero((zz[..., 0] > RANGES[0]) & (zz[..., 0] < RANGES[1]))
+        z = zz[i, landmark] + rng.normal(size=(len(i), 2)) * [SIGMA_R, SIGMA_B]
+        rec = ac.Recording(t, cmd[:, 0], cmd[:, 1], t[at][i], z, landmark, float(t[-1]))
+        out.append((rec, truth))
+    return out
 
 
 def start(t0: float) -> rm.AT:
@@ -130,7 +156,7 @@ def _trace(y: np.ndarray, S: np.ndarray, *, status: np.ndarray | None = None) ->
     st = np.zeros(n, np.int64) if status is None else status
     z = np.zeros(0)
     return ekf.Trace(z, z, z, y, S, z, st, np.zeros(n, np.int64), np.float64(0), np.float64(0),
-                     np.int64(0), np.int64(0), np.zeros(7, np.int64), np.int64(0))  # fmt: skip
+                     np.int64(0), np.int64(0), np.zeros(7, np.int64), np.int64(0), y, S)  # fmt: skip
 
 
 def test_bad_input_is_a_clear_error() -> None:
