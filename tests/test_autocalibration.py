@@ -181,12 +181,14 @@ def test_loglik_is_the_student_t_and_gaussian_density_of_every_paired_reading() 
 
 
 def _trace(y: np.ndarray, S: np.ndarray, *, status: np.ndarray | None = None) -> ekf.Trace:
-    """A one-filter trace holding only per-reading innovations (one landmark)."""
+    """A one-filter trace holding only per-reading innovations (one landmark, one reading a
+    time: given the readings before it is at the prior)."""
     n = len(y)
     st = np.zeros(n, np.int64) if status is None else status
     z = np.zeros(0)
     return ekf.Trace(z, z, z, y, S, z, st, np.zeros(n, np.int64), np.float64(0), np.float64(0),
-                     np.int64(0), np.int64(0), np.zeros(7, np.int64), np.int64(0), y, S)  # fmt: skip
+                     np.int64(0), np.int64(0), np.zeros(7, np.int64), np.int64(0),
+                     y, S)  # fmt: skip
 
 
 def test_bad_input_is_a_clear_error() -> None:

@@ -815,10 +815,9 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
         pair_d2[i] = q->d2;
         upred.back() = &w.mixpred[i];
     }
-    // The correction with the used pairs (Eqs. 26-28), one per time stamp: their stacked
-    // update, done pair by pair (kalman_block: each pair's noise is its own, so R is block
-    // diagonal and the 2 × 2 blocks in turn are the stacked 2k × 2k update).
-    // the likelihood's sequence (R itself) after the used pairs: a gated reading's given state
+    // The likelihood's sequence (R itself) through the used pairs, each pair's innovation and S
+    // given the pairs before it (ReadingOut::y_given), and where it ends: a gated reading's
+    // given state.
     double dL[3] = {0.0, 0.0, 0.0}, PL[9];
     std::copy(P, P + 9, PL);
     bool given_ok = true;
@@ -826,6 +825,9 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
         return !out.y_given ? nullptr
                             : (k ? out.S_given + q->i * d * d : out.y_given + q->i * d);
     };
+    // The correction with the used pairs (Eqs. 26-28), one per time stamp: their stacked
+    // update, done pair by pair (kalman_block: each pair's noise is its own, so R is block
+    // diagonal and the 2 × 2 blocks in turn are the stacked 2k × 2k update).
     if (!update.empty()) {
         const int D = d * static_cast<int>(update.size());
         const bool robust = std::isfinite(p[NU]);
