@@ -7,7 +7,8 @@
 - the runner against the textbook procedure step by step (tests/test_ekf_reference.py's
   reference correction and relmap.compound for the prediction);
 - a batch of filters against each filter alone (bitwise);
-- robust (Student-t) readings and the innovation log-likelihood against scipy.stats;
+- robust (Student-t) readings and the innovation log-likelihood against scipy.stats; each
+  reading's innovation given the ones before it against the Gaussian conditional;
 - biases and mount; JCBB against a brute-force search of the jointly compatible sets;
 - bad input: 0/0 statuses, overflow, bad logs.
 """
@@ -237,7 +238,7 @@ def test_a_batch_of_filters_is_each_filter_alone_bitwise():
             one = ekf.NoiseParameters(*(np.broadcast_to(v, (2, 3))[i, j] for v in p))
             alone = ekf.run(log, LANDMARKS, one, start=start, association=association)
             for name in ("mean", "cov", "y", "S", "mahalanobis2", "status", "landmark",
-                         "loglik", "nis", "dof", "counts"):  # fmt: skip
+                         "loglik", "nis", "dof", "counts", "y_given", "S_given"):  # fmt: skip
                 np.testing.assert_array_equal(getattr(batch, name)[i, j], getattr(alone, name))
 
 
@@ -332,6 +333,39 @@ def test_inflation_scales_the_update_but_not_the_gate_nor_the_likelihood():
     np.testing.assert_array_equal(plain.cov, one.cov)
     with pytest.raises(ParameterError, match="inflation"):
         ekf.run(log, LANDMARKS, params_of()._replace(inflation=0.0), start=state)
+
+
+def test_innovations_given_the_readings_before_are_the_stacked_one_decomposed():
+    """``y_given``, ``S_given``: reading k's innovation and covariance conditioned on the
+    readings before it, ``y_k - S_k< S_<<⁻¹ y_<`` and ``S_kk - S_k< S_<<⁻¹ S_<k`` of the stacked
+    innovation (the Gaussian conditional), whose densities multiply to the stacked likelihood;
+    with R itself also for a robust or inflated filter. A gated reading is conditioned on all
+    the used ones: the posterior's ``z - h - H δ`` and ``H P⁺ Hᵀ + R``."""
+    from scipy import stats
+
+    state, log, y, Hs, R, S = three_readings(np.random.default_rng(8))
+    for kw in ({}, {"nu": 4.0}, {"inflation": 2.5}):
+        tr = ekf.run(log, LANDMARKS, params_of()._replace(**kw), start=state, gate=0.999999)
+        assert (tr.status == ekf.Status.USED).all()
+        ll = 0.0
+        for k in range(3):
+            a, b = slice(2 * k, 2 * k + 2), slice(0, 2 * k)
+            gain = S[a, b] @ np.linalg.inv(S[b, b]) if k else np.zeros((2, 0))
+            np.testing.assert_allclose(tr.y_given[k], y[a] - gain @ y[b], rtol=1e-10, atol=1e-13)
+            np.testing.assert_allclose(tr.S_given[k], S[a, a] - gain @ S[b, a], rtol=1e-10)
+            ll += stats.multivariate_normal(np.zeros(2), tr.S_given[k]).logpdf(tr.y_given[k])
+        assert ll == pytest.approx(stats.multivariate_normal(np.zeros(6), S).logpdf(y), rel=1e-10)
+    far = log._replace(z=log.z + [[0.0, 0.0], [0.0, 0.0], [3.0, 0.0]])  # the third one gated
+    tr = ekf.run(far, LANDMARKS, params_of(), start=state)
+    np.testing.assert_array_equal(tr.status, [ekf.Status.USED, ekf.Status.USED, ekf.Status.GATED])
+    u = slice(0, 4)
+    K = state.cov @ Hs[u].T @ np.linalg.inv(S[u, u])
+    post = (np.eye(3) - K @ Hs[u]) @ state.cov
+    H2 = Hs[4:]
+    np.testing.assert_allclose(tr.y_given[2], y[4:] + [3.0, 0.0] - H2 @ K @ y[u], rtol=1e-10)
+    np.testing.assert_allclose(tr.S_given[2], H2 @ post @ H2.T + R[4:, 4:], rtol=1e-9)
+    np.testing.assert_allclose(tr.y[2], y[4:] + [3.0, 0.0], rtol=1e-12)  # y, S: at the prior
+    np.testing.assert_allclose(tr.S[2], S[4:, 4:], rtol=1e-12)
 
 
 # ------------------------------------------------------------------------------------ JCBB

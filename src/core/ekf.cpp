@@ -362,11 +362,17 @@ inline double mahalanobis2(const Predicted& pr, const double* v, int d) {
 
 // One pair's block of the stacked correction, on the running (δ, P) of a pose filter (see
 // kalman_block), with the pair's noise R (d, diagonal) divided by weight w.
+// y_out (d), S_out (d × d) if non-null: the block's innovation y' = y - H δ and its S.
 inline bool pair_block(int d, double* delta, double* P, const Pair& q, const Predicted& pr,
-                       double w, double& nis, double& logdet) {
+                       double w, double& nis, double& logdet, double* y_out = nullptr,
+                       double* S_out = nullptr) {
     const double R[4] = {pr.R[0] / w, pr.Rx / w, pr.Rx / w, d == 2 ? pr.R[1] / w : 0.0};
-    if (d == 2) return kalman_block<3, 2>(3, 2, delta, P, q.v, pr.H, R, nullptr, nis, logdet);
-    return kalman_block<3, 1>(3, 1, delta, P, q.v, pr.H, R, nullptr, nis, logdet);
+    if (y_out)
+        for (int a = 0; a < d; ++a)
+            y_out[a] = q.v[a] - pr.H[3 * a] * delta[0] - pr.H[3 * a + 1] * delta[1] -
+                       pr.H[3 * a + 2] * delta[2];
+    if (d == 2) return kalman_block<3, 2>(3, 2, delta, P, q.v, pr.H, R, S_out, nis, logdet);
+    return kalman_block<3, 1>(3, 1, delta, P, q.v, pr.H, R, S_out, nis, logdet);
 }
 
 // A reading with k >= 2 landmarks inside its gate (candidates c[0..k), pairs of one reading i)
@@ -819,6 +825,16 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
         pair_d2[i] = q->d2;
         upred.back() = &w.mixpred[i];
     }
+    // The likelihood's sequence (R itself) through the used pairs, each pair's innovation and S
+    // given the pairs before it (ReadingOut::y_given), and where it ends: a gated reading's
+    // given state.
+    double dL[3] = {0.0, 0.0, 0.0}, PL[9];
+    std::copy(P, P + 9, PL);
+    bool given_ok = true;
+    auto given = [&](const Pair* q, int k) {  // where the pair's y', S' go (null: not kept)
+        return !out.y_given ? nullptr
+                            : (k ? out.S_given + q->i * d * d : out.y_given + q->i * d);
+    };
     // The correction with the used pairs (Eqs. 26-28), one per time stamp: their stacked
     // update, done pair by pair (kalman_block: each pair's noise is its own, so R is block
     // diagonal and the 2 × 2 blocks in turn are the stacked 2k × 2k update).
@@ -837,14 +853,18 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
             const Pair* q = update[u];
             // Student-t readings: the reading's weight (ν + d)/(ν + d²) scales R by its inverse
             const double wgt = (robust ? (p[NU] + d) / (p[NU] + q->d2) : 1.0) / c2;
-            ok = ok && pair_block(d, delta, Pn, *q, *upred[u], wgt, nis, logdet);
+            ok = ok && pair_block(d, delta, Pn, *q, *upred[u], wgt, nis, logdet,
+                                  reweighted ? nullptr : given(q, 0),
+                                  reweighted ? nullptr : given(q, 1));
         }
         if (reweighted && ok) {  // the likelihood is that of S with R itself, not reweighted
-            double dl[3] = {0.0, 0.0, 0.0}, Pl[9];
-            std::copy(P, P + 9, Pl);
             nis = logdet = 0.0;
             for (size_t u = 0; u < update.size(); ++u)
-                ok = ok && pair_block(d, dl, Pl, *update[u], *upred[u], 1.0, nis, logdet);
+                ok = ok && pair_block(d, dL, PL, *update[u], *upred[u], 1.0, nis, logdet,
+                                      given(update[u], 0), given(update[u], 1));
+        } else {
+            std::copy(delta, delta + 3, dL);
+            std::copy(Pn, Pn + 9, PL);
         }
         for (int k = 0; k < 9; ++k) ok = ok && std::isfinite(Pn[k]);
         for (int k = 0; k < 3; ++k) ok = ok && std::isfinite(delta[k]);
@@ -861,6 +881,7 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
             for (const Pair* q : update) totals.ambiguous += q == &w.mixed[q->i];
         } else {
             for (const Pair* q : update) status[q->i] = DEGENERATE;
+            given_ok = false;
         }
     }
     for (int64_t i = 0; i < m; ++i) {
@@ -876,6 +897,18 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
             for (int a = 0; a < d * d; ++a)
                 out.S[i * d * d + a] =
                     !has ? NaN : (q == &w.mixed[i] ? w.mixpred[i].S[a] : pred[q->l].S[a]);
+        if (!out.y_given || (status[i] == USED && given_ok)) continue;  // USED: written above
+        if (status[i] == GATED && given_ok && has) {  // given the used readings (if any)
+            Predicted g = pred[q->l];
+            innovation_cov(g, PL, d);
+            for (int a = 0; a < d; ++a)
+                out.y_given[i * d + a] =
+                    q->v[a] - g.H[3 * a] * dL[0] - g.H[3 * a + 1] * dL[1] - g.H[3 * a + 2] * dL[2];
+            std::copy(g.S, g.S + d * d, out.S_given + i * d * d);
+        } else {
+            for (int a = 0; a < d; ++a) out.y_given[i * d + a] = NaN;
+            for (int a = 0; a < d * d; ++a) out.S_given[i * d * d + a] = NaN;
+        }
     }
 }
 
@@ -1122,6 +1155,7 @@ void register_ekf(nb::module_& m) {
             auto mean = new_array({B, T, 3}), cov = new_array({B, T, 3, 3});
             const size_t Mo = readings_out ? M : 0;
             auto yo = new_array({B, Mo, d}), So = new_array({B, Mo, d, d}), d2 = new_array({B, Mo});
+            auto yg = new_array({B, Mo, d}), Sg = new_array({B, Mo, d, d});
             auto st = new_array<int8_t>({B, Mo});
             auto lmo = new_array<int32_t>({B, Mo});
             std::vector<Totals> totals(B);
@@ -1148,7 +1182,8 @@ void register_ekf(nb::module_& m) {
                             if (readings_out) {
                                 const size_t o = b * M + r0;
                                 out = {yo.data() + o * d, So.data() + o * d * d, d2.data() + o,
-                                       st.data() + o, lmo.data() + o};
+                                       st.data() + o, lmo.data() + o, yg.data() + o * d,
+                                       Sg.data() + o * d * d};
                             }
                             correct_readings(x, P, m, z.data() + r0 * d, nullptr,
                                              signature.data() + r0, map, p, opt, out, totals[b]);
@@ -1171,6 +1206,8 @@ void register_ekf(nb::module_& m) {
             res["cov"] = cov;
             res["y"] = yo;
             res["S"] = So;
+            res["y_given"] = yg;
+            res["S_given"] = Sg;
             res["d2"] = d2;
             res["status"] = st;
             res["landmark"] = lmo;

@@ -92,6 +92,12 @@ struct ReadingOut {
     double* d2 = nullptr;      // (m,) Mahalanobis d² of the pair, or of the nearest candidate
     int8_t* status = nullptr;  // (m,)
     int32_t* landmark = nullptr;  // (m,) landmark row, -1 if none
+    // (m, d), (m, d, d): the pair's innovation and its covariance given the readings before it
+    // in the time stamp's stacked update, with R itself (the prediction-error decomposition:
+    // the stacked likelihood is the product of their densities); a gated reading given all the
+    // used ones. NaN: no pair, or a 0/0 update.
+    double* y_given = nullptr;
+    double* S_given = nullptr;
 };
 
 // Per-filter totals of a run.

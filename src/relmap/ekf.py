@@ -700,7 +700,13 @@ class Trace(NamedTuple):
     the sum of their ``yᵀS⁻¹y`` over ``dof`` components (NIS/dof ≈ 1 when consistent),
     ``updates`` time stamps corrected, ``counts`` (*batch, 7) readings per status,
     ``ambiguous`` used readings that had several landmarks inside their gate and entered the
-    update as the mixture of them (:func:`correct_landmarks`).
+    update as the mixture of them (:func:`correct_landmarks`). Per reading again, ``y_given``
+    (M, d) and ``S_given`` (M, d, d): the innovation and its covariance given the readings
+    before it in its time's stacked update (the used ones in update order, a gated one given
+    all the used ones; R itself, not inflated nor reweighted): the prediction-error
+    decomposition, whose densities multiply to the stacked likelihood ``loglik`` (the
+    readings of one time share the pose's error, so ``y`` and ``S`` at the prior are not
+    independent; NaN: no pair or a 0/0 update).
     """
 
     t: FloatArray
@@ -717,6 +723,8 @@ class Trace(NamedTuple):
     updates: IntArray
     counts: IntArray
     ambiguous: IntArray
+    y_given: FloatArray
+    S_given: FloatArray
 
     def estimate(self) -> AT:
         """The kept states as an AT batch (*batch, T)."""
@@ -805,13 +813,14 @@ def run(
              Keep.SUMMARY: t[-1:]}[kp]  # fmt: skip
     Mo = M if readings else 0
     y, S = r["y"].reshape(*batch, Mo, d), r["S"].reshape(*batch, Mo, d, d)
+    yg, Sg = r["y_given"].reshape(*batch, Mo, d), r["S_given"].reshape(*batch, Mo, d, d)
     if d == 1:
-        y, S = y[..., 0], S[..., 0, 0]
+        y, S, yg, Sg = y[..., 0], S[..., 0, 0], yg[..., 0], Sg[..., 0, 0]
     T = len(times)
     return Trace(
         times, r["mean"].reshape(*batch, T, 3), r["cov"].reshape(*batch, T, 3, 3),
         y, S, r["d2"].reshape(*batch, Mo), r["status"].reshape(*batch, Mo),
         r["landmark"].reshape(*batch, Mo), r["loglik"].reshape(batch), r["nis"].reshape(batch),
         r["dof"].reshape(batch), r["updates"].reshape(batch),
-        r["counts"].reshape(*batch, len(Status)), r["ambiguous"].reshape(batch),
+        r["counts"].reshape(*batch, len(Status)), r["ambiguous"].reshape(batch), yg, Sg,
     )  # fmt: skip
