@@ -34,6 +34,16 @@ inline double wrap(double a) {
     return w;
 }
 
+// Log-density of a D-dimensional reading model at an innovation with Mahalanobis distance
+// d2 = yᵀS⁻¹y and logdet = log det S: the normal N(0, S) for nu infinite, else the Student-t
+// with nu dof and *scale* S (its covariance is S ν/(ν - 2)). The one copy of this density:
+// relmap.autocalibration.logpdf calls it through the binding below.
+inline double log_density(double d2, double logdet, int D, double nu) {
+    if (std::isinf(nu)) return -0.5 * (d2 + logdet + D * std::log(TWO_PI));
+    return std::lgamma(0.5 * (nu + D)) - std::lgamma(0.5 * nu) - 0.5 * D * std::log(nu * PI) -
+           0.5 * logdet - 0.5 * (nu + D) * std::log1p(d2 / nu);
+}
+
 // Scratch of SIZE doubles: on the stack when the size is known at compile time (SIZE > 0),
 // else a vector of the runtime size.
 template <int SIZE>
@@ -843,16 +853,8 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
             x[1] += delta[1];
             x[2] = wrap(x[2] + delta[2]);
             std::copy(Pn, Pn + 9, P);
-            double ll;
-            if (robust) {  // multivariate Student-t of dimension D, scale S, ν dof
-                const double nu = p[NU];
-                ll = std::lgamma(0.5 * (nu + D)) - std::lgamma(0.5 * nu) -
-                     0.5 * D * std::log(nu * PI) - 0.5 * logdet -
-                     0.5 * (nu + D) * std::log1p(nis / nu);
-            } else {
-                ll = -0.5 * (nis + logdet + D * std::log(TWO_PI));
-            }
-            totals.loglik += ll;
+            // robust: the multivariate Student-t of dimension D, scale S, ν dof
+            totals.loglik += log_density(nis, logdet, D, robust ? p[NU] : INF);
             totals.nis += nis;
             totals.dof += D;
             totals.updates += 1;
@@ -959,6 +961,21 @@ nb::dict totals_dict(const std::vector<Totals>& t) {
 }  // namespace
 
 void register_ekf(nb::module_& m) {
+    m.def(
+        "log_density",
+        [](Float1 d2, Float1 logdet, int D, Float1 nu) {
+            const size_t n = d2.shape(0);
+            if (logdet.shape(0) != n || nu.shape(0) != n)
+                throw nb::value_error("d2, logdet and nu must have one length");
+            if (D < 1) throw nb::value_error("the dimension must be at least 1");
+            auto out = new_array({n});
+            for (size_t k = 0; k < n; ++k)
+                out.data()[k] = log_density(d2.data()[k], logdet.data()[k], D, nu.data()[k]);
+            return out;
+        },
+        nb::arg("d2"), nb::arg("logdet"), nb::arg("D"), nb::arg("nu"),
+        "Log-density (n,) of the normal (nu inf) or the Student-t with scale S and nu dof, at "
+        "Mahalanobis d2 = yᵀS⁻¹y with logdet = log det S.");
     m.def(
         "ekf_predict_covariance",
         [](Float3 P, Float3 F, Float3 Q) {

@@ -56,9 +56,8 @@ from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
-from scipy.special import gammaln
 
-from relmap import ekf
+from relmap import _core, ekf
 from relmap.at import AT
 from relmap.errors import ParameterError, ShapeError
 from relmap.typing import ArrayLike, FloatArray, IntArray
@@ -232,15 +231,17 @@ def variance_factor(rho1: float, rho2: float, pairs: int) -> float:
 def logpdf(d2: ArrayLike, logdet: ArrayLike, d: int, nu: ArrayLike) -> FloatArray:
     """Log-density of a ``d``-dimensional reading model at an innovation with Mahalanobis
     ``d2 = yᵀS⁻¹y`` and ``logdet = log det S``: Student-t with dof ``nu`` > 2 and *covariance*
-    ``S`` (scale ``S (ν - 2)/ν``), or the normal for ``nu`` inf (all broadcast together)."""
-    d2, v = np.asarray(d2, dtype=np.float64), np.asarray(nu, dtype=np.float64)
-    gauss = -0.5 * (d2 + d * np.log(2 * np.pi))
+    ``S`` (scale ``S (ν - 2)/ν``), or the normal for ``nu`` inf (all broadcast together).
+
+    The density is relmap's compiled one (the filter's likelihood, scale parametrization), at
+    the scale's Mahalanobis distance ``d2 ν/(ν - 2)`` and log-determinant
+    ``logdet + d log((ν - 2)/ν)``."""
+    d2, logdet, v = np.broadcast_arrays(*(np.asarray(a, dtype=np.float64) for a in (d2, logdet, nu)))
     with np.errstate(invalid="ignore", divide="ignore"):
-        vv = np.where(np.isinf(v), 3.0, v)
-        m = vv - 2.0  # d2 / m = d2_scale / ν: the Mahalanobis distance in the scale's metric
-        student = (gammaln((vv + d) / 2) - gammaln(vv / 2) - 0.5 * d * np.log(m * np.pi)
-                   - 0.5 * (vv + d) * np.log1p(d2 / m))  # fmt: skip
-    return np.where(np.isinf(v), gauss, student) - 0.5 * np.asarray(logdet)
+        ratio = np.where(np.isinf(v), 1.0, (v - 2.0) / v)  # scale / covariance
+        args = (d2 / ratio, logdet + d * np.log(ratio), v)
+    flat = [np.ascontiguousarray(a, dtype=np.float64).ravel() for a in args]
+    return _core.log_density(*flat[:2], d, flat[2]).reshape(d2.shape)
 
 
 def loglik(trace: ekf.Trace, nu: ArrayLike) -> FloatArray:
