@@ -495,6 +495,9 @@ def _localization(
     counts["wrong"] = int((used & (trace.landmark != true_landmark)).sum())
     counts["ignored"] = ignored
     counts["ambiguous"] = int(trace.ambiguous)
+    not_in_map = true_landmark < 0 if true_landmark is not None else np.zeros(len(used), bool)
+    counts["not_in_map"] = int(not_in_map.sum())
+    counts["not_in_map_used"] = int((used & not_in_map).sum())
     rejected = counts["gated"] + counts["lost"] + counts["degenerate"]
     estimate, dead = trace.estimate(), dr.estimate()
     return Localization(
@@ -540,7 +543,9 @@ def localize_mrclam(
     first, end = np.flatnonzero(inside)[[0, -1]]
     o = slice(first, None)
     lm_of = data.landmark_index(log.meas_subject)
-    offered = lm_of >= 0
+    # by signatures a reading of no landmark has no candidate; the other modes offer every
+    # reading: what is not in the map is the clutter's (relmap.ekf, autocalibration.loglik)
+    offered = lm_of >= 0 if associate == "signatures" else np.ones(len(lm_of), bool)
     z = np.column_stack([log.meas_range[offered], log.meas_bearing[offered]])
     rec = autocalibration.Recording(
         odo_t[o], log.odometry_v[o], log.odometry_w[o], log.meas_t[offered], z,
