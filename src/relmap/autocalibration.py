@@ -17,7 +17,11 @@ never read. Three stages, each a standard tool of filter tuning:
    covariance ``S``. Every paired reading counts, the gated ones too (:func:`loglik`): a filter
    that lost its way and gates most of its readings must not look likely for having few terms.
    Fitted: the odometry's ``k_s, k_theta, k_theta_s`` (:class:`relmap.robot.DistanceNoise`),
-   the readings' ``sigma_r, sigma_b`` and ``nu``. (Reading biases are not fitted: on MRCLAM
+   the readings' ``sigma_r, sigma_b`` and ``nu``, and, when the association is not by
+   signatures, the clutter density ``clutter`` λ of readings of nothing in the map (a reading is
+   of one of the L landmarks or, with probability π, uniform over the measurement volume the
+   run's readings span: :func:`loglik`, :func:`measurement_volume`; the search starts at
+   π = :data:`CLUTTER_START`; with signatures the signature names the landmark and λ is 0). (Reading biases are not fitted: on MRCLAM
    their maximum-likelihood values disagreed in sign with the ground-truth residuals and
    lowered coverage.) Found first by
    batched coordinate ascent from a cautious :data:`START` (every candidate move of every
