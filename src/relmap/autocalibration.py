@@ -21,9 +21,9 @@ never read. Three stages, each a standard tool of filter tuning:
    signatures, the clutter density ``clutter`` λ of readings of nothing in the map (a reading is
    of one of the L landmarks or, with probability π, uniform over the measurement volume the
    run's readings span: :func:`loglik`, :func:`measurement_volume`; the search starts at
-   π = :data:`CLUTTER_START`; with signatures the signature names the landmark and λ is 0). (Reading biases are not fitted: on MRCLAM
-   their maximum-likelihood values disagreed in sign with the ground-truth residuals and
-   lowered coverage.) Found first by
+   π = :data:`CLUTTER_START`; with signatures the signature names the landmark and λ is 0).
+   (Reading biases are not fitted: on MRCLAM their maximum-likelihood values disagreed in sign
+   with the ground-truth residuals and lowered coverage.) Found first by
    batched coordinate ascent from a cautious :data:`START` (every candidate move of every
    parameter one filter of one batch of :func:`relmap.ekf.run`; the step halves when no move
    gains; coarse, to :data:`COARSE`), then, once the clock is set, refined by Newton steps
