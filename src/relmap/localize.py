@@ -33,7 +33,7 @@ state at every filter time is kept (``keep="all"``).
   them). ``wrong`` counts the used readings whose landmark (the association's choice) is not
   their barcode's, a used reading of no landmark included; ``not_in_map`` counts the readings of
   no landmark offered, ``not_in_map_used`` those of them used.
-  Measured on mrclam6, robots 1-5 (autocalibrated, clutter fraction fitted 0.25-0.31):
+  Measured on mrclam6, robots 1-5 (autocalibrated, clutter fraction fitted 0.22-0.31):
   position RMSE Mahalanobis 0.421, 0.537, 0.751, 0.295, 0.552 m, coverage_90 0.81, 0.75,
   0.73, 0.77, 0.66; JCBB 0.471, 0.494, 0.735, 0.363, 0.642 m, coverage_90 0.68, 0.78, 0.62,
   0.78, 0.81; against signatures' 0.163, 0.223, 0.168, 0.300, 0.144 m. Of the readings of no
