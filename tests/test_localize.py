@@ -160,18 +160,18 @@ def test_noise_comes_from_the_runs_own_innovations(signature_runs):
 
 
 def test_mahalanobis_association_stays_near_signatures_on_robots_1_and_4(mrclam, signature_runs):
-    """Measured position RMSE 1.14x (robot 1) and 1.12x (robot 4) the signature filter's,
-    coverage_90 0.90 and 0.97. Robots 2, 3 and 5 reached 4.0x, 1.23x and 2.1x
-    (benchmarks/bench_localize.py): this map's landmarks stand in clusters 18 cm apart."""
+    """Every reading offered, the other robots' too (clutter fitted): measured position RMSE
+    0.421 m (robot 1) and 0.295 m (robot 4), 2.6x and 0.98x the signature filter's, coverage_90
+    0.81 and 0.77 (relmap.localize's docstring: what a moving robot near a landmark does)."""
     from relmap.localize import localize_mrclam
 
     for k in (1, 4):
         sig = signature_runs[k]
         mah = localize_mrclam(mrclam, k, associate="mahalanobis")
         assert mah.associate == "mahalanobis"
-        assert mah.score.rmse_position < 1.3 * sig.score.rmse_position, k
-        assert mah.score.coverage_90 > 0.75, k
-        assert mah.baseline.rmse_position > 5 * mah.score.rmse_position
+        assert mah.score.rmse_position < 3.0 * sig.score.rmse_position, k
+        assert mah.score.coverage_90 > 0.7, k
+        assert mah.baseline.rmse_position > 3 * mah.score.rmse_position
 
 
 # ------------------------------------------------------------------------------- Plaza
@@ -420,14 +420,21 @@ def test_a_plaza_run_without_range_readings_is_refused_not_calibrated_to_nan(pla
 
 
 # ------------------------------------------------------------------ association and noise
+def _labels(mrclam, run):
+    """The barcode's landmark row (-1: none) of each reading the run was offered (its times)."""
+    log = mrclam.robots[run.robot - 1]
+    inside = (log.meas_t >= run.t[0]) & (log.meas_t <= run.t[-1])
+    return mrclam.landmark_index(log.meas_subject)[inside]
+
+
 def test_association_modes_report_what_they_paired_wrongly(mrclam, signature_runs):
-    """Robot 1 with unknown correspondences, each mode calibrated with its own association:
-    Mahalanobis and JCBB pair the readings by distance alone; the barcodes count the wrong
-    pairs afterwards. The map has clusters of landmarks 0.15-0.3 m apart: most used readings
-    have several landmarks inside their gate and enter the update as their mixture
-    (``ambiguous``). Issue 14's target: RMSE <= 1.25x the signatures one, coverage_90 >= 0.8
-    (measured on robot 1 before the mixture: 1.15x and 1.36x (JCBB), after it: see the
-    docstring of relmap.localize)."""
+    """Robot 1 with unknown correspondences, each mode calibrated with its own association (and
+    clutter): Mahalanobis and JCBB pair every reading, the other robots' too, by distance alone;
+    the barcodes count the wrong pairs afterwards (a used reading of no landmark is wrong, and
+    counted as not_in_map_used). The map has clusters of landmarks 0.15-0.3 m apart: most used
+    readings have several landmarks inside their gate and enter the update as their mixture
+    (``ambiguous``). Measured: RMSE 0.421 m / 0.471 m (JCBB), coverage_90 0.81 / 0.68, 50 / 49
+    of the 408 readings of no landmark used."""
     from relmap.localize import localize_mrclam
 
     sig = signature_runs[1]
@@ -435,14 +442,36 @@ def test_association_modes_report_what_they_paired_wrongly(mrclam, signature_run
         run = localize_mrclam(mrclam, 1, associate=mode)
         r = run.readings
         assert run.associate == mode
-        assert run.score.rmse_position <= 1.25 * sig.score.rmse_position, mode
-        assert run.score.coverage_90 >= 0.8, mode
-        assert 0 < r["wrong"] < 0.3 * r["used"], mode
+        assert run.score.rmse_position <= 4 * sig.score.rmse_position, mode
+        assert run.score.coverage_90 >= 0.6, mode
+        assert 0 < r["wrong"] < 0.4 * r["used"], mode
         assert 0 < r["ambiguous"] <= r["used"], mode
+        label = _labels(mrclam, run)
+        assert len(label) == len(run.trace.status) and r["ignored"] == 0
         used = run.trace.status == ekf.Status.USED
-        assert r["wrong"] == int((run.trace.landmark[used] != sig.trace.landmark[used]).sum())
+        assert r["wrong"] == int((run.trace.landmark[used] != label[used]).sum())
+        assert r["not_in_map"] == int((label < 0).sum()) > 0.1 * len(label)
+        assert 0 < r["not_in_map_used"] == int((used & (label < 0)).sum()) < 0.2 * r["not_in_map"]
+        assert float(run.calibration.parameters.clutter) > 0
         assert run.summary()["readings"]["wrong"] == r["wrong"]
         assert run.summary()["readings"]["ambiguous"] == r["ambiguous"]
+        assert run.summary()["readings"]["not_in_map_used"] == r["not_in_map_used"]
+
+
+@pytest.mark.xfail(strict=True, reason="issue 14's target is not met with every reading offered")
+def test_issue_14_target_without_barcodes(mrclam, signature_runs):
+    """Issue 14: RMSE <= 1.25x the signatures one and coverage_90 >= 0.8 on robot 1, with
+    every reading offered (the other robots' too). Measured: Mahalanobis 0.421 m (2.6x), 0.81;
+    JCBB 0.471 m, 0.68. What blocks it: a robot that moves near a landmark while the filter's
+    heading is uncertain passes that landmark's gate with a high density (w = g/(g + λ) near 1)
+    and then drags the filter along (relmap.localize's docstring)."""
+    from relmap.localize import localize_mrclam
+
+    sig = signature_runs[1]
+    for mode in ("mahalanobis", "jcbb"):
+        run = localize_mrclam(mrclam, 1, associate=mode)
+        assert run.score.rmse_position <= 1.25 * sig.score.rmse_position, mode
+        assert run.score.coverage_90 >= 0.8, mode
 
 
 def test_euclidean_association_warns_when_it_goes_wrong(mrclam, signature_runs):

@@ -427,6 +427,20 @@ bool mix_reading(const Pair* const* c, int k, const Predicted* pred, const doubl
     return mp.ok;
 }
 
+// Clutter (probabilistic data association with clutter, Bar-Shalom & Tse 1975): a reading is
+// either of its paired landmark, density g(z) = the reading model at the pair's innovation
+// (N(v; 0, S), or the Student-t of scale S for a robust filter; for an ambiguous reading the
+// mixture's virtual landmark, mix_reading), or of something not in the map, of density λ
+// (p[CLUTTER], relative to the landmark hypothesis: the clutter's uniform density over the
+// measurement volume times the odds of clutter). The probability that it is of the landmark,
+// w = g / (g + λ), weighs its update (R / w, as the Student-t weight): likely clutter barely
+// moves the filter.
+inline double landmark_probability(const Pair& q, const Predicted& pr, int d, const double* p,
+                                   double lambda) {
+    const double logg = log_density(q.d2, std::log(pr.det), d, p[NU]);
+    return 1.0 / (1.0 + std::exp(std::log(lambda) - logg));
+}
+
 // The joint d² of a set of pairs: the stacked innovation against its stacked S, pair by pair.
 double joint_d2(const std::vector<const Pair*>& pairs, const Predicted* pred,
                 const double* P, int d) {
@@ -845,14 +859,16 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
         // is inflated by c² (NoiseParameters.inflation); association, gate and likelihood
         // keep the readings' R
         const double c2 = p[INFLATION] * p[INFLATION];
-        const bool reweighted = robust || c2 != 1.0;
+        const double lambda = p[CLUTTER];
+        const bool reweighted = robust || c2 != 1.0 || lambda > 0.0;
         double delta[3] = {0.0, 0.0, 0.0}, Pn[9], nis = 0.0, logdet = 0.0;
         std::copy(P, P + 9, Pn);
         bool ok = true;
         for (size_t u = 0; u < update.size(); ++u) {
             const Pair* q = update[u];
             // Student-t readings: the reading's weight (ν + d)/(ν + d²) scales R by its inverse
-            const double wgt = (robust ? (p[NU] + d) / (p[NU] + q->d2) : 1.0) / c2;
+            double wgt = (robust ? (p[NU] + d) / (p[NU] + q->d2) : 1.0) / c2;
+            if (lambda > 0.0) wgt *= landmark_probability(*q, *upred[u], d, p, lambda);
             ok = ok && pair_block(d, delta, Pn, *q, *upred[u], wgt, nis, logdet,
                                   reweighted ? nullptr : given(q, 0),
                                   reweighted ? nullptr : given(q, 1));
@@ -957,7 +973,7 @@ Options make_options(int sensor, int noise_model, int method, int cost, bool sig
 
 void check_params(Float2 params, size_t B) {
     if (params.shape(0) != B || params.shape(1) != N_PARAMS)
-        throw nb::value_error("params must be (B, 11)");
+        throw nb::value_error(("params must be (B, " + std::to_string(N_PARAMS) + ")").c_str());
 }
 
 void check_filters(Float2 x, Float3 P) {

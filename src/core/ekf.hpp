@@ -43,6 +43,7 @@ enum Param {
     MOUNT_THETA,  // sensor heading on the robot (rad)
     NU,           // Student-t degrees of freedom of the readings (inf: Gaussian)
     INFLATION,    // σ factor of the update for readings whose errors repeat (1: none)
+    CLUTTER,      // λ: density of readings of nothing in the map, relative to a landmark's
     N_PARAMS
 };
 

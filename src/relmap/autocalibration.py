@@ -19,9 +19,13 @@ never read. Three stages, each a standard tool of filter tuning:
    Every paired reading counts, the gated ones too (:func:`loglik`): a filter
    that lost its way and gates most of its readings must not look likely for having few terms.
    Fitted: the odometry's ``k_s, k_theta, k_theta_s`` (:class:`relmap.robot.DistanceNoise`),
-   the readings' ``sigma_r, sigma_b`` and ``nu``. (Reading biases are not fitted: on MRCLAM
-   their maximum-likelihood values disagreed in sign with the ground-truth residuals and
-   lowered coverage.) Found first by
+   the readings' ``sigma_r, sigma_b`` and ``nu``, and, when the association is not by
+   signatures, the clutter density ``clutter`` λ of readings of nothing in the map (a reading is
+   of one of the L landmarks or, with probability π, uniform over the measurement volume the
+   run's readings span: :func:`loglik`, :func:`measurement_volume`; the search starts at
+   π = :data:`CLUTTER_START`; with signatures the signature names the landmark and λ is 0).
+   (Reading biases are not fitted: on MRCLAM their maximum-likelihood values disagreed in sign
+   with the ground-truth residuals and lowered coverage.) Found first by
    batched coordinate ascent from a cautious :data:`START` (every candidate move of every
    parameter one filter of one batch of :func:`relmap.ekf.run`; the step halves when no move
    gains; coarse, to :data:`COARSE`), then, once the clock is set, refined by Newton steps
@@ -65,6 +69,7 @@ from relmap.errors import ParameterError, ShapeError
 from relmap.typing import ArrayLike, FloatArray, IntArray
 
 __all__ = [
+    "CLUTTER_START",
     "COARSE",
     "DELAYS",
     "FINE",
@@ -82,12 +87,16 @@ __all__ = [
     "innovation_correlation",
     "loglik",
     "logpdf",
+    "measurement_volume",
     "variance_factor",
 ]
 
 #: Where the search starts (odometry m²/m, rad²/rad, rad²/m; σ m, rad; Student-t dof): noisy,
 #: so that the first filters are cautious and the search comes down to the data.
 START = ekf.NoiseParameters(0.05, 0.02, 0.005, 0.5, 0.05, nu=4.0)
+#: The clutter fraction (readings of nothing in the map) where the search starts, when the
+#: association is not by signatures (:func:`loglik`).
+CLUTTER_START = 0.1
 #: The smallest Student-t dof searched: below it the likelihood of a heavy-tailed reading
 #: model with a vanishing scale grows without bound.
 NU_MIN = 3.0
@@ -173,6 +182,15 @@ class Calibrated(NamedTuple):
     loglik: float
     #: The final filter's trace (readings kept: innovations, S, statuses).
     trace: ekf.Trace
+    #: The clutter's volume per landmark ``V`` (:func:`loglik`): the measurement volume
+    #: (:func:`measurement_volume`) over the number of landmarks.
+    volume: float = 1.0
+
+    @property
+    def clutter_fraction(self) -> float:
+        """The fitted fraction of readings of nothing in the map, ``λV/(1 + λV)``."""
+        lv = float(self.parameters.clutter) * self.volume
+        return lv / (1.0 + lv)
 
     def as_dict(self) -> dict[str, object]:
         """JSON-ready."""
@@ -186,6 +204,8 @@ class Calibrated(NamedTuple):
             "correlation_before": c0 if np.isfinite(c0) else None,
             "correlation_after": c1 if np.isfinite(c1) else None,
             "loglik": self.loglik,
+            "clutter_fraction": self.clutter_fraction,
+            "volume": self.volume,
         }
 
 
@@ -246,7 +266,23 @@ def logpdf(d2: ArrayLike, logdet: ArrayLike, d: int, nu: ArrayLike) -> FloatArra
     return _core.log_density(*flat[:2], d, flat[2]).reshape(d2.shape)
 
 
-def loglik(trace: ekf.Trace, nu: ArrayLike) -> FloatArray:
+def measurement_volume(z: ArrayLike) -> float:
+    """The sensor's measurement volume ``V`` as a run's own readings span it: range span ×
+    bearing span for range-bearing readings ``(M, 2)`` (m rad), range span for ranges ``(M,)``
+    (m); non-finite readings left out, 1 when they span nothing. The clutter of :func:`loglik`
+    is uniform over it."""
+    zz = np.asarray(z, dtype=np.float64)
+    zz = zz[:, None] if zz.ndim == 1 else zz
+    zz = zz[np.isfinite(zz).all(axis=1)]
+    if len(zz) < 2:
+        return 1.0
+    v = float(np.prod(zz.max(axis=0) - zz.min(axis=0)))
+    return v if v > 0 else 1.0
+
+
+def loglik(
+    trace: ekf.Trace, nu: ArrayLike, clutter: ArrayLike = 0.0, volume: float = 1.0
+) -> FloatArray:
     """Log-likelihood (*batch) of every paired reading's innovation, used or gated: Student-t
     with dof ``nu`` (*batch; inf: Gaussian) and covariance ``S``, each reading's innovation
     given the readings before it at its time (``trace.y_given``, ``S_given``: the
@@ -254,7 +290,16 @@ def loglik(trace: ekf.Trace, nu: ArrayLike) -> FloatArray:
     readings of one time share the pose's error: summing their densities at the prior instead
     (``trace.y``, ``S``) counts that error once per reading, a composite likelihood whose
     maximum strays further than its curvature says (docs/consistency.md: a simulated robot
-    reading five landmarks a scan, σ_b up to 8.5% too large where this one is within 0.5%)."""
+    reading five landmarks a scan, σ_b up to 8.5% too large where this one is within 0.5%).
+    With a clutter density ``clutter`` λ > 0 (*batch; :class:`relmap.ekf.
+    NoiseParameters`) a reading is of one of the map's L landmarks, each equally likely a
+    priori (its paired landmark's density g), or, with probability π, of clutter uniform over
+    the sensor's measurement volume (:func:`measurement_volume`): the density
+    ``(1 - π) g / L + π / V_m`` is, up to the constant ``-log L``, ``log(g + λ) - log(1 + λV)``
+    per paired reading with ``volume`` ``V = V_m / L`` (the volume per landmark) and
+    ``λ = π / ((1 - π) V)`` (clutter fraction ``λV/(1 + λV)``); a reading whose landmark went
+    to a closer one (one to one: LOST) is clutter, ``log λ - log(1 + λV)``. λ = 0: the
+    likelihood without clutter, bit for bit."""
     y, S = np.asarray(trace.y_given), np.asarray(trace.S_given)
     if y.ndim == S.ndim:  # range-only: (..., M) and (..., M)
         y, S = y[..., None], S[..., None, None]
@@ -267,12 +312,27 @@ def loglik(trace: ekf.Trace, nu: ArrayLike) -> FloatArray:
     d2 = np.einsum("...i,...i->...", y, np.linalg.solve(S, y[..., None])[..., 0])
     each = logpdf(d2, logdet, d, np.asarray(nu, dtype=np.float64)[..., None])
     ok = paired & (sign > 0) & np.isfinite(each)
-    return np.where(ok, each, 0.0).sum(axis=-1) - 1e3 * (paired & ~ok).sum(axis=-1)
+    total = np.where(ok, each, 0.0).sum(axis=-1) - 1e3 * (paired & ~ok).sum(axis=-1)
+    lam = np.broadcast_to(np.asarray(clutter, dtype=np.float64), total.shape)
+    if not (lam > 0).any():
+        return total
+    with np.errstate(divide="ignore"):
+        loglam = np.log(lam)[..., None]
+    norm = np.log1p(lam * volume)[..., None]
+    with np.errstate(invalid="ignore"):
+        mixed = np.logaddexp(each, loglam) - norm
+    ok = paired & (sign > 0) & np.isfinite(mixed)
+    lost = (status == ekf.Status.LOST).sum(axis=-1)
+    withc = (np.where(ok, mixed, 0.0).sum(axis=-1) - 1e3 * (paired & ~ok).sum(axis=-1)
+             + lost * (loglam - norm)[..., 0])  # fmt: skip
+    return np.where(lam > 0, withc, total)
 
 
-def _free(sensor: ekf.SensorKind) -> tuple[str, ...]:
+def _free(sensor: ekf.SensorKind, association: ekf.Association) -> tuple[str, ...]:
     free = ("k_s", "k_theta", "k_theta_s", "sigma_r", "nu")
-    return (*free, "sigma_b") if sensor is ekf.SensorKind.RANGE_BEARING else free
+    free = (*free, "sigma_b") if sensor is ekf.SensorKind.RANGE_BEARING else free
+    # with signatures the signature names the landmark: no clutter
+    return free if association is ekf.Association.SIGNATURES else (*free, "clutter")
 
 
 def _moves(p: ekf.NoiseParameters, free: tuple[str, ...], step: float) -> ekf.NoiseParameters:
@@ -420,12 +480,19 @@ def calibrate(
             association=association, landmark_signatures=landmark_signatures, gate=gate,
             sensor=kind,
         )  # fmt: skip
-        return trace._replace(loglik=loglik(trace, p.nu))
+        return trace._replace(loglik=loglik(trace, p.nu, p.clutter, volume))
 
-    free = _free(kind)
+    assoc = ekf.Association(association)
+    free = _free(kind, assoc)
+    # a reading is of one of the L landmarks, equally likely a priori: the clutter's volume
+    # per landmark (loglik)
+    volume = measurement_volume(recording.z) / len(lm)
+    p0 = START
+    if "clutter" in free:  # λ of the clutter fraction CLUTTER_START: π = λV / (1 + λV)
+        p0 = START._replace(clutter=CLUTTER_START / ((1.0 - CLUTTER_START) * volume))
     tick = progress or (lambda k, n: None)
     tick(0, 4)
-    p, _ = _fit(recording.log(), START, free, run, _STEP, COARSE)
+    p, _ = _fit(recording.log(), p0, free, run, _STEP, COARSE)
     tick(1, 4)
     delay, scale = _clock(recording, p, run, kind)
     log = recording.log(delay, scale)
@@ -445,4 +512,4 @@ def calibrate(
     tick(4, 4)
     rho = innovation_correlation(trace, t)[0]
     return Calibrated(q._replace(nu=np.inf), float(p.nu), delay, scale, factor, (rho0, rho),
-                      fitted, trace)  # fmt: skip
+                      fitted, trace, volume)  # fmt: skip

@@ -441,6 +441,9 @@ def _localize(args: argparse.Namespace) -> int:
         + f", {run.score.rejected} rejected"
         + (f", {r['wrong']} paired with the wrong landmark" if r["wrong"] else "")
         + (f", {r['ignored']} ignored (not landmarks)" if r["ignored"] else "")
+        + (f"; of {r['not_in_map']} readings of no landmark {r['not_in_map_used']} used"
+           + (f" (clutter fitted: {cal.clutter_fraction:.0%} of the readings)" if auto else "")
+           if r.get("not_in_map") else "")
         + f"; NIS/dof {run.anis:.2f} (1 if consistent"
         + (
             f"; below 1 by design when correlated readings are inflated in the update, "

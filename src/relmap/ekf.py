@@ -56,6 +56,19 @@ filters linearly with the readings' standard deviations instead.)
 update only: the gain and the Joseph covariance use ``c² R`` (readings whose errors repeat carry
 less information than their spread says), while the association, the gate, ``S``, the NIS and
 the likelihood use ``R``.
+
+**Clutter.** With ``clutter`` λ > 0 (:class:`NoiseParameters`) a reading may be of something
+not in the map (another robot, an unknown object: probabilistic data association with clutter,
+Bar-Shalom & Tse 1975): of its paired landmark with density ``g`` (the reading model at the
+pair's innovation, ``N(y; 0, S)`` or for a robust filter the Student-t of scale ``S``; for an
+ambiguous reading the mixture's virtual landmark), or of clutter, uniform over the sensor's
+measurement volume ``V`` with density ``λ`` relative to it (clutter fraction
+``π = λV/(1 + λV)``, per reading density ``(g + λ)/(1 + λV)``). A used reading enters the
+update with the probability that it is of its landmark, ``w = g/(g + λ)``, as the weight of its
+noise, ``R / w`` (like the Student-t weight, with which it multiplies): likely clutter barely
+moves the filter. Association, gate, ``S``, the NIS and the likelihood of :class:`Trace` keep
+``R`` (the landmark hypothesis); the mixture's likelihood, with ``V``, is
+:func:`relmap.autocalibration.loglik`'s. λ = 0 is the filter without clutter, bit for bit.
 """
 
 from __future__ import annotations
@@ -259,7 +272,7 @@ def _ones(B: int, m: int) -> np.ndarray:
 def _sensor_params(
     sigma_r: float, sigma_b: float, mount: tuple[float, ...], nu: float
 ) -> FloatArray:
-    """The core's parameter row (1, 12) of a sensor (read-only, cached)."""
+    """The core's parameter row (1, 13) of a sensor (read-only, cached)."""
     p = np.zeros((1, _N_PARAMS))
     p[0, 3:5] = (sigma_r, sigma_b)
     p[0, 7:10] = mount
@@ -390,7 +403,7 @@ def correct_pose(state: AT, reading: AT, *, gate: float | None = 0.999) -> PoseU
 
 # ------------------------------------------------------------------------ noise parameters
 _FIELDS = ("k_s", "k_theta", "k_theta_s", "sigma_r", "sigma_b", "b_r", "b_b", "mx", "my",
-           "mtheta", "nu", "inflation")  # fmt: skip
+           "mtheta", "nu", "inflation", "clutter")  # fmt: skip
 _N_PARAMS = len(_FIELDS)
 
 
@@ -406,6 +419,10 @@ class NoiseParameters(NamedTuple):
     ``inflation``: the σ factor of the update for readings whose errors repeat from one reading
     to the next (:mod:`relmap.autocalibration`'s whitening): the gain and the covariance use
     ``(inflation σ)²``, the association, the gate and the likelihood the readings' ``σ²``.
+    ``clutter`` λ ≥ 0: the density of readings of nothing in the map (other robots, unknown
+    objects), relative to a landmark's reading density ``g`` (same units, e.g. 1/(m rad)); a
+    used reading is of its landmark with probability ``w = g/(g + λ)`` and enters the update
+    with noise ``R / w`` (module notes). 0: every reading in the gate is of a landmark.
     """
 
     k_s: ArrayLike
@@ -420,6 +437,7 @@ class NoiseParameters(NamedTuple):
     mtheta: ArrayLike = 0.0
     nu: ArrayLike = np.inf
     inflation: ArrayLike = 1.0
+    clutter: ArrayLike = 0.0
 
     @classmethod
     def of(cls, odometry: DistanceNoise, sensor: RangeBearingSensor, *, nu: float = np.inf,
@@ -434,11 +452,11 @@ class NoiseParameters(NamedTuple):
         return np.broadcast_shapes(*(np.shape(v) for v in self))
 
     def array(self) -> FloatArray:
-        """``(B, 12)`` the fields in order, the batch flattened (checked)."""
+        """``(B, 13)`` the fields in order, the batch flattened (checked)."""
         batch = self.batch_shape
         cols = [np.broadcast_to(np.asarray(v, dtype=np.float64), batch).reshape(-1) for v in self]
         a = np.column_stack(cols) if cols[0].size else np.zeros((0, _N_PARAMS))
-        finite = np.isfinite(a[:, [*range(10), 11]]).all(axis=1)
+        finite = np.isfinite(a[:, [*range(10), 11, 12]]).all(axis=1)
         if not finite.all():
             raise NonFiniteError("noise parameters must be finite (nu may be inf)")
         if (a[:, [0, 1, 2, 3, 4]] < 0).any():
@@ -447,6 +465,8 @@ class NoiseParameters(NamedTuple):
             raise ParameterError("the Student-t dof nu must be positive (inf: Gaussian)")
         if not (a[:, 11] > 0).all():
             raise ParameterError("the update's σ inflation must be positive (1: none)")
+        if (a[:, 12] < 0).any():
+            raise ParameterError("the clutter density must be non-negative (0: none)")
         return np.ascontiguousarray(a)
 
     def as_dict(self) -> dict[str, float | list[float] | None]:

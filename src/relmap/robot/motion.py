@@ -204,7 +204,7 @@ class _Noise:
         raise NotImplementedError
 
     def core_params(self, integration: Integration) -> FloatArray | None:
-        """The compiled core's parameter row (1, 12) of this odometry model when the core has
+        """The compiled core's parameter row (1, 13) of this odometry model when the core has
         it built in (:class:`DistanceNoise` with midpoint integration), else None."""
         return None
 
@@ -265,7 +265,7 @@ class DistanceNoise(_Noise):
         return (self.k_s * ds, np.zeros_like(ds), self.k_theta * dt + self.k_theta_s * ds)
 
     def core_params(self, integration: Integration) -> FloatArray | None:
-        """The compiled core's parameter row (1, 12) of this model with midpoint integration
+        """The compiled core's parameter row (1, 13) of this model with midpoint integration
         (the core's built-in odometry, :func:`relmap.ekf.predict`), else None."""
         if integration != "midpoint":
             return None
@@ -295,16 +295,16 @@ class DistanceNoise(_Noise):
 
 
 #: The length of the core's parameter row (relmap.ekf.NoiseParameters' fields, the core's Param).
-CORE_PARAMS = 12
+CORE_PARAMS = 13
 
 
 @functools.lru_cache(maxsize=64)
 def _odometry_params(k_s: float, k_theta: float, k_theta_s: float) -> FloatArray:
-    """The core's parameter row (1, 12) of an odometry noise (read-only, cached): the rates
-    first, the update's σ factor (last) 1."""
+    """The core's parameter row (1, 13) of an odometry noise (read-only, cached): the rates
+    first, the update's σ factor (index 11) 1, no clutter."""
     p = np.zeros((1, CORE_PARAMS))
     p[0, :3] = (k_s, k_theta, k_theta_s)
-    p[0, -1] = 1.0
+    p[0, 11] = 1.0
     p.flags.writeable = False
     return p
 
