@@ -104,7 +104,8 @@ def test_no_clutter_is_the_filter_without_it_bit_for_bit():
 
 def test_the_mixture_likelihood_is_landmark_or_uniform_clutter():
     """Per paired reading log(g + λ) - log(1 + λV) (the mixture (1 - π) g + π/V over
-    1 - π, λ = π/((1 - π) V)), g scipy's Student-t of covariance S; a LOST reading is clutter."""
+    1 - π, λ = π/((1 - π) V)), g scipy's Student-t of covariance S (each reading's innovation
+    given the readings before it at its time); a LOST reading is clutter."""
     rec, truth = simulate(3, steps=300)
     rec = with_clutter(rec, truth, 7, mover=False)
     p = ekf.NoiseParameters.of(NOISE, rm.sensors.RangeBearingSensor(SIGMA_R, SIGMA_B))
@@ -114,8 +115,8 @@ def test_the_mixture_likelihood_is_landmark_or_uniform_clutter():
     assert (tr.status == ekf.Status.GATED).sum() > 10
     want = 0.0
     for i in paired:
-        t = stats.multivariate_t(np.zeros(2), tr.S[i] * (nu - 2) / nu, df=nu)
-        want += np.log(t.pdf(tr.y[i]) + lam) - np.log1p(lam * V)
+        t = stats.multivariate_t(np.zeros(2), tr.S_given[i] * (nu - 2) / nu, df=nu)
+        want += np.log(t.pdf(tr.y_given[i]) + lam) - np.log1p(lam * V)
     want += (tr.status == ekf.Status.LOST).sum() * (np.log(lam) - np.log1p(lam * V))
     assert float(ac.loglik(tr, nu, lam, V)) == pytest.approx(want, rel=1e-10)
 
