@@ -1,23 +1,37 @@
 """Prototype (issue 14): the correlated part of the reading error as first-order Gauss–Markov
-bias states of the filter, scored against MRCLAM's ground truth.
+bias states of the filter, scored against MRCLAM's ground truth. Measured: docs/consistency.md.
 
 The readings are ``z = h(x, l) + b + v``: ``v`` white (σ_w), ``b`` an exponentially correlated
 bias (stationary σ_c, time constant τ; ``b(t + Δt) = e^{-Δt/τ} b(t) + w``, var w
-``σ_c²(1 - e^{-2Δt/τ})``), one per landmark (``--per landmark``: 2L states, range and
-bearing) or one per robot (``--per robot``: 2 states), appended to the pose state of the EKF
-(an augmented state; Bar-Shalom, Li & Kirubarajan 2001 §8.2; Gelb 1974 §4.6). The odometry
-noise and clock are those of ``relmap.autocalibration.calibrate`` (the run's own
-innovations); the bias model's (σ_w, σ_c, τ) for range and bearing are the maximum-likelihood
-ones of the run's innovations (the same Student-t likelihood, ν fixed at the calibration's):
-no ground truth. The ground truth scores the result (RMSE, coverage_90, ANEES).
+``σ_c²(1 - e^{-2Δt/τ})``), appended to the pose state of the EKF (an augmented state;
+Bar-Shalom, Li & Kirubarajan 2001 §8.2; Gelb 1974 §4.6): ``--per landmark`` a range and a
+bearing bias per landmark (2L states), ``robot`` one of each for the robot's sensor (2),
+``mixed`` a range bias per landmark and one bearing bias (L + 1). ``--consider``: the
+Schmidt–Kalman filter (the biases' covariance carried, their gain zero). Everything else is
+``relmap.ekf.run``'s filter (signatures, χ² gate 0.99, one stacked Joseph update per time
+stamp, one reading per landmark and time stamp); ``--check`` confirms that with σ_c → 0 it
+gives the C++ filter's states (at inflation 1) to rounding.
+
+Noise, without ground truth: the odometry's k, the clock and ν are those of
+``relmap.autocalibration.calibrate`` (what ``relmap localize`` runs; cached in ``--cache``);
+then (default) the bias model's (σ_w, σ_c, τ) for range and bearing by maximum likelihood of
+the run's innovations (the calibration's Student-t likelihood, ν fixed; coordinate ascent in
+log scale from σ_w = σ_c = σ/√2, τ = 10 s), with ``--fit-k`` the odometry's k with them; or
+``--acf``: the correlated share and τ from the autocorrelation of the calibrated filter's
+innovations over time (:func:`innovation_acf`, :func:`structure`), the total σ and the k by
+maximum likelihood. ``--fixed`` gives the six numbers instead. Diagnostics that read the
+ground truth (never the method): ``--oracle SHARE TAU_R TAU_B`` (k and σ of
+``relmap.localize.calibrate_mrclam`` on the same robot's truth), ``--residuals`` (the
+structure of the reading errors against the truth), ``--sim SEEDS`` (the simulated robot of
+tests/test_autocalibration.py with known Gauss–Markov biases: what the likelihood recovers).
 
 Pure numpy/Python (slow but exact): between two time stamps with readings the odometry
 steps are composed in the frame of the first one (their Jacobian product and summed noise),
 which is the stepwise EKF's prediction exactly; the pose at every filter time, for scoring,
-from the same compositions.
+from the same compositions. Robot 0 is Plaza (range-only).
 
-Run: ``python benchmarks/study_bias.py [--robots 1 2 3 4 5] [--per landmark|robot]``
-(calibrations are cached in ``--cache``, default /tmp/relmap_bias_cache).
+Run: ``python benchmarks/study_bias.py [--robots 0 1 2 3 4 5] [--per landmark|robot|mixed]
+[--fit-k | --acf | --fixed ... | --oracle ...] [--consider]``, ``--residuals``, ``--sim 1 2``.
 """
 
 from __future__ import annotations
@@ -325,6 +339,87 @@ def fit_bias(log, lm, p, start, comp, nu, sigma, d=2, per="landmark", iters=30, 
     return Bias(v[:d], v[d:2 * d], v[2 * d:3 * d], per), best, evals, v[3 * d:]
 
 
+#: Time lags (s) of the innovations' autocorrelation the structure is fitted to, and the half
+#: width of their bins (a fraction of the lag).
+ACF_LAGS = (0.25, 0.5, 1.0, 2.0, 5.0, 10.0)
+ACF_BIN = 0.3
+
+
+def innovation_acf(trace, t, d=2):
+    """Autocorrelation of the normalized innovations of used readings of one landmark
+    ``lag`` s apart (±ACF_BIN·lag), per component, clipped at ±3 robust σ:
+    (d, len(ACF_LAGS))."""
+    used = np.asarray(trace.status) == ekf.Status.USED
+    y, S = np.asarray(trace.y), np.asarray(trace.S)
+    if y.ndim == 1:
+        y, S = y[:, None], S[:, None, None]
+    tt, ll = np.asarray(t)[used], np.asarray(trace.landmark)[used]
+    i, k = np.triu_indices(len(tt), 1)
+    dt = tt[k] - tt[i]
+    keep = (ll[i] == ll[k]) & (dt <= max(ACF_LAGS) * (1 + ACF_BIN))
+    i, k, dt = i[keep], k[keep], dt[keep]
+    out = np.zeros((d, len(ACF_LAGS)))
+    for j in range(d):
+        u = y[used, j] / np.sqrt(S[used, j, j])
+        s = 1.4826 * np.median(np.abs(u - np.median(u)))
+        u = np.clip(u / s, -3, 3)
+        u = u - u.mean()
+        for m, lag in enumerate(ACF_LAGS):
+            sel = np.abs(dt - lag) <= ACF_BIN * lag
+            out[j, m] = np.mean(u[i[sel]] * u[k[sel]]) / np.var(u)
+    return out
+
+
+def structure(acf):
+    """``ρ(Δt) = a e^{-Δt/τ}`` fitted to each row of ``acf`` (least squares on log ρ over the
+    lags with ρ > 0.05; a in [0.05, 0.98], τ in [0.5, 300] s): the correlated share a and τ."""
+    lags = np.asarray(ACF_LAGS)
+    a_out, tau_out = [], []
+    for row in acf:
+        ok = row > 0.05
+        if ok.sum() < 2:
+            a_out.append(0.05)
+            tau_out.append(0.5)
+            continue
+        slope, icpt = np.polyfit(lags[ok], np.log(row[ok]), 1)
+        tau_out.append(float(np.clip(-1.0 / slope if slope < 0 else 300.0, 0.5, 300.0)))
+        a_out.append(float(np.clip(np.exp(icpt), 0.05, 0.98)))
+    return np.array(a_out), np.array(tau_out)
+
+
+def fit_total(log, lm, p, start, parts, nu, share, tau, per, d=2, tol=math.log(1.02)):
+    """With the structure (correlated share, τ) fixed: maximum likelihood of the readings'
+    total σ and the odometry's k (coordinate ascent in log scale, from the calibration's)."""
+    sig = [float(p.sigma_r), float(p.sigma_b)][:d]
+    x = np.log([*sig, float(p.k_s), float(p.k_theta), max(float(p.k_theta_s), 1e-6)])
+
+    def bias(v):
+        s = np.asarray(v[:d])
+        return Bias(s * np.sqrt(1 - share), s * np.sqrt(share), tau, per)
+
+    def f(v):
+        v = np.exp(v)
+        c = with_k(parts, v[d:])
+        return loglik(run_bias(log, lm, p, start, bias(v), c, d=d, keep_all=False), nu, d)
+
+    best, step, evals = f(x), math.log(2.0), 1
+    while step > tol and evals < 300:
+        gained = False
+        for j in range(len(x)):
+            for sgn in (1, -1):
+                xt = x.copy()
+                xt[j] += sgn * step
+                v = f(xt)
+                evals += 1
+                if v > best + 1e-6:
+                    x, best, gained = xt, v, True
+                    break
+        if not gained:
+            step /= 2
+    v = np.exp(x)
+    return bias(v), v[d:], best, evals
+
+
 # ----------------------------------------------------------------------------- driver
 def calibrated(robot, cache: Path):
     """The default `relmap localize` calibration and score of a robot (0: Plaza), cached."""
@@ -358,9 +453,13 @@ def main() -> None:
                     help="σw_r σw_b σc_r σc_b τ_r τ_b instead of the ML fit")
     ap.add_argument("--k", type=float, nargs=3, default=None, help="odometry k_s k_θ k_θs")
     ap.add_argument("--consider", action="store_true", help="Schmidt-Kalman (bias not estimated)")
+    ap.add_argument("--acf", action="store_true",
+                    help="structure from the innovations' autocorrelation, σ and k by ML")
     ap.add_argument("--residuals", action="store_true", help="ground-truth error structure")
-    ap.add_argument("--oracle", type=float, nargs=3, default=None, metavar=("SHARE", "TAU_R", "TAU_B"),
+    ap.add_argument("--oracle", type=float, nargs=3, default=None,
+                    metavar=("SHARE", "TAU_R", "TAU_B"),
                     help="diagnostic: k and σ from the robot's ground truth, white share, τ")
+    ap.add_argument("--kscale", type=float, default=1.0, help="--oracle: the truth's k times this")
     ap.add_argument("--sim", type=int, nargs="*", default=None, help="simulate these seeds")
     ap.add_argument("--steps", type=int, default=8000)
     a = ap.parse_args()
@@ -369,7 +468,7 @@ def main() -> None:
         residuals(a.robots)
         return
     if a.sim is not None:
-        # white σ of the simulation (0.1 m, 0.02 rad) plus a bias of σ_c (0.15 m, 0.02 rad), τ 20 s
+        # the simulation's white σ (0.1 m, 0.02 rad) plus a bias of σ_c 0.15 m, 0.02 rad, τ 20 s
         sim(a.sim, a.steps, Bias([0.1, 0.02], [0.15, 0.02], [20.0, 20.0]), a.fit_k)
         return
     from relmap.localize import _start
@@ -381,7 +480,6 @@ def main() -> None:
         d = 1 if robot == 0 else 2
         if robot == 0:
             data = read_plaza(DATA / "landmarks" / "plaza2")
-            from relmap.localize import _plaza_split  # noqa: F401
         else:
             data = read_mrclam(DATA / "landmarks" / "mrclam6")
         rec = recording(data, robot)
@@ -411,13 +509,26 @@ def main() -> None:
             from relmap.localize import calibrate_mrclam
 
             g = calibrate_mrclam(data, robot)
-            p = p._replace(k_s=g.odometry.k_s, k_theta=g.odometry.k_theta,
-                           k_theta_s=g.odometry.k_theta_s)  # fmt: skip
+            o, f = g.odometry, a.kscale
+            p = p._replace(k_s=f * o.k_s, k_theta=f * o.k_theta, k_theta_s=f * o.k_theta_s)
             comp = compose(log, p)
             sh, tr, tb = a.oracle
             sg = np.array([g.sigma_range, g.sigma_bearing])
             a.fixed = [*(sg * np.sqrt(sh)), *(sg * np.sqrt(1 - sh)), tr, tb]
-        if a.fixed is not None:
+        if a.acf:  # structure from the innovations' autocorrelation, the rest by ML
+            tr = ekf.run(log, lm, p, start=start, landmark_signatures=np.arange(len(lm)),
+                         sensor="range_only" if d == 1 else "range_bearing")  # fmt: skip
+            acf = innovation_acf(tr, log.t[log.reading_index], d)
+            share, tau = structure(acf)
+            print("  innovation ACF at " + ", ".join(f"{v:g}" for v in ACF_LAGS) + " s: "
+                  + "; ".join(" ".join(f"{v:.2f}" for v in row) for row in acf)
+                  + f" → correlated share {np.round(share, 2)}, τ {np.round(tau, 1)} s")
+            parts = compose_parts(log)
+            b, k, ll, ev = fit_total(log, lm, p, start, parts, cal.nu, share, tau, a.per, d=d)
+            comp = with_k(parts, k)
+            print(f"  k fitted {np.round(k, 5)} (calibrated {float(p.k_s):.4g} "
+                  f"{float(p.k_theta):.4g} {float(p.k_theta_s):.4g}); {ev} filters")  # fmt: skip
+        elif a.fixed is not None:
             v = np.asarray(a.fixed)
             b = Bias(v[:d], v[d:2 * d], v[2 * d:], a.per)
             ll = loglik(run_bias(log, lm, p, start, b, comp, d=d, keep_all=False), cal.nu, d)
@@ -462,8 +573,7 @@ def sim(seeds, steps, true: Bias, fit_k: bool) -> None:
             phi = np.exp(-(t - last[l]) / true.tau)  # 0 at a landmark's first reading
             bias[l] = phi * bias[l] + np.sqrt(1 - phi**2) * true.sc * rng.normal(size=2)
             last[l] = t
-            # the simulated readings carry white σ (0.1, 0.02): rescale it to σ_w
-            z[i] = z[i] + bias[l]
+            z[i] = z[i] + bias[l]  # the simulation's white errors are σ_w = (0.1, 0.02)
         rec = rec._replace(z=z)
         log = rec.log()
         p = ekf.NoiseParameters(NOISE.k_s, NOISE.k_theta, NOISE.k_theta_s, 0.1, 0.02)
@@ -484,8 +594,8 @@ def sim(seeds, steps, true: Bias, fit_k: bool) -> None:
         s_true, ll_true = nees(true)
         white = Bias(np.hypot(true.sw, true.sc), [1e-9, 1e-9], [1.0, 1.0])
         s_white, _ = nees(white)
-        print(f"seed {seed}: simulated {true}\n  fitted    {b} k {k} (ll {ll:.1f}, simulated "
-              f"{ll_true:.1f}, {ev} filters)")  # fmt: skip
+        print(f"seed {seed}: simulated {true}\n  fitted    {b} k {k} (ll {ll:.2f}, simulated "
+              f"{ll_true:.2f}, {ev} filters)")  # fmt: skip
         for name, s in (("fitted", s_fit), ("simulated", s_true), ("no bias states", s_white)):
             print(f"  {name}: RMSE {s.rmse_position:.3f} coverage_90 {s.coverage_90:.2f} "
                   f"ANEES {s.anees:.2f}", flush=True)  # fmt: skip
@@ -496,7 +606,6 @@ def residuals(robots) -> None:
     prediction from the true pose, robust-clipped): per robot the share of their variance that
     is a per-landmark constant, the correlation of errors of one landmark ``lag`` s apart after
     removing it, and the correlation of errors of *different* landmarks read within 0.3 s."""
-    from relmap.localize import sensor_residuals  # noqa: F401
     from relmap.localize import _robot_log
     from relmap.sensors.polar import RangeBearingSensor
 
