@@ -459,6 +459,8 @@ def main() -> None:
     ap.add_argument("--oracle", type=float, nargs=3, default=None,
                     metavar=("SHARE", "TAU_R", "TAU_B"),
                     help="diagnostic: k and σ from the robot's ground truth, white share, τ")
+    ap.add_argument("--scale", type=float, default=1.0,
+                    help="--fixed: every σ times this, the χ² gate times its square")
     ap.add_argument("--kscale", type=float, default=1.0, help="--oracle: the truth's k times this")
     ap.add_argument("--sim", type=int, nargs="*", default=None, help="simulate these seeds")
     ap.add_argument("--steps", type=int, default=8000)
@@ -530,8 +532,10 @@ def main() -> None:
                   f"{float(p.k_theta):.4g} {float(p.k_theta_s):.4g}); {ev} filters")  # fmt: skip
         elif a.fixed is not None:
             v = np.asarray(a.fixed)
-            b = Bias(v[:d], v[d:2 * d], v[2 * d:], a.per)
-            ll = loglik(run_bias(log, lm, p, start, b, comp, d=d, keep_all=False), cal.nu, d)
+            b = Bias(a.scale * v[:d], a.scale * v[d:2 * d], v[2 * d:], a.per)
+            gate = (CHI2_1_99 if d == 1 else CHI2_2_99) * a.scale**2
+            ll = loglik(run_bias(log, lm, p, start, b, comp, d=d, keep_all=False, gate2=gate),
+                        cal.nu, d)  # fmt: skip
         else:
             parts = compose_parts(log) if a.fit_k else None
             b, ll, ev, k = fit_bias(log, lm, p, start, comp, cal.nu, sigma, d=d, per=a.per,
@@ -540,7 +544,8 @@ def main() -> None:
                 comp = with_k(parts, k)
                 print(f"  k fitted {k} (calibrated {float(p.k_s):.4g} {float(p.k_theta):.4g} "
                       f"{float(p.k_theta_s):.4g})")  # fmt: skip
-        out = run_bias(log, lm, p, start, b, comp, d=d)
+        gate = (CHI2_1_99 if d == 1 else CHI2_2_99) * (a.scale**2 if a.fixed else 1.0)
+        out = run_bias(log, lm, p, start, b, comp, d=d, gate2=gate)
         from relmap.at import AT
 
         s = score(AT(out["mean"], out["cov"]), c["truth"])
