@@ -132,15 +132,11 @@ def test_real_estimates_equal_evo(data_dir, ref, est, metres):  # type: ignore[n
     np.testing.assert_array_equal(pairing.ref.matrices[:, :3, 3], er.positions_xyz)
     np.testing.assert_array_equal(pairing.est.matrices[:, :3, 3], ee.positions_xyz)
     cases = [("frames", 1, False), ("frames", 10, True), ("m", metres, False), ("m", metres, True)]
-    compare(
-        er,
-        ee,
-        pairing.ref,
-        pairing.est,
-        cases,
-        angles=("none", "sim3") if metres == 100 else ("none",),
-        degrees=False,
-    )
+    # The angle relations unaligned only (evo's angle costs ~0.35 ms a pose; on KITTI the Sim(3)
+    # angles were a third of this test): every alignment's error poses are checked through rot
+    # and full, whose rotation part fixes the angle (‖R - I‖_F = 2√2 sin(θ/2)), and the angle on
+    # every alignment through the random trajectories (angles=MODES).
+    compare(er, ee, pairing.ref, pairing.est, cases, angles=("none",), degrees=False)
 
 
 def _random_trajectory(rng, n, t0=100.0):  # type: ignore[no-untyped-def]
