@@ -481,10 +481,11 @@ struct Work {
     std::vector<int32_t> landmark;
     std::vector<double> nearest, zc, pair_d2, range, inv_bound, keys;
     std::vector<Predicted> pred;
-    std::vector<char> done, taken;
+    std::vector<char> done, taken, full;
     std::vector<Pair> pairs, mixed;  // mixed: a reading's mixture pair (mix_reading)
     std::vector<Predicted> mixpred;  // and its virtual landmark's prediction
-    std::vector<int64_t> row_start, lo, hi, owner, near;
+    std::vector<int64_t> row_start, lo, hi, owner, near, by_range;
+    std::vector<double> qs, ql;  // the map by range (correct_readings' sort_by_range)
     std::vector<const Pair*> chosen, update, best, order;
     std::vector<const Predicted*> upred;  // the prediction of each pair of update
 };
@@ -520,7 +521,7 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
         w.range.resize(map.L);
         w.inv_bound.resize(map.L);
     }
-    w.done.assign(map.L, 0);  // per landmark: 1 its bound is known, 2 also its prediction
+    w.done.assign(map.L, 0);  // per landmark: bit 1 its bound is known, bit 2 its prediction
     w.pairs.clear();
     w.row_start.assign(m + 1, 0);
     w.chosen.assign(m, nullptr);
@@ -547,17 +548,17 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
     //   d² >= (z_r - r)² / b    and the Euclidean cost |v|² >= (z_r - r)².
     const double trace_gain = (P[0] + P[4] + P[8]) * (1.0 + sp.ox * sp.ox + sp.oy * sp.oy);
     auto bound_of = [&](int64_t l) {
-        if (!done[l]) {
+        if (!(done[l] & 1)) {
             const double dx = map.xy[2 * l] - sp.x, dy = map.xy[2 * l + 1] - sp.y;
             range[l] = std::sqrt(dx * dx + dy * dy);
             inv_bound[l] = 1.0 / (trace_gain + range_variance(range[l], p, opt));
-            done[l] = 1;
+            done[l] |= 1;
         }
     };
     auto predicted = [&](int64_t l) -> const Predicted& {
-        if (done[l] < 2) {
+        if (!(done[l] & 2)) {
             predict_landmark(sp, P, map.xy + 2 * l, p, opt, d, pred[l]);
-            done[l] = 2;
+            done[l] |= 2;
         }
         return pred[l];
     };
@@ -586,51 +587,152 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
         const double v[2] = {zc[i * d] - pr.h[0], d == 2 ? wrap(zc[i * d + 1] - pr.h[1]) : 0.0};
         return by_d2 ? mahalanobis2(pr, v, d) : v[0] * v[0] + v[1] * v[1];
     };
+    // The map's landmarks in increasing range from the sensor (all-landmark candidates): their
+    // squared ranges qs (increasing) and rows by_range. Insertion sort from the order of the
+    // previous call (the same filter a step before in a run, or a filter nearby in a batch), so
+    // a few swaps per call; ties and the starting order change which rows are compared first,
+    // never which rows a range window holds.
+    bool sorted = false, all_finite = true;
+    auto sort_by_range = [&]() {
+        if (sorted) return;
+        sorted = true;
+        auto& order = w.by_range;
+        if (static_cast<int64_t>(order.size()) != map.L) {
+            order.resize(map.L);
+            for (int64_t l = 0; l < map.L; ++l) order[l] = l;
+        }
+        w.qs.resize(map.L);
+        w.ql.resize(map.L);
+        double* const ql = w.ql.data();
+        for (int64_t l = 0; l < map.L; ++l) {
+            const double dx = map.xy[2 * l] - sp.x, dy = map.xy[2 * l + 1] - sp.y;
+            ql[l] = dx * dx + dy * dy;
+            all_finite = all_finite && std::isfinite(ql[l]);
+        }
+        int64_t* const o = order.data();
+        double* const qs = w.qs.data();
+        for (int64_t k = 0; k < map.L; ++k) {
+            const int64_t l = o[k];
+            const double q = ql[l];
+            int64_t j = k;
+            for (; j > 0 && qs[j - 1] > q; --j) qs[j] = qs[j - 1], o[j] = o[j - 1];
+            qs[j] = q, o[j] = l;
+        }
+    };
     // Each usable reading's candidates (its signature's landmarks, or all) and their pairs, in
     // increasing landmark row (the reference's order for ties). Pruned (all = false): first the
     // least value, best first: candidates in increasing bound, exactly, until the next bound
     // exceeds the least value found (no candidate left can beat it); then the pairs of the
     // candidates whose bound does not exceed it (JCBB: nor the gate). That keeps each
     // reading's cheapest pair (what one-to-one pairing takes when no two readings want the
-    // same landmark) and, for JCBB, every pair inside the gate and the nearest one. all = true:
-    // every candidate (Eq. 21, and one-to-one when two readings want the same landmark).
-    auto collect = [&](bool all) {
-        if (!all && !opt.signatures)  // every landmark is a candidate of every reading
-            for (int64_t l = 0; l < map.L; ++l) bound_of(l);
+    // same landmark) and, with the Mahalanobis cost or JCBB, every pair inside the gate.
+    // all = true: every candidate (Eq. 21, and the Euclidean one-to-one when two readings want
+    // the same landmark); full[i]: every candidate of reading i (the readings the gate's pass
+    // of one-to-one pairing left).
+    // With every landmark a candidate, the bounds that can pass a limit τ are those of the
+    // landmarks of range within h of the reading's (h² = τ max b, or τ for the Euclidean
+    // cost): a window of the map sorted by range, found by bisection, holds them (a margin
+    // for rounding; the bound is then evaluated exactly), so a reading looks at the
+    // landmarks near its range only.
+    auto collect = [&](bool all, const char* full = nullptr) {
         pairs.clear();
         pairs.reserve(static_cast<size_t>(m) * std::max<int64_t>(map.L, 1));
+        if (static_cast<int64_t>(w.keys.size()) < map.L) w.keys.resize(map.L), w.near.resize(map.L);
+        double* const keys = w.keys.data();  // per landmark: its bound (-1: evaluated)
+        int64_t* const near = w.near.data();  // candidates (landmark rows) that may matter
         for (int64_t i = 0; i < m; ++i) {
             row_start[i] = static_cast<int64_t>(pairs.size());
             nearest[i] = INF;
             if (status[i] != UNKNOWN || lo[i] == hi[i]) continue;
             const int64_t n = hi[i] - lo[i];
             const int64_t* const ci = cand + lo[i];
-            if (static_cast<int64_t>(w.keys.size()) < n) w.keys.resize(n), w.near.resize(n);
-            double* const keys = w.keys.data();
-            int64_t* const near = w.near.data();  // candidates (positions) that may matter
             int64_t nn = 0;
-            if (all || n == 1) {  // (a single candidate is the cheapest: nothing to prune)
-                for (int64_t k = 0; k < n; ++k) near[nn++] = k;
+            if (all || n == 1 || (full && full[i])) {  // (one candidate: nothing to prune)
+                for (int64_t k = 0; k < n; ++k) near[nn++] = ci[k];
             } else {
-                if (opt.signatures)
-                    for (int64_t k = 0; k < n; ++k) bound_of(ci[k]);
                 const double zr = zc[i * d];
-                int64_t first = 0;
-                for (int64_t k = 0; k < n; ++k) {
-                    const double g = zr - range[ci[k]];
-                    keys[k] = by_d2 ? g * g * inv_bound[ci[k]] : g * g;
-                    if (keys[k] < keys[first]) first = k;
-                }
+                auto key_of = [&](int64_t l) {
+                    bound_of(l);
+                    const double g = zr - range[l];
+                    return keys[l] = by_d2 ? g * g * inv_bound[l] : g * g;
+                };
                 // a margin for rounding: the bound is a bound of the exact values
                 auto limit = [&](double least) {
                     const double t = by_d2 ? std::max(least, opt.gate2) : least;
                     return t * (1.0 + 1e-9) + 1e-300;
                 };
-                double least = value(i, ci[first]);
+                // the window of the map sorted by range whose bounds may not exceed tau
+                const bool window = !opt.signatures;
+                auto window_of = [&](double tau, int64_t& a, int64_t& b) {
+                    a = 0, b = map.L;
+                    if (!all_finite) return;
+                    const double r_max = std::sqrt(w.qs[map.L - 1]);
+                    const double h = std::sqrt(by_d2 ? tau * (trace_gain +
+                                                              range_variance(r_max, p, opt))
+                                                     : tau) * (1.0 + 1e-9);
+                    if (!(h < INF)) return;
+                    const double* const qs = w.qs.data();
+                    const double rl = zr - h, rh = zr + h;
+                    const double qlo = rl > 0.0 ? rl * rl * (1.0 - 1e-9) : -INF;
+                    const double qhi = rh * rh * (1.0 + 1e-9);
+                    a = std::lower_bound(qs, qs + map.L, qlo) - qs;
+                    b = std::upper_bound(qs, qs + map.L, qhi) - qs;
+                };
+                // The first candidate evaluated: a guess at the cheapest, which only sets how
+                // many candidates the search below evaluates, never what it finds (the least
+                // value over all of them). Range-bearing: the landmark nearest to where the
+                // reading puts it, (px, py) = sensor + r (cos, sin)(heading + φ), so that the
+                // least value (and the search's limit) is small from the start; range only:
+                // the least bound (signatures) or the landmark nearest in range.
+                int64_t first = ci[0];
+                double px = 0.0, py = 0.0;
+                if (d == 2) {
+                    const double a = sp.heading + zc[i * d + 1];
+                    px = sp.x + zr * std::cos(a), py = sp.y + zr * std::sin(a);
+                }
+                auto dist2 = [&](int64_t l) {
+                    const double ex = map.xy[2 * l] - px, ey = map.xy[2 * l + 1] - py;
+                    return ex * ex + ey * ey;
+                };
+                if (!window) {
+                    double best = INF;
+                    for (int64_t k = 0; k < n; ++k) {
+                        const double e = d == 2 ? dist2(ci[k]) : key_of(ci[k]);
+                        if (e < best) best = e, first = ci[k];
+                    }
+                } else {
+                    sort_by_range();
+                    const int64_t* const o = w.by_range.data();
+                    const double* const qs = w.qs.data();
+                    // outwards from the reading's range: |landmark - (px, py)| >= |r - z_r|
+                    int64_t up = std::lower_bound(qs, qs + map.L, zr * zr) - qs, dn = up - 1;
+                    double best = INF;
+                    first = o[std::min(up, map.L - 1)];
+                    while (all_finite && (dn >= 0 || up < map.L)) {
+                        const double gd = dn >= 0 ? zr - std::sqrt(qs[dn]) : INF;
+                        const double gu = up < map.L ? std::sqrt(qs[up]) - zr : INF;
+                        const bool down = gd < gu;
+                        const double g = down ? gd : gu;
+                        if (g * g > best) break;
+                        const int64_t l = o[down ? dn-- : up++];
+                        const double e = d == 2 ? dist2(l) : g * g;
+                        if (e < best) best = e, first = l;
+                    }
+                }
+                double least = value(i, first);
                 double tau = limit(least);
-                for (int64_t k = 0; k < n; ++k)  // (negated: a NaN bound keeps the candidate)
-                    if (!(keys[k] > tau)) near[nn++] = k;
+                if (window) {
+                    int64_t a, b;
+                    window_of(tau, a, b);
+                    const int64_t* const o = w.by_range.data();
+                    for (int64_t k = a; k < b; ++k)  // (negated: a NaN bound keeps the candidate)
+                        if (!(key_of(o[k]) > tau)) near[nn++] = o[k];
+                } else {
+                    for (int64_t k = 0; k < n; ++k)
+                        if (!(key_of(ci[k]) > tau)) near[nn++] = ci[k];
+                }
                 const double done_key = -1.0;  // marks a candidate evaluated
+                key_of(first);
                 keys[first] = done_key;
                 for (;;) {  // best first among the rest
                     int64_t next = -1;
@@ -639,20 +741,21 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
                         if (kk != done_key && (next < 0 || kk < keys[near[next]])) next = j;
                     }
                     if (next < 0 || keys[near[next]] > least * (1.0 + 1e-9)) break;
-                    least = std::min(least, value(i, ci[near[next]]));
+                    least = std::min(least, value(i, near[next]));
                     keys[near[next]] = done_key;
                 }
                 tau = limit(least);
                 int64_t kept = 0;
                 for (int64_t j = 0; j < nn; ++j) {
-                    const int64_t k = near[j];
-                    const double g = zr - range[ci[k]];
-                    const double kk = by_d2 ? g * g * inv_bound[ci[k]] : g * g;
-                    if (!(kk > tau)) near[kept++] = k;
+                    const int64_t l = near[j];
+                    const double g = zr - range[l];
+                    const double kk = by_d2 ? g * g * inv_bound[l] : g * g;
+                    if (!(kk > tau)) near[kept++] = l;
                 }
                 nn = kept;
+                std::sort(near, near + nn);  // increasing row (a window is by range)
             }
-            for (int64_t j = 0; j < nn; ++j) add_pair(i, ci[near[j]]);
+            for (int64_t j = 0; j < nn; ++j) add_pair(i, near[j]);
             if (static_cast<int64_t>(pairs.size()) == row_start[i]) status[i] = DEGENERATE;
         }
         row_start[m] = static_cast<int64_t>(pairs.size());
@@ -699,8 +802,12 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
         if (clash) {
             // The greedy run over all pairs sorted by (cost, reading, landmark). With the
             // Mahalanobis cost the pairs inside the gate come first, so they are paired first
-            // on their own; then the pairs outside, of the readings and landmarks left.
-            collect(true);
+            // on their own; then the pairs outside, of the readings and landmarks left. The
+            // pruned pairs hold every pair inside the gate, so the first pass runs on them and
+            // only the readings it leaves get all their pairs for the second (the pairs of the
+            // others cannot be taken there); with the Euclidean cost every pair may matter.
+            const bool split = opt.cost == MAHALANOBIS;
+            if (!split) collect(true);
             auto& order = w.order;
             auto& taken = w.taken;
             taken.assign(map.L, 0);
@@ -709,8 +816,24 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
                 if (a->i != b->i) return a->i < b->i;
                 return a->l < b->l;
             };
-            const bool split = opt.cost == MAHALANOBIS;
             for (int pass = 0; pass < (split ? 2 : 1); ++pass) {
+                if (pass == 1) {
+                    auto& full = w.full;
+                    full.assign(m, 0);
+                    bool left = false;
+                    for (int64_t i = 0; i < m; ++i)
+                        if (usable_with_pairs(i) && !chosen[i]) full[i] = 1, left = true;
+                    if (!left) break;
+                    // the pairs rebuilt (the same for the readings paired): chosen re-pointed
+                    for (int64_t i = 0; i < m; ++i) landmark[i] = chosen[i] ? chosen[i]->l : -1;
+                    collect(false, full.data());
+                    for (int64_t i = 0; i < m; ++i) {
+                        chosen[i] = nullptr;
+                        for (int64_t k = row_start[i]; k < row_start[i + 1] && landmark[i] >= 0; ++k)
+                            if (pairs[k].l == landmark[i]) chosen[i] = &pairs[k];
+                        landmark[i] = -1;
+                    }
+                }
                 order.clear();
                 for (const Pair& q : pairs) {
                     if (!std::isfinite(q.cost) || chosen[q.i] || taken[q.l]) continue;
