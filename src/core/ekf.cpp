@@ -130,10 +130,10 @@ bool kalman_block(int n, int D, double* delta, double* P, const double* y, const
                  nn = static_cast<size_t>(n) * n;
     Scratch<ND> PHt_(ND ? 0 : nD), K_(ND ? 0 : nD), KR_(ND ? 0 : nD);
     Scratch<DD> S_(DD ? 0 : dd), L_(DD ? 0 : dd);
-    Scratch<NN> A_(NN ? 0 : nn), AP_(NN ? 0 : nn), Pn_(NN ? 0 : nn);
+    Scratch<NN> A_(NN ? 0 : nn), AP_(NN ? 0 : nn);
     Scratch<D_ ? D_ : 0> u_(D_ ? 0 : D), inv_(D_ ? 0 : D);
     double *PHt = PHt_.data(), *K = K_.data(), *KR = KR_.data(), *S = S_.data(), *Lw = L_.data();
-    double *A = A_.data(), *AP = AP_.data(), *Pn = Pn_.data(), *u = u_.data(), *inv = inv_.data();
+    double *A = A_.data(), *AP = AP_.data(), *u = u_.data(), *inv = inv_.data();
     for (int i = 0; i < n; ++i)  // P Hᵀ
         for (int a = 0; a < D; ++a) {
             double s = 0.0;
@@ -200,9 +200,8 @@ bool kalman_block(int n, int D, double* delta, double* P, const double* y, const
             for (int b = 0; b < D; ++b) s -= KR[i * D + b] * K[j * D + b];
             A[i * n + j] = s;
         }
-    for (int i = 0; i < n; ++i)  // symmetrized
-        for (int j = 0; j < n; ++j) Pn[i * n + j] = 0.5 * (A[i * n + j] + A[j * n + i]);
-    std::copy(Pn, Pn + nn, P);
+    for (int i = 0; i < n; ++i)  // symmetrized, into P (read no more)
+        for (int j = 0; j < n; ++j) P[i * n + j] = 0.5 * (A[i * n + j] + A[j * n + i]);
     return true;
 }
 
@@ -354,7 +353,10 @@ inline double mahalanobis2(const Predicted& pr, const double* v, int d) {
 // kalman_block), with the pair's noise R (d, diagonal) divided by weight w.
 inline bool pair_block(int d, double* delta, double* P, const Pair& q, const Predicted& pr,
                        double w, double& nis, double& logdet) {
-    const double R[4] = {pr.R[0] / w, pr.Rx / w, pr.Rx / w, d == 2 ? pr.R[1] / w : 0.0};
+    // (x / 1 is x: no division for an unweighted reading)
+    const double R[4] = {w == 1.0 ? pr.R[0] : pr.R[0] / w, w == 1.0 ? pr.Rx : pr.Rx / w,
+                         w == 1.0 ? pr.Rx : pr.Rx / w,
+                         d == 2 ? (w == 1.0 ? pr.R[1] : pr.R[1] / w) : 0.0};
     if (d == 2) return kalman_block<3, 2>(3, 2, delta, P, q.v, pr.H, R, nullptr, nis, logdet);
     return kalman_block<3, 1>(3, 1, delta, P, q.v, pr.H, R, nullptr, nis, logdet);
 }
@@ -503,8 +505,17 @@ void predict_odometry(double* x, double* P, double ds, double dth, const double*
     predict_step(x, P, make_step(ds, dth), params);
 }
 
+void signature_candidates(const Map& map, int64_t m, const int64_t* signature,
+                          int64_t* candidates) {
+    for (int64_t i = 0; i < m; ++i) {
+        auto range = std::equal_range(map.sig_sorted.begin(), map.sig_sorted.end(), signature[i]);
+        candidates[2 * i] = range.first - map.sig_sorted.begin();
+        candidates[2 * i + 1] = range.second - map.sig_sorted.begin();
+    }
+}
+
 void correct_readings(double* x, double* P, int64_t m, const double* z, const uint8_t* present,
-                      const int64_t* signature, const Map& map, const double* p,
+                      const int64_t* candidates, const Map& map, const double* p,
                       const Options& opt, ReadingOut out, Totals& totals) {
     const int d = opt.sensor == RANGE_ONLY ? 1 : 2;
     // scratch of this thread, reused between calls (no allocation per time stamp)
@@ -663,6 +674,7 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
                 };
                 // the window of the map sorted by range whose bounds may not exceed tau
                 const bool window = !opt.signatures;
+                int64_t at = 0;  // the reading's place in the map sorted by range
                 auto window_of = [&](double tau, int64_t& a, int64_t& b) {
                     a = 0, b = map.L;
                     if (!all_finite) return;
@@ -675,8 +687,10 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
                     const double rl = zr - h, rh = zr + h;
                     const double qlo = rl > 0.0 ? rl * rl * (1.0 - 1e-9) : -INF;
                     const double qhi = rh * rh * (1.0 + 1e-9);
-                    a = std::lower_bound(qs, qs + map.L, qlo) - qs;
-                    b = std::upper_bound(qs, qs + map.L, qhi) - qs;
+                    // outwards from the reading's range (a window holds a few landmarks)
+                    a = b = at;
+                    while (a > 0 && !(qs[a - 1] < qlo)) --a;
+                    while (b < map.L && !(qs[b] > qhi)) ++b;
                 };
                 // The first candidate evaluated: a guess at the cheapest, which only sets how
                 // many candidates the search below evaluates, never what it finds (the least
@@ -705,7 +719,8 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
                     const int64_t* const o = w.by_range.data();
                     const double* const qs = w.qs.data();
                     // outwards from the reading's range: |landmark - (px, py)| >= |r - z_r|
-                    int64_t up = std::lower_bound(qs, qs + map.L, zr * zr) - qs, dn = up - 1;
+                    at = std::lower_bound(qs, qs + map.L, zr * zr) - qs;
+                    int64_t up = at, dn = up - 1;
                     double best = INF;
                     first = o[std::min(up, map.L - 1)];
                     while (all_finite && (dn >= 0 || up < map.L)) {
@@ -769,12 +784,7 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
         zc[i * d] = zi[0] - p[BIAS_R];
         if (d == 2) zc[i * d + 1] = zi[1] - p[BIAS_B];
         hi[i] = map.L;
-        if (opt.signatures) {
-            auto range = std::equal_range(map.sig_sorted.begin(), map.sig_sorted.end(),
-                                          signature[i]);
-            lo[i] = range.first - map.sig_sorted.begin();
-            hi[i] = range.second - map.sig_sorted.begin();
-        }
+        if (opt.signatures) lo[i] = candidates[2 * i], hi[i] = candidates[2 * i + 1];
     }
     collect(opt.method == PER_LANDMARK);
     // chosen: each reading's pair (used or gated); update: the pairs of the stacked update
@@ -1168,6 +1178,7 @@ void register_ekf(nb::module_& m) {
             auto io = new_array<int64_t>({B, I});
             std::vector<int8_t> st(mm);
             std::vector<int32_t> lmo(mm);
+            std::vector<int64_t> cands(2 * mm);
             for (size_t b = 0; b < B; ++b) {
                 double* f = fo.data() + b * F;
                 int64_t* iv = io.data() + b * I;
@@ -1176,8 +1187,11 @@ void register_ekf(nb::module_& m) {
                 ReadingOut out{f + 12, f + 12 + mm * d, f + 12 + mm * (d + d * d), st.data(),
                                lmo.data()};
                 Totals totals;
+                if (opt.signatures)
+                    signature_candidates(map, static_cast<int64_t>(mm), signature.data() + b * mm,
+                                         cands.data());
                 correct_readings(f, f + 3, static_cast<int64_t>(mm), z.data() + b * mm * d,
-                                 present.data() + b * mm, signature.data() + b * mm, map,
+                                 present.data() + b * mm, cands.data(), map,
                                  params.data() + b * N_PARAMS, opt, out, totals);
                 f[F - 2] = totals.loglik;
                 f[F - 1] = totals.nis;
@@ -1222,6 +1236,10 @@ void register_ekf(nb::module_& m) {
             lo.push_back(static_cast<int64_t>(M));
             const size_t E = at.size();
             const size_t T = keep == 2 ? K + 1 : (keep == 1 ? E + 1 : 1);
+            // each reading's candidates (its signature's landmarks), the same for every filter
+            std::vector<int64_t> cands(opt.signatures ? 2 * M : 0);
+            if (opt.signatures)
+                signature_candidates(map, static_cast<int64_t>(M), signature.data(), cands.data());
             std::vector<Step> steps(K);
             for (size_t k = 0; k < K; ++k)
                 steps[k] = make_step(motion.data()[2 * k], motion.data()[2 * k + 1]);
@@ -1257,7 +1275,8 @@ void register_ekf(nb::module_& m) {
                                        st.data() + o, lmo.data() + o};
                             }
                             correct_readings(x, P, m, z.data() + r0 * d, nullptr,
-                                             signature.data() + r0, map, p, opt, out, totals[b]);
+                                             opt.signatures ? cands.data() + 2 * r0 : nullptr, map,
+                                             p, opt, out, totals[b]);
                             ++e;
                             if (keep == 1) store(e);
                         }
