@@ -1053,9 +1053,12 @@ Options make_options(int sensor, int noise_model, int method, int cost, bool sig
     return o;
 }
 
-void check_params(Float2 params, size_t B) {
-    if (params.shape(0) != B || params.shape(1) != N_PARAMS)
-        throw nb::value_error("params must be (B, 11)");
+// The parameter rows of B filters: (B, 12), or (1, 12) shared by all (then the row stride is
+// 0: no copy per filter). Returns the row stride.
+size_t check_params(Float2 params, size_t B) {
+    if ((params.shape(0) != B && params.shape(0) != 1) || params.shape(1) != N_PARAMS)
+        throw nb::value_error("params must be (B, 12) or (1, 12)");
+    return params.shape(0) == 1 ? 0 : N_PARAMS;
 }
 
 void check_filters(Float2 x, Float3 P) {
@@ -1142,13 +1145,13 @@ void register_ekf(nb::module_& m) {
             const size_t B = x.shape(0);
             if (motion.shape(0) != B || motion.shape(1) != 2)
                 throw nb::value_error("motion must be (B, 2)");
-            check_params(params, B);
+            const size_t ps = check_params(params, B);
             auto xo = new_array({B, 3}), Po = new_array({B, 3, 3});
             std::copy(x.data(), x.data() + B * 3, xo.data());
             std::copy(P.data(), P.data() + B * 9, Po.data());
             for (size_t b = 0; b < B; ++b)
                 predict_odometry(xo.data() + 3 * b, Po.data() + 9 * b, motion.data()[2 * b],
-                                 motion.data()[2 * b + 1], params.data() + b * N_PARAMS);
+                                 motion.data()[2 * b + 1], params.data() + b * ps);
             return nb::make_tuple(xo, Po);
         },
         nb::arg("x"), nb::arg("P"), nb::arg("motion"), nb::arg("params"),
@@ -1168,7 +1171,7 @@ void register_ekf(nb::module_& m) {
             if (present.shape(0) != B || present.shape(1) != mm || signature.shape(0) != B ||
                 signature.shape(1) != mm)
                 throw nb::value_error("present and signature must be (B, m)");
-            check_params(params, B);
+            const size_t ps = check_params(params, B);
             const Map map = make_map(landmarks, landmark_sig);
             // two packed outputs (one NumPy array each costs more than the arithmetic here):
             // floats per filter x (3), P (9), y (m d), S (m d d), d² (m), loglik, nis;
@@ -1192,7 +1195,7 @@ void register_ekf(nb::module_& m) {
                                          cands.data());
                 correct_readings(f, f + 3, static_cast<int64_t>(mm), z.data() + b * mm * d,
                                  present.data() + b * mm, cands.data(), map,
-                                 params.data() + b * N_PARAMS, opt, out, totals);
+                                 params.data() + b * ps, opt, out, totals);
                 f[F - 2] = totals.loglik;
                 f[F - 1] = totals.nis;
                 for (size_t i = 0; i < mm; ++i) iv[i] = st[i], iv[mm + i] = lmo[i];
@@ -1226,7 +1229,7 @@ void register_ekf(nb::module_& m) {
             for (size_t r = 0; r < M; ++r)
                 if (ri[r] < 0 || ri[r] > static_cast<int64_t>(K) || (r && ri[r] < ri[r - 1]))
                     throw nb::value_error("reading_index must be non-decreasing in [0, K]");
-            check_params(params, B);
+            const size_t ps = check_params(params, B);
             if (keep < 0 || keep > 2) throw nb::value_error("keep must be 0, 1 or 2");
             const Map map = make_map(landmarks, landmark_sig);
             // the time stamps with readings: readings lo[e]:lo[e + 1] at time index at[e]
@@ -1255,7 +1258,7 @@ void register_ekf(nb::module_& m) {
                     double x[3] = {x0.data()[3 * b], x0.data()[3 * b + 1], x0.data()[3 * b + 2]};
                     double P[9];
                     std::copy(P0.data() + 9 * b, P0.data() + 9 * b + 9, P);
-                    const double* p = params.data() + b * N_PARAMS;
+                    const double* p = params.data() + b * ps;
                     double* mo = mean.data() + b * T * 3;
                     double* co = cov.data() + b * T * 9;
                     auto store = [&](size_t slot) {
