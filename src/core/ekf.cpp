@@ -507,10 +507,23 @@ void predict_odometry(double* x, double* P, double ds, double dth, const double*
 
 void signature_candidates(const Map& map, int64_t m, const int64_t* signature,
                           int64_t* candidates) {
+    // std::equal_range's two bisections, without branches (a signature's place in the map is
+    // as good as random: a branch per halving would be mispredicted half the time)
+    const int64_t* const a = map.sig_sorted.data();
+    const int64_t L = map.L;
+    auto first = [&](int64_t s, bool after) {  // first k with a[k] >= s (after: a[k] > s)
+        if (L == 0) return int64_t{0};
+        const int64_t* base = a;
+        for (int64_t n = L; n > 1;) {
+            const int64_t half = n / 2;
+            base = (after ? base[half] <= s : base[half] < s) ? base + half : base;
+            n -= half;
+        }
+        return (base - a) + static_cast<int64_t>(after ? *base <= s : *base < s);
+    };
     for (int64_t i = 0; i < m; ++i) {
-        auto range = std::equal_range(map.sig_sorted.begin(), map.sig_sorted.end(), signature[i]);
-        candidates[2 * i] = range.first - map.sig_sorted.begin();
-        candidates[2 * i + 1] = range.second - map.sig_sorted.begin();
+        candidates[2 * i] = first(signature[i], false);
+        candidates[2 * i + 1] = first(signature[i], true);
     }
 }
 
@@ -604,6 +617,7 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
     // a few swaps per call; ties and the starting order change which rows are compared first,
     // never which rows a range window holds.
     bool sorted = false, all_finite = true;
+    double b_max = INF;
     auto sort_by_range = [&]() {
         if (sorted) return;
         sorted = true;
@@ -629,6 +643,8 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
             for (; j > 0 && qs[j - 1] > q; --j) qs[j] = qs[j - 1], o[j] = o[j - 1];
             qs[j] = q, o[j] = l;
         }
+        // the largest bound b (the range variance grows with the range)
+        b_max = trace_gain + range_variance(std::sqrt(qs[map.L - 1]), p, opt);
     };
     // Each usable reading's candidates (its signature's landmarks, or all) and their pairs, in
     // increasing landmark row (the reference's order for ties). Pruned (all = false): first the
@@ -678,10 +694,7 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
                 auto window_of = [&](double tau, int64_t& a, int64_t& b) {
                     a = 0, b = map.L;
                     if (!all_finite) return;
-                    const double r_max = std::sqrt(w.qs[map.L - 1]);
-                    const double h = std::sqrt(by_d2 ? tau * (trace_gain +
-                                                              range_variance(r_max, p, opt))
-                                                     : tau) * (1.0 + 1e-9);
+                    const double h = std::sqrt(by_d2 ? tau * b_max : tau) * (1.0 + 1e-9);
                     if (!(h < INF)) return;
                     const double* const qs = w.qs.data();
                     const double rl = zr - h, rh = zr + h;
@@ -1015,7 +1028,8 @@ namespace {
 
 using UInt8_2 = nb::ndarray<const uint8_t, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
 
-Map make_map(Float2 landmarks, Index1 landmark_sig) {
+// The map; the signatures sorted only for signature candidates (else every row is one).
+Map make_map(Float2 landmarks, Index1 landmark_sig, bool signatures) {
     Map map;
     map.L = static_cast<int64_t>(landmarks.shape(0));
     if (landmarks.shape(1) != 2) throw nb::value_error("landmarks must be (L, 2)");
@@ -1024,14 +1038,17 @@ Map make_map(Float2 landmarks, Index1 landmark_sig) {
         throw nb::value_error("landmark signatures must be (L,)");
     std::vector<int64_t> order(map.L);
     for (int64_t l = 0; l < map.L; ++l) order[l] = l;
-    const int64_t* s = landmark_sig.data();
-    std::stable_sort(order.begin(), order.end(), [&](int64_t a, int64_t b) { return s[a] < s[b]; });
-    for (int64_t l : order) {
-        map.sig_sorted.push_back(s[l]);
-        map.sig_landmark.push_back(l);
+    if (!signatures) {
+        map.rows = std::move(order);
+        return map;
     }
-    map.rows.resize(map.L);
-    for (int64_t l = 0; l < map.L; ++l) map.rows[l] = l;
+    const int64_t* s = landmark_sig.data();
+    if (!std::is_sorted(s, s + map.L))  // (sorted already: the rows are their order)
+        std::stable_sort(order.begin(), order.end(),
+                         [&](int64_t a, int64_t b) { return s[a] < s[b]; });
+    map.sig_sorted.resize(map.L);
+    for (int64_t k = 0; k < map.L; ++k) map.sig_sorted[k] = s[order[k]];
+    map.sig_landmark = std::move(order);
     return map;
 }
 
@@ -1172,7 +1189,7 @@ void register_ekf(nb::module_& m) {
                 signature.shape(1) != mm)
                 throw nb::value_error("present and signature must be (B, m)");
             const size_t ps = check_params(params, B);
-            const Map map = make_map(landmarks, landmark_sig);
+            const Map map = make_map(landmarks, landmark_sig, opt.signatures);
             // two packed outputs (one NumPy array each costs more than the arithmetic here):
             // floats per filter x (3), P (9), y (m d), S (m d d), d² (m), loglik, nis;
             // integers per filter status (m), landmark (m), dof
@@ -1231,7 +1248,7 @@ void register_ekf(nb::module_& m) {
                     throw nb::value_error("reading_index must be non-decreasing in [0, K]");
             const size_t ps = check_params(params, B);
             if (keep < 0 || keep > 2) throw nb::value_error("keep must be 0, 1 or 2");
-            const Map map = make_map(landmarks, landmark_sig);
+            const Map map = make_map(landmarks, landmark_sig, opt.signatures);
             // the time stamps with readings: readings lo[e]:lo[e + 1] at time index at[e]
             std::vector<int64_t> lo, at;
             for (size_t r = 0; r < M; ++r)

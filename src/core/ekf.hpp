@@ -80,9 +80,9 @@ struct Options {
 struct Map {
     int64_t L = 0;
     const double* xy = nullptr;        // (L, 2)
-    std::vector<int64_t> sig_sorted;   // signatures in increasing order
-    std::vector<int64_t> sig_landmark; // the landmark of each sorted signature
-    std::vector<int64_t> rows;         // 0, 1, ..., L - 1
+    std::vector<int64_t> sig_sorted;   // signatures in increasing order (signature candidates)
+    std::vector<int64_t> sig_landmark; // the landmark of each sorted signature (ditto)
+    std::vector<int64_t> rows;         // 0, 1, ..., L - 1 (every landmark a candidate)
 };
 
 // What one correction reports per reading (pointers into the caller's arrays; may be null).
