@@ -287,6 +287,15 @@ inline double range_variance(double r, const double* p, const Options& opt) {
     return (p[SIGMA_R] * scale) * (p[SIGMA_R] * scale);
 }
 
+// The bearing noise variance of a reading at range r (the sensor's noise model, as
+// predict_landmark's).
+inline double bearing_variance(double r, const double* p, const Options& opt) {
+    const double scale = opt.noise_model == PROPORTIONAL ? r
+                         : opt.noise_model == QUADRATIC  ? r * r
+                                                         : 1.0;
+    return (p[SIGMA_B] * scale) * (p[SIGMA_B] * scale);
+}
+
 // A landmark's predicted reading from the filter's sensor pose: h (d), H (d × 3), S (d × d),
 // R's diagonal (d); ok false for 0/0 (the landmark at the sensor, or S not positive definite).
 // Rx: R's off-diagonal entry (0 for a landmark's reading; a mixture's spread, see mix_reading).
@@ -570,7 +579,9 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
     // <= 1 + |o|² (Cauchy-Schwarz) and λmax(P) <= tr P, so S_rr <= tr P (1 + |o|²) + R_rr =: b;
     // a 2-vector's d² is at least that of its first component (a marginal), so
     //   d² >= (z_r - r)² / b    and the Euclidean cost |v|² >= (z_r - r)².
-    const double trace_gain = (P[0] + P[4] + P[8]) * (1.0 + sp.ox * sp.ox + sp.oy * sp.oy);
+    const double trace_p = P[0] + P[4] + P[8];
+    const double trace_gain = trace_p * (1.0 + sp.ox * sp.ox + sp.oy * sp.oy);
+    const double mount_norm = std::sqrt(sp.ox * sp.ox + sp.oy * sp.oy);
     auto bound_of = [&](int64_t l) {
         if (!(done[l] & 1)) {
             const double dx = map.xy[2 * l] - sp.x, dy = map.xy[2 * l + 1] - sp.y;
@@ -678,10 +689,39 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
                 for (int64_t k = 0; k < n; ++k) near[nn++] = ci[k];
             } else {
                 const double zr = zc[i * d];
+                // where the reading puts its landmark (range-bearing)
+                double px = 0.0, py = 0.0;
+                if (d == 2) {
+                    const double a = sp.heading + zc[i * d + 1];
+                    px = sp.x + zr * std::cos(a), py = sp.y + zr * std::sin(a);
+                }
+                auto dist2 = [&](int64_t l) {
+                    const double ex = map.xy[2 * l] - px, ey = map.xy[2 * l + 1] - py;
+                    return ex * ex + ey * ey;
+                };
+                // A second bound of d², from the whole reading (range-bearing, z_r > 0): with
+                // c = r z_r, |landmark - (px, py)|² = v_r² + 4c sin²(v_φ/2) <= v_r² + c v_φ² =
+                // vᵀ diag(1, c) v, so d² = vᵀ S⁻¹ v >= |landmark - (px, py)|² / (S_rr + c S_φφ)
+                // (λmax of diag(1, c)^½ S diag(1, c)^½ <= its trace), with S_rr <= b and
+                // S_φφ <= |H_φ|² tr P + R_φφ, |H_φ|² = 1/r² + (1 + (dy oy + dx ox)/r²)² <=
+                // 1/r² + (1 + |o|/r)²: no bearing (atan2) needed. The key is the larger bound.
+                const bool point = d == 2 && by_d2 && zr > 0.0;
+                auto bound_key = [&](int64_t l) {  // (after bound_of(l))
+                    const double r = range[l], g = zr - r;
+                    double k = by_d2 ? g * g * inv_bound[l] : g * g;
+                    if (point) {
+                        const double u = 1.0 + mount_norm / r;
+                        const double b_phi = (1.0 / (r * r) + u * u) * trace_p +
+                                             bearing_variance(r, p, opt);
+                        const double kp = dist2(l) / (trace_gain + range_variance(r, p, opt) +
+                                                      r * zr * b_phi);
+                        k = std::max(k, kp);
+                    }
+                    return k;
+                };
                 auto key_of = [&](int64_t l) {
                     bound_of(l);
-                    const double g = zr - range[l];
-                    return keys[l] = by_d2 ? g * g * inv_bound[l] : g * g;
+                    return keys[l] = bound_key(l);
                 };
                 // a margin for rounding: the bound is a bound of the exact values
                 auto limit = [&](double least) {
@@ -712,15 +752,6 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
                 // least value (and the search's limit) is small from the start; range only:
                 // the least bound (signatures) or the landmark nearest in range.
                 int64_t first = ci[0];
-                double px = 0.0, py = 0.0;
-                if (d == 2) {
-                    const double a = sp.heading + zc[i * d + 1];
-                    px = sp.x + zr * std::cos(a), py = sp.y + zr * std::sin(a);
-                }
-                auto dist2 = [&](int64_t l) {
-                    const double ex = map.xy[2 * l] - px, ey = map.xy[2 * l + 1] - py;
-                    return ex * ex + ey * ey;
-                };
                 if (!window) {
                     double best = INF;
                     for (int64_t k = 0; k < n; ++k) {
@@ -774,12 +805,8 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
                 }
                 tau = limit(least);
                 int64_t kept = 0;
-                for (int64_t j = 0; j < nn; ++j) {
-                    const int64_t l = near[j];
-                    const double g = zr - range[l];
-                    const double kk = by_d2 ? g * g * inv_bound[l] : g * g;
-                    if (!(kk > tau)) near[kept++] = l;
-                }
+                for (int64_t j = 0; j < nn; ++j)
+                    if (!(bound_key(near[j]) > tau)) near[kept++] = near[j];
                 nn = kept;
                 std::sort(near, near + nn);  // increasing row (a window is by range)
             }
