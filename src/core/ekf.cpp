@@ -11,8 +11,10 @@
 
 #if defined(_MSC_VER)
 #define RELMAP_NOINLINE __declspec(noinline)
+#define RELMAP_INLINE __forceinline
 #else
 #define RELMAP_NOINLINE __attribute__((noinline))
+#define RELMAP_INLINE inline __attribute__((always_inline))
 #endif
 
 namespace relmap::ekf {
@@ -84,9 +86,12 @@ void cholesky_solve(int D, const double* Lw, const double* inv, double* b) {
     }
 }
 
-// P⁻ = F P Fᵀ + Q (n × n, row-major), symmetrized; out may alias P. N_ > 0 fixes n.
+// P⁻ = F P Fᵀ + Q (n × n, row-major), symmetrized; out may alias P. N_ > 0 fixes n. Inlined:
+// a pose filter's F and Q then stay in registers (an out-of-line call had the odometry step
+// store them, zeroing F with a slow string store, every step).
 template <int N_>
-void predict_cov(int n, const double* F, const double* P, const double* Q, double* out) {
+RELMAP_INLINE void predict_cov(int n, const double* F, const double* P, const double* Q,
+                               double* out) {
     if (N_ > 0) n = N_;
     constexpr int NN = N_ * N_;
     Scratch<NN> fp_(NN ? 0 : static_cast<size_t>(n) * n), t_(NN ? 0 : static_cast<size_t>(n) * n);
@@ -255,7 +260,12 @@ inline void predict_step(double* x, double* P, const Step& st, const double* p) 
     const double bx = st.ds * st.a, by = st.ds * st.b;
     const double c = std::cos(x[2]), s = std::sin(x[2]);
     const double dx = c * bx - s * by, dy = s * bx + c * by;
-    const double F[9] = {1, 0, -dy, 0, 1, dx, 0, 0, 1};
+    double F[9];  // {1, 0, -dy, 0, 1, dx, 0, 0, 1}, set entry by entry (an initializer list
+    // zero-fills with a slow string store first)
+    F[0] = F[4] = F[8] = 1.0;
+    F[1] = F[3] = F[6] = F[7] = 0.0;
+    F[2] = -dy;
+    F[5] = dx;
     // Q = G C Gᵀ with G = blkdiag(R(θ), 1)
     const double g00 = c * c00 - s * c01, g01 = c * c01 - s * c11, g02 = c * c02 - s * c12;
     const double g10 = s * c00 + c * c01, g11 = s * c01 + c * c11, g12 = s * c02 + c * c12;
