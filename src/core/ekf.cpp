@@ -11,8 +11,10 @@
 
 #if defined(_MSC_VER)
 #define RELMAP_NOINLINE __declspec(noinline)
+#define RELMAP_INLINE __forceinline
 #else
 #define RELMAP_NOINLINE __attribute__((noinline))
+#define RELMAP_INLINE inline __attribute__((always_inline))
 #endif
 
 namespace relmap::ekf {
@@ -94,9 +96,12 @@ void cholesky_solve(int D, const double* Lw, const double* inv, double* b) {
     }
 }
 
-// P⁻ = F P Fᵀ + Q (n × n, row-major), symmetrized; out may alias P. N_ > 0 fixes n.
+// P⁻ = F P Fᵀ + Q (n × n, row-major), symmetrized; out may alias P. N_ > 0 fixes n. Inlined:
+// a pose filter's F and Q then stay in registers (an out-of-line call had the odometry step
+// store them, zeroing F with a slow string store, every step).
 template <int N_>
-void predict_cov(int n, const double* F, const double* P, const double* Q, double* out) {
+RELMAP_INLINE void predict_cov(int n, const double* F, const double* P, const double* Q,
+                               double* out) {
     if (N_ > 0) n = N_;
     constexpr int NN = N_ * N_;
     Scratch<NN> fp_(NN ? 0 : static_cast<size_t>(n) * n), t_(NN ? 0 : static_cast<size_t>(n) * n);
@@ -140,10 +145,10 @@ bool kalman_block(int n, int D, double* delta, double* P, const double* y, const
                  nn = static_cast<size_t>(n) * n;
     Scratch<ND> PHt_(ND ? 0 : nD), K_(ND ? 0 : nD), KR_(ND ? 0 : nD);
     Scratch<DD> S_(DD ? 0 : dd), L_(DD ? 0 : dd);
-    Scratch<NN> A_(NN ? 0 : nn), AP_(NN ? 0 : nn), Pn_(NN ? 0 : nn);
+    Scratch<NN> A_(NN ? 0 : nn), AP_(NN ? 0 : nn);
     Scratch<D_ ? D_ : 0> u_(D_ ? 0 : D), inv_(D_ ? 0 : D);
     double *PHt = PHt_.data(), *K = K_.data(), *KR = KR_.data(), *S = S_.data(), *Lw = L_.data();
-    double *A = A_.data(), *AP = AP_.data(), *Pn = Pn_.data(), *u = u_.data(), *inv = inv_.data();
+    double *A = A_.data(), *AP = AP_.data(), *u = u_.data(), *inv = inv_.data();
     for (int i = 0; i < n; ++i)  // P Hᵀ
         for (int a = 0; a < D; ++a) {
             double s = 0.0;
@@ -210,9 +215,8 @@ bool kalman_block(int n, int D, double* delta, double* P, const double* y, const
             for (int b = 0; b < D; ++b) s -= KR[i * D + b] * K[j * D + b];
             A[i * n + j] = s;
         }
-    for (int i = 0; i < n; ++i)  // symmetrized
-        for (int j = 0; j < n; ++j) Pn[i * n + j] = 0.5 * (A[i * n + j] + A[j * n + i]);
-    std::copy(Pn, Pn + nn, P);
+    for (int i = 0; i < n; ++i)  // symmetrized, into P (read no more)
+        for (int j = 0; j < n; ++j) P[i * n + j] = 0.5 * (A[i * n + j] + A[j * n + i]);
     return true;
 }
 
@@ -266,7 +270,12 @@ inline void predict_step(double* x, double* P, const Step& st, const double* p) 
     const double bx = st.ds * st.a, by = st.ds * st.b;
     const double c = std::cos(x[2]), s = std::sin(x[2]);
     const double dx = c * bx - s * by, dy = s * bx + c * by;
-    const double F[9] = {1, 0, -dy, 0, 1, dx, 0, 0, 1};
+    double F[9];  // {1, 0, -dy, 0, 1, dx, 0, 0, 1}, set entry by entry (an initializer list
+    // zero-fills with a slow string store first)
+    F[0] = F[4] = F[8] = 1.0;
+    F[1] = F[3] = F[6] = F[7] = 0.0;
+    F[2] = -dy;
+    F[5] = dx;
     // Q = G C Gᵀ with G = blkdiag(R(θ), 1)
     const double g00 = c * c00 - s * c01, g01 = c * c01 - s * c11, g02 = c * c02 - s * c12;
     const double g10 = s * c00 + c * c01, g11 = s * c01 + c * c11, g12 = s * c02 + c * c12;
@@ -296,6 +305,15 @@ inline double range_variance(double r, const double* p, const Options& opt) {
                          : opt.noise_model == QUADRATIC  ? r * r
                                                          : 1.0;
     return (p[SIGMA_R] * scale) * (p[SIGMA_R] * scale);
+}
+
+// The bearing noise variance of a reading at range r (the sensor's noise model, as
+// predict_landmark's).
+inline double bearing_variance(double r, const double* p, const Options& opt) {
+    const double scale = opt.noise_model == PROPORTIONAL ? r
+                         : opt.noise_model == QUADRATIC  ? r * r
+                                                         : 1.0;
+    return (p[SIGMA_B] * scale) * (p[SIGMA_B] * scale);
 }
 
 // A landmark's predicted reading from the filter's sensor pose: h (d), H (d × 3), S (d × d),
@@ -366,7 +384,10 @@ inline double mahalanobis2(const Predicted& pr, const double* v, int d) {
 inline bool pair_block(int d, double* delta, double* P, const Pair& q, const Predicted& pr,
                        double w, double& nis, double& logdet, double* y_out = nullptr,
                        double* S_out = nullptr) {
-    const double R[4] = {pr.R[0] / w, pr.Rx / w, pr.Rx / w, d == 2 ? pr.R[1] / w : 0.0};
+    // (x / 1 is x: no division for an unweighted reading)
+    const double R[4] = {w == 1.0 ? pr.R[0] : pr.R[0] / w, w == 1.0 ? pr.Rx : pr.Rx / w,
+                         w == 1.0 ? pr.Rx : pr.Rx / w,
+                         d == 2 ? (w == 1.0 ? pr.R[1] : pr.R[1] / w) : 0.0};
     if (y_out)
         for (int a = 0; a < d; ++a)
             y_out[a] = q.v[a] - pr.H[3 * a] * delta[0] - pr.H[3 * a + 1] * delta[1] -
@@ -511,10 +532,11 @@ struct Work {
     std::vector<int32_t> landmark;
     std::vector<double> nearest, zc, pair_d2, range, inv_bound, keys;
     std::vector<Predicted> pred;
-    std::vector<char> done, taken;
+    std::vector<char> done, taken, full;
     std::vector<Pair> pairs, mixed;  // mixed: a reading's mixture pair (mix_reading)
     std::vector<Predicted> mixpred;  // and its virtual landmark's prediction
-    std::vector<int64_t> row_start, lo, hi, owner, near;
+    std::vector<int64_t> row_start, lo, hi, owner, near, by_range;
+    std::vector<double> qs, ql;  // the map by range (correct_readings' sort_by_range)
     std::vector<const Pair*> chosen, update, best, order;
     std::vector<const Predicted*> upred;  // the prediction of each pair of update
 };
@@ -532,8 +554,30 @@ void predict_odometry(double* x, double* P, double ds, double dth, const double*
     predict_step(x, P, make_step(ds, dth), params);
 }
 
+void signature_candidates(const Map& map, int64_t m, const int64_t* signature,
+                          int64_t* candidates) {
+    // std::equal_range's two bisections, without branches (a signature's place in the map is
+    // as good as random: a branch per halving would be mispredicted half the time)
+    const int64_t* const a = map.sig_sorted.data();
+    const int64_t L = map.L;
+    auto first = [&](int64_t s, bool after) {  // first k with a[k] >= s (after: a[k] > s)
+        if (L == 0) return int64_t{0};
+        const int64_t* base = a;
+        for (int64_t n = L; n > 1;) {
+            const int64_t half = n / 2;
+            base = (after ? base[half] <= s : base[half] < s) ? base + half : base;
+            n -= half;
+        }
+        return (base - a) + static_cast<int64_t>(after ? *base <= s : *base < s);
+    };
+    for (int64_t i = 0; i < m; ++i) {
+        candidates[2 * i] = first(signature[i], false);
+        candidates[2 * i + 1] = first(signature[i], true);
+    }
+}
+
 void correct_readings(double* x, double* P, int64_t m, const double* z, const uint8_t* present,
-                      const int64_t* signature, const Map& map, const double* p,
+                      const int64_t* candidates, const Map& map, const double* p,
                       const Options& opt, ReadingOut out, Totals& totals) {
     const int d = opt.sensor == RANGE_ONLY ? 1 : 2;
     // scratch of this thread, reused between calls (no allocation per time stamp)
@@ -550,7 +594,7 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
         w.range.resize(map.L);
         w.inv_bound.resize(map.L);
     }
-    w.done.assign(map.L, 0);  // per landmark: 1 its bound is known, 2 also its prediction
+    w.done.assign(map.L, 0);  // per landmark: bit 1 its bound is known, bit 2 its prediction
     w.pairs.clear();
     w.row_start.assign(m + 1, 0);
     w.chosen.assign(m, nullptr);
@@ -575,19 +619,21 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
     // <= 1 + |o|² (Cauchy-Schwarz) and λmax(P) <= tr P, so S_rr <= tr P (1 + |o|²) + R_rr =: b;
     // a 2-vector's d² is at least that of its first component (a marginal), so
     //   d² >= (z_r - r)² / b    and the Euclidean cost |v|² >= (z_r - r)².
-    const double trace_gain = (P[0] + P[4] + P[8]) * (1.0 + sp.ox * sp.ox + sp.oy * sp.oy);
+    const double trace_p = P[0] + P[4] + P[8];
+    const double trace_gain = trace_p * (1.0 + sp.ox * sp.ox + sp.oy * sp.oy);
+    const double mount_norm = std::sqrt(sp.ox * sp.ox + sp.oy * sp.oy);
     auto bound_of = [&](int64_t l) {
-        if (!done[l]) {
+        if (!(done[l] & 1)) {
             const double dx = map.xy[2 * l] - sp.x, dy = map.xy[2 * l + 1] - sp.y;
             range[l] = std::sqrt(dx * dx + dy * dy);
             inv_bound[l] = 1.0 / (trace_gain + range_variance(range[l], p, opt));
-            done[l] = 1;
+            done[l] |= 1;
         }
     };
     auto predicted = [&](int64_t l) -> const Predicted& {
-        if (done[l] < 2) {
+        if (!(done[l] & 2)) {
             predict_landmark(sp, P, map.xy + 2 * l, p, opt, d, pred[l]);
-            done[l] = 2;
+            done[l] |= 2;
         }
         return pred[l];
     };
@@ -616,51 +662,176 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
         const double v[2] = {zc[i * d] - pr.h[0], d == 2 ? wrap(zc[i * d + 1] - pr.h[1]) : 0.0};
         return by_d2 ? mahalanobis2(pr, v, d) : v[0] * v[0] + v[1] * v[1];
     };
+    // The map's landmarks in increasing range from the sensor (all-landmark candidates): their
+    // squared ranges qs (increasing) and rows by_range. Insertion sort from the order of the
+    // previous call (the same filter a step before in a run, or a filter nearby in a batch), so
+    // a few swaps per call; ties and the starting order change which rows are compared first,
+    // never which rows a range window holds.
+    bool sorted = false, all_finite = true;
+    double b_max = INF;
+    auto sort_by_range = [&]() {
+        if (sorted) return;
+        sorted = true;
+        auto& order = w.by_range;
+        if (static_cast<int64_t>(order.size()) != map.L) {
+            order.resize(map.L);
+            for (int64_t l = 0; l < map.L; ++l) order[l] = l;
+        }
+        w.qs.resize(map.L);
+        w.ql.resize(map.L);
+        double* const ql = w.ql.data();
+        for (int64_t l = 0; l < map.L; ++l) {
+            const double dx = map.xy[2 * l] - sp.x, dy = map.xy[2 * l + 1] - sp.y;
+            ql[l] = dx * dx + dy * dy;
+            all_finite = all_finite && std::isfinite(ql[l]);
+        }
+        int64_t* const o = order.data();
+        double* const qs = w.qs.data();
+        for (int64_t k = 0; k < map.L; ++k) {
+            const int64_t l = o[k];
+            const double q = ql[l];
+            int64_t j = k;
+            for (; j > 0 && qs[j - 1] > q; --j) qs[j] = qs[j - 1], o[j] = o[j - 1];
+            qs[j] = q, o[j] = l;
+        }
+        // the largest bound b (the range variance grows with the range)
+        b_max = trace_gain + range_variance(std::sqrt(qs[map.L - 1]), p, opt);
+    };
     // Each usable reading's candidates (its signature's landmarks, or all) and their pairs, in
     // increasing landmark row (the reference's order for ties). Pruned (all = false): first the
     // least value, best first: candidates in increasing bound, exactly, until the next bound
     // exceeds the least value found (no candidate left can beat it); then the pairs of the
     // candidates whose bound does not exceed it (JCBB: nor the gate). That keeps each
     // reading's cheapest pair (what one-to-one pairing takes when no two readings want the
-    // same landmark) and, for JCBB, every pair inside the gate and the nearest one. all = true:
-    // every candidate (Eq. 21, and one-to-one when two readings want the same landmark).
-    auto collect = [&](bool all) {
-        if (!all && !opt.signatures)  // every landmark is a candidate of every reading
-            for (int64_t l = 0; l < map.L; ++l) bound_of(l);
+    // same landmark) and, with the Mahalanobis cost or JCBB, every pair inside the gate.
+    // all = true: every candidate (Eq. 21, and the Euclidean one-to-one when two readings want
+    // the same landmark); full[i]: every candidate of reading i (the readings the gate's pass
+    // of one-to-one pairing left).
+    // With every landmark a candidate, the bounds that can pass a limit τ are those of the
+    // landmarks of range within h of the reading's (h² = τ max b, or τ for the Euclidean
+    // cost): a window of the map sorted by range, found by bisection, holds them (a margin
+    // for rounding; the bound is then evaluated exactly), so a reading looks at the
+    // landmarks near its range only.
+    auto collect = [&](bool all, const char* full = nullptr) {
         pairs.clear();
         pairs.reserve(static_cast<size_t>(m) * std::max<int64_t>(map.L, 1));
+        if (static_cast<int64_t>(w.keys.size()) < map.L) w.keys.resize(map.L), w.near.resize(map.L);
+        double* const keys = w.keys.data();  // per landmark: its bound (-1: evaluated)
+        int64_t* const near = w.near.data();  // candidates (landmark rows) that may matter
         for (int64_t i = 0; i < m; ++i) {
             row_start[i] = static_cast<int64_t>(pairs.size());
             nearest[i] = INF;
             if (status[i] != UNKNOWN || lo[i] == hi[i]) continue;
             const int64_t n = hi[i] - lo[i];
             const int64_t* const ci = cand + lo[i];
-            if (static_cast<int64_t>(w.keys.size()) < n) w.keys.resize(n), w.near.resize(n);
-            double* const keys = w.keys.data();
-            int64_t* const near = w.near.data();  // candidates (positions) that may matter
             int64_t nn = 0;
-            if (all || n == 1) {  // (a single candidate is the cheapest: nothing to prune)
-                for (int64_t k = 0; k < n; ++k) near[nn++] = k;
+            if (all || n == 1 || (full && full[i])) {  // (one candidate: nothing to prune)
+                for (int64_t k = 0; k < n; ++k) near[nn++] = ci[k];
             } else {
-                if (opt.signatures)
-                    for (int64_t k = 0; k < n; ++k) bound_of(ci[k]);
                 const double zr = zc[i * d];
-                int64_t first = 0;
-                for (int64_t k = 0; k < n; ++k) {
-                    const double g = zr - range[ci[k]];
-                    keys[k] = by_d2 ? g * g * inv_bound[ci[k]] : g * g;
-                    if (keys[k] < keys[first]) first = k;
+                // where the reading puts its landmark (range-bearing)
+                double px = 0.0, py = 0.0;
+                if (d == 2) {
+                    const double a = sp.heading + zc[i * d + 1];
+                    px = sp.x + zr * std::cos(a), py = sp.y + zr * std::sin(a);
                 }
+                auto dist2 = [&](int64_t l) {
+                    const double ex = map.xy[2 * l] - px, ey = map.xy[2 * l + 1] - py;
+                    return ex * ex + ey * ey;
+                };
+                // A second bound of d², from the whole reading (range-bearing, z_r > 0): with
+                // c = r z_r, |landmark - (px, py)|² = v_r² + 4c sin²(v_φ/2) <= v_r² + c v_φ² =
+                // vᵀ diag(1, c) v, so d² = vᵀ S⁻¹ v >= |landmark - (px, py)|² / (S_rr + c S_φφ)
+                // (λmax of diag(1, c)^½ S diag(1, c)^½ <= its trace), with S_rr <= b and
+                // S_φφ <= |H_φ|² tr P + R_φφ, |H_φ|² = 1/r² + (1 + (dy oy + dx ox)/r²)² <=
+                // 1/r² + (1 + |o|/r)²: no bearing (atan2) needed. The key is the larger bound.
+                const bool point = d == 2 && by_d2 && zr > 0.0;
+                auto bound_key = [&](int64_t l) {  // (after bound_of(l))
+                    const double r = range[l], g = zr - r;
+                    double k = by_d2 ? g * g * inv_bound[l] : g * g;
+                    if (point) {
+                        const double u = 1.0 + mount_norm / r;
+                        const double b_phi = (1.0 / (r * r) + u * u) * trace_p +
+                                             bearing_variance(r, p, opt);
+                        const double kp = dist2(l) / (trace_gain + range_variance(r, p, opt) +
+                                                      r * zr * b_phi);
+                        k = std::max(k, kp);
+                    }
+                    return k;
+                };
+                auto key_of = [&](int64_t l) {
+                    bound_of(l);
+                    return keys[l] = bound_key(l);
+                };
                 // a margin for rounding: the bound is a bound of the exact values
                 auto limit = [&](double least) {
                     const double t = by_d2 ? std::max(least, opt.gate2) : least;
                     return t * (1.0 + 1e-9) + 1e-300;
                 };
-                double least = value(i, ci[first]);
+                // the window of the map sorted by range whose bounds may not exceed tau
+                const bool window = !opt.signatures;
+                int64_t at = 0;  // the reading's place in the map sorted by range
+                auto window_of = [&](double tau, int64_t& a, int64_t& b) {
+                    a = 0, b = map.L;
+                    if (!all_finite) return;
+                    const double h = std::sqrt(by_d2 ? tau * b_max : tau) * (1.0 + 1e-9);
+                    if (!(h < INF)) return;
+                    const double* const qs = w.qs.data();
+                    const double rl = zr - h, rh = zr + h;
+                    const double qlo = rl > 0.0 ? rl * rl * (1.0 - 1e-9) : -INF;
+                    const double qhi = rh * rh * (1.0 + 1e-9);
+                    // outwards from the reading's range (a window holds a few landmarks)
+                    a = b = at;
+                    while (a > 0 && !(qs[a - 1] < qlo)) --a;
+                    while (b < map.L && !(qs[b] > qhi)) ++b;
+                };
+                // The first candidate evaluated: a guess at the cheapest, which only sets how
+                // many candidates the search below evaluates, never what it finds (the least
+                // value over all of them). Range-bearing: the landmark nearest to where the
+                // reading puts it, (px, py) = sensor + r (cos, sin)(heading + φ), so that the
+                // least value (and the search's limit) is small from the start; range only:
+                // the least bound (signatures) or the landmark nearest in range.
+                int64_t first = ci[0];
+                if (!window) {
+                    double best = INF;
+                    for (int64_t k = 0; k < n; ++k) {
+                        const double e = d == 2 ? dist2(ci[k]) : key_of(ci[k]);
+                        if (e < best) best = e, first = ci[k];
+                    }
+                } else {
+                    sort_by_range();
+                    const int64_t* const o = w.by_range.data();
+                    const double* const qs = w.qs.data();
+                    // outwards from the reading's range: |landmark - (px, py)| >= |r - z_r|
+                    at = std::lower_bound(qs, qs + map.L, zr * zr) - qs;
+                    int64_t up = at, dn = up - 1;
+                    double best = INF;
+                    first = o[std::min(up, map.L - 1)];
+                    while (all_finite && (dn >= 0 || up < map.L)) {
+                        const double gd = dn >= 0 ? zr - std::sqrt(qs[dn]) : INF;
+                        const double gu = up < map.L ? std::sqrt(qs[up]) - zr : INF;
+                        const bool down = gd < gu;
+                        const double g = down ? gd : gu;
+                        if (g * g > best) break;
+                        const int64_t l = o[down ? dn-- : up++];
+                        const double e = d == 2 ? dist2(l) : g * g;
+                        if (e < best) best = e, first = l;
+                    }
+                }
+                double least = value(i, first);
                 double tau = limit(least);
-                for (int64_t k = 0; k < n; ++k)  // (negated: a NaN bound keeps the candidate)
-                    if (!(keys[k] > tau)) near[nn++] = k;
+                if (window) {
+                    int64_t a, b;
+                    window_of(tau, a, b);
+                    const int64_t* const o = w.by_range.data();
+                    for (int64_t k = a; k < b; ++k)  // (negated: a NaN bound keeps the candidate)
+                        if (!(key_of(o[k]) > tau)) near[nn++] = o[k];
+                } else {
+                    for (int64_t k = 0; k < n; ++k)
+                        if (!(key_of(ci[k]) > tau)) near[nn++] = ci[k];
+                }
                 const double done_key = -1.0;  // marks a candidate evaluated
+                key_of(first);
                 keys[first] = done_key;
                 for (;;) {  // best first among the rest
                     int64_t next = -1;
@@ -669,20 +840,17 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
                         if (kk != done_key && (next < 0 || kk < keys[near[next]])) next = j;
                     }
                     if (next < 0 || keys[near[next]] > least * (1.0 + 1e-9)) break;
-                    least = std::min(least, value(i, ci[near[next]]));
+                    least = std::min(least, value(i, near[next]));
                     keys[near[next]] = done_key;
                 }
                 tau = limit(least);
                 int64_t kept = 0;
-                for (int64_t j = 0; j < nn; ++j) {
-                    const int64_t k = near[j];
-                    const double g = zr - range[ci[k]];
-                    const double kk = by_d2 ? g * g * inv_bound[ci[k]] : g * g;
-                    if (!(kk > tau)) near[kept++] = k;
-                }
+                for (int64_t j = 0; j < nn; ++j)
+                    if (!(bound_key(near[j]) > tau)) near[kept++] = near[j];
                 nn = kept;
+                std::sort(near, near + nn);  // increasing row (a window is by range)
             }
-            for (int64_t j = 0; j < nn; ++j) add_pair(i, ci[near[j]]);
+            for (int64_t j = 0; j < nn; ++j) add_pair(i, near[j]);
             if (static_cast<int64_t>(pairs.size()) == row_start[i]) status[i] = DEGENERATE;
         }
         row_start[m] = static_cast<int64_t>(pairs.size());
@@ -696,12 +864,7 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
         zc[i * d] = zi[0] - p[BIAS_R];
         if (d == 2) zc[i * d + 1] = zi[1] - p[BIAS_B];
         hi[i] = map.L;
-        if (opt.signatures) {
-            auto range = std::equal_range(map.sig_sorted.begin(), map.sig_sorted.end(),
-                                          signature[i]);
-            lo[i] = range.first - map.sig_sorted.begin();
-            hi[i] = range.second - map.sig_sorted.begin();
-        }
+        if (opt.signatures) lo[i] = candidates[2 * i], hi[i] = candidates[2 * i + 1];
     }
     collect(opt.method == PER_LANDMARK);
     // chosen: each reading's pair (used or gated); update: the pairs of the stacked update
@@ -729,8 +892,12 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
         if (clash) {
             // The greedy run over all pairs sorted by (cost, reading, landmark). With the
             // Mahalanobis cost the pairs inside the gate come first, so they are paired first
-            // on their own; then the pairs outside, of the readings and landmarks left.
-            collect(true);
+            // on their own; then the pairs outside, of the readings and landmarks left. The
+            // pruned pairs hold every pair inside the gate, so the first pass runs on them and
+            // only the readings it leaves get all their pairs for the second (the pairs of the
+            // others cannot be taken there); with the Euclidean cost every pair may matter.
+            const bool split = opt.cost == MAHALANOBIS;
+            if (!split) collect(true);
             auto& order = w.order;
             auto& taken = w.taken;
             taken.assign(map.L, 0);
@@ -739,8 +906,24 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
                 if (a->i != b->i) return a->i < b->i;
                 return a->l < b->l;
             };
-            const bool split = opt.cost == MAHALANOBIS;
             for (int pass = 0; pass < (split ? 2 : 1); ++pass) {
+                if (pass == 1) {
+                    auto& full = w.full;
+                    full.assign(m, 0);
+                    bool left = false;
+                    for (int64_t i = 0; i < m; ++i)
+                        if (usable_with_pairs(i) && !chosen[i]) full[i] = 1, left = true;
+                    if (!left) break;
+                    // the pairs rebuilt (the same for the readings paired): chosen re-pointed
+                    for (int64_t i = 0; i < m; ++i) landmark[i] = chosen[i] ? chosen[i]->l : -1;
+                    collect(false, full.data());
+                    for (int64_t i = 0; i < m; ++i) {
+                        chosen[i] = nullptr;
+                        for (int64_t k = row_start[i]; k < row_start[i + 1] && landmark[i] >= 0; ++k)
+                            if (pairs[k].l == landmark[i]) chosen[i] = &pairs[k];
+                        landmark[i] = -1;
+                    }
+                }
                 order.clear();
                 for (const Pair& q : pairs) {
                     if (!std::isfinite(q.cost) || chosen[q.i] || taken[q.l]) continue;
@@ -933,7 +1116,8 @@ namespace {
 
 using UInt8_2 = nb::ndarray<const uint8_t, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
 
-Map make_map(Float2 landmarks, Index1 landmark_sig) {
+// The map; the signatures sorted only for signature candidates (else every row is one).
+Map make_map(Float2 landmarks, Index1 landmark_sig, bool signatures) {
     Map map;
     map.L = static_cast<int64_t>(landmarks.shape(0));
     if (landmarks.shape(1) != 2) throw nb::value_error("landmarks must be (L, 2)");
@@ -942,14 +1126,17 @@ Map make_map(Float2 landmarks, Index1 landmark_sig) {
         throw nb::value_error("landmark signatures must be (L,)");
     std::vector<int64_t> order(map.L);
     for (int64_t l = 0; l < map.L; ++l) order[l] = l;
-    const int64_t* s = landmark_sig.data();
-    std::stable_sort(order.begin(), order.end(), [&](int64_t a, int64_t b) { return s[a] < s[b]; });
-    for (int64_t l : order) {
-        map.sig_sorted.push_back(s[l]);
-        map.sig_landmark.push_back(l);
+    if (!signatures) {
+        map.rows = std::move(order);
+        return map;
     }
-    map.rows.resize(map.L);
-    for (int64_t l = 0; l < map.L; ++l) map.rows[l] = l;
+    const int64_t* s = landmark_sig.data();
+    if (!std::is_sorted(s, s + map.L))  // (sorted already: the rows are their order)
+        std::stable_sort(order.begin(), order.end(),
+                         [&](int64_t a, int64_t b) { return s[a] < s[b]; });
+    map.sig_sorted.resize(map.L);
+    for (int64_t k = 0; k < map.L; ++k) map.sig_sorted[k] = s[order[k]];
+    map.sig_landmark = std::move(order);
     return map;
 }
 
@@ -971,9 +1158,13 @@ Options make_options(int sensor, int noise_model, int method, int cost, bool sig
     return o;
 }
 
-void check_params(Float2 params, size_t B) {
-    if (params.shape(0) != B || params.shape(1) != N_PARAMS)
-        throw nb::value_error(("params must be (B, " + std::to_string(N_PARAMS) + ")").c_str());
+// The parameter rows of B filters: (B, N_PARAMS), or (1, N_PARAMS) shared by all (then the row
+// stride is 0: no copy per filter). Returns the row stride.
+size_t check_params(Float2 params, size_t B) {
+    if ((params.shape(0) != B && params.shape(0) != 1) || params.shape(1) != N_PARAMS)
+        throw nb::value_error(("params must be (B, " + std::to_string(N_PARAMS) + ") or (1, " +
+                               std::to_string(N_PARAMS) + ")").c_str());
+    return params.shape(0) == 1 ? 0 : N_PARAMS;
 }
 
 void check_filters(Float2 x, Float3 P) {
@@ -1075,13 +1266,13 @@ void register_ekf(nb::module_& m) {
             const size_t B = x.shape(0);
             if (motion.shape(0) != B || motion.shape(1) != 2)
                 throw nb::value_error("motion must be (B, 2)");
-            check_params(params, B);
+            const size_t ps = check_params(params, B);
             auto xo = new_array({B, 3}), Po = new_array({B, 3, 3});
             std::copy(x.data(), x.data() + B * 3, xo.data());
             std::copy(P.data(), P.data() + B * 9, Po.data());
             for (size_t b = 0; b < B; ++b)
                 predict_odometry(xo.data() + 3 * b, Po.data() + 9 * b, motion.data()[2 * b],
-                                 motion.data()[2 * b + 1], params.data() + b * N_PARAMS);
+                                 motion.data()[2 * b + 1], params.data() + b * ps);
             return nb::make_tuple(xo, Po);
         },
         nb::arg("x"), nb::arg("P"), nb::arg("motion"), nb::arg("params"),
@@ -1101,8 +1292,8 @@ void register_ekf(nb::module_& m) {
             if (present.shape(0) != B || present.shape(1) != mm || signature.shape(0) != B ||
                 signature.shape(1) != mm)
                 throw nb::value_error("present and signature must be (B, m)");
-            check_params(params, B);
-            const Map map = make_map(landmarks, landmark_sig);
+            const size_t ps = check_params(params, B);
+            const Map map = make_map(landmarks, landmark_sig, opt.signatures);
             // two packed outputs (one NumPy array each costs more than the arithmetic here):
             // floats per filter x (3), P (9), y (m d), S (m d d), d² (m), loglik, nis;
             // integers per filter status (m), landmark (m), dof
@@ -1111,6 +1302,7 @@ void register_ekf(nb::module_& m) {
             auto io = new_array<int64_t>({B, I});
             std::vector<int8_t> st(mm);
             std::vector<int32_t> lmo(mm);
+            std::vector<int64_t> cands(2 * mm);
             for (size_t b = 0; b < B; ++b) {
                 double* f = fo.data() + b * F;
                 int64_t* iv = io.data() + b * I;
@@ -1119,9 +1311,12 @@ void register_ekf(nb::module_& m) {
                 ReadingOut out{f + 12, f + 12 + mm * d, f + 12 + mm * (d + d * d), st.data(),
                                lmo.data()};
                 Totals totals;
+                if (opt.signatures)
+                    signature_candidates(map, static_cast<int64_t>(mm), signature.data() + b * mm,
+                                         cands.data());
                 correct_readings(f, f + 3, static_cast<int64_t>(mm), z.data() + b * mm * d,
-                                 present.data() + b * mm, signature.data() + b * mm, map,
-                                 params.data() + b * N_PARAMS, opt, out, totals);
+                                 present.data() + b * mm, cands.data(), map,
+                                 params.data() + b * ps, opt, out, totals);
                 f[F - 2] = totals.loglik;
                 f[F - 1] = totals.nis;
                 for (size_t i = 0; i < mm; ++i) iv[i] = st[i], iv[mm + i] = lmo[i];
@@ -1155,9 +1350,9 @@ void register_ekf(nb::module_& m) {
             for (size_t r = 0; r < M; ++r)
                 if (ri[r] < 0 || ri[r] > static_cast<int64_t>(K) || (r && ri[r] < ri[r - 1]))
                     throw nb::value_error("reading_index must be non-decreasing in [0, K]");
-            check_params(params, B);
+            const size_t ps = check_params(params, B);
             if (keep < 0 || keep > 2) throw nb::value_error("keep must be 0, 1 or 2");
-            const Map map = make_map(landmarks, landmark_sig);
+            const Map map = make_map(landmarks, landmark_sig, opt.signatures);
             // the time stamps with readings: readings lo[e]:lo[e + 1] at time index at[e]
             std::vector<int64_t> lo, at;
             for (size_t r = 0; r < M; ++r)
@@ -1165,6 +1360,10 @@ void register_ekf(nb::module_& m) {
             lo.push_back(static_cast<int64_t>(M));
             const size_t E = at.size();
             const size_t T = keep == 2 ? K + 1 : (keep == 1 ? E + 1 : 1);
+            // each reading's candidates (its signature's landmarks), the same for every filter
+            std::vector<int64_t> cands(opt.signatures ? 2 * M : 0);
+            if (opt.signatures)
+                signature_candidates(map, static_cast<int64_t>(M), signature.data(), cands.data());
             std::vector<Step> steps(K);
             for (size_t k = 0; k < K; ++k)
                 steps[k] = make_step(motion.data()[2 * k], motion.data()[2 * k + 1]);
@@ -1181,7 +1380,7 @@ void register_ekf(nb::module_& m) {
                     double x[3] = {x0.data()[3 * b], x0.data()[3 * b + 1], x0.data()[3 * b + 2]};
                     double P[9];
                     std::copy(P0.data() + 9 * b, P0.data() + 9 * b + 9, P);
-                    const double* p = params.data() + b * N_PARAMS;
+                    const double* p = params.data() + b * ps;
                     double* mo = mean.data() + b * T * 3;
                     double* co = cov.data() + b * T * 9;
                     auto store = [&](size_t slot) {
@@ -1202,7 +1401,8 @@ void register_ekf(nb::module_& m) {
                                        Sg.data() + o * d * d};
                             }
                             correct_readings(x, P, m, z.data() + r0 * d, nullptr,
-                                             signature.data() + r0, map, p, opt, out, totals[b]);
+                                             opt.signatures ? cands.data() + 2 * r0 : nullptr, map,
+                                             p, opt, out, totals[b]);
                             ++e;
                             if (keep == 1) store(e);
                         }

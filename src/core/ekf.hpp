@@ -81,9 +81,9 @@ struct Options {
 struct Map {
     int64_t L = 0;
     const double* xy = nullptr;        // (L, 2)
-    std::vector<int64_t> sig_sorted;   // signatures in increasing order
-    std::vector<int64_t> sig_landmark; // the landmark of each sorted signature
-    std::vector<int64_t> rows;         // 0, 1, ..., L - 1
+    std::vector<int64_t> sig_sorted;   // signatures in increasing order (signature candidates)
+    std::vector<int64_t> sig_landmark; // the landmark of each sorted signature (ditto)
+    std::vector<int64_t> rows;         // 0, 1, ..., L - 1 (every landmark a candidate)
 };
 
 // What one correction reports per reading (pointers into the caller's arrays; may be null).
@@ -127,9 +127,16 @@ bool kalman_update(int n, int D, double* x, double* P, const double* y, const do
 // notes), compounded x ⊕ Δ with P⁻ = Gx P Gxᵀ + Gu C Guᵀ.
 void predict_odometry(double* x, double* P, double ds, double dth, const double* params);
 
-// The correction of one pose filter (x, P) with the m readings z (m × d) of one time stamp.
+// The candidates of m readings of signatures signature (m): reading i's are the landmarks
+// map.sig_landmark[candidates[2i] .. candidates[2i + 1]) (a reading's signature is looked up
+// once, not once per filter).
+void signature_candidates(const Map& map, int64_t m, const int64_t* signature,
+                          int64_t* candidates);
+
+// The correction of one pose filter (x, P) with the m readings z (m × d) of one time stamp;
+// with signature association, candidates (2m) from signature_candidates.
 void correct_readings(double* x, double* P, int64_t m, const double* z, const uint8_t* present,
-                      const int64_t* signature, const Map& map, const double* params,
+                      const int64_t* candidates, const Map& map, const double* params,
                       const Options& opt, ReadingOut out, Totals& totals);
 
 void register_ekf(nb::module_& m);

@@ -53,7 +53,7 @@ def read_only(arr: FloatArray, shape: tuple[int, ...]) -> FloatArray:
     if arr.shape != shape:
         return np.broadcast_to(arr, shape)
     view = arr.view()
-    view.flags.writeable = False
+    view.setflags(write=False)  # (not view.flags.writeable = False: that builds a flags object)
     return view
 
 

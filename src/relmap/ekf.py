@@ -269,6 +269,14 @@ def _ones(B: int, m: int) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=64)
+def _zeros(B: int, m: int) -> np.ndarray:
+    """A read-only (B, m) int64 array of zeros (signatures unused), cached."""
+    a = np.zeros((B, m), np.int64)
+    a.flags.writeable = False
+    return a
+
+
+@functools.lru_cache(maxsize=64)
 def _sensor_params(
     sigma_r: float, sigma_b: float, mount: tuple[float, ...], nu: float
 ) -> FloatArray:
@@ -326,9 +334,8 @@ def predict(
         batch = np.broadcast_shapes(x.shape[:-1], m.shape[:-1])
         B = int(np.prod(batch))
         xo, Po = _core.ekf_predict_odometry(
-            _flat(x, batch, (3,)), _flat(P, batch, (3, 3)), _flat(m, batch, (2,)),
-            np.repeat(k, B, axis=0),
-        )  # fmt: skip
+            _flat(x, batch, (3,)), _flat(P, batch, (3, 3)), _flat(m, batch, (2,)), k
+        )  # (k: one parameter row, shared by the filters)
         return AT._trusted(xo.reshape(*batch, 3), Po.reshape(*batch, 3, 3))
     batch = np.broadcast_shapes(x.shape[:-1], m.shape[:-1])
     step = _step_ats(m, model, integration, drive)
@@ -538,6 +545,13 @@ def _map(
     return lm, sig
 
 
+def _ndim(a: object) -> int:
+    """``np.ndim(a)``, without its cost for None and arrays (called every step)."""
+    if a is None:
+        return 0
+    return a.ndim if isinstance(a, np.ndarray) else np.ndim(a)
+
+
 def _rows(a: ArrayLike, dtype: type, batch: tuple[int, ...], m: int) -> np.ndarray:
     """``a`` broadcast to ``(*batch, m)`` as a C-contiguous ``(B, m)`` array of ``dtype``
     (no broadcast when it has that shape already: np.broadcast_to costs microseconds)."""
@@ -597,7 +611,7 @@ def correct_landmarks(
     m = z.shape[-2]
     lm, lsig = _map(landmarks, landmark_signatures)
     a, method, cost = _association(associate, pairing, signatures is not None)
-    if state.ndim == 0 and z.ndim == 2 and np.ndim(valid) <= 1 and np.ndim(signatures) <= 1:
+    if state.ndim == 0 and z.ndim == 2 and _ndim(valid) <= 1 and _ndim(signatures) <= 1:
         batch: tuple[int, ...] = ()  # one filter, one scan: no broadcasting to work out
     else:
         batch = np.broadcast_shapes(state.batch_shape, z.shape[:-2])
@@ -607,14 +621,12 @@ def correct_landmarks(
             batch = np.broadcast_shapes(batch, np.shape(signatures)[:-1])
     B = math.prod(batch)
     present = _ones(B, m) if valid is None else _rows(valid, bool, batch, m).view(np.uint8)
-    sig = np.zeros((B, m), np.int64) if signatures is None else _rows(
+    sig = _zeros(B, m) if signatures is None else _rows(
         signatures, np.int64, batch, m
     )  # fmt: skip
     params = _sensor_params(
         sensor.sigma_range, sensor.sigma_bearing, tuple(sensor.mount.tolist()), float(nu)
     )
-    if B != 1:
-        params = np.repeat(params, B, axis=0)
     gate2, joint = _gates(gate, d, m if a is Association.JCBB else 0)
     if batch == ():  # one filter: no broadcasting
         x, P, zz = state.mean[None], state.cov[None], np.ascontiguousarray(z)[None]
@@ -627,16 +639,14 @@ def correct_landmarks(
         _JCBB_NODES,
     )  # fmt: skip
     f, i = r  # packed: see the core's ekf_correct_readings
-    e = 12 + m * d
-    y, S = f[:, 12:e].reshape(*batch, m, d), f[:, e : e + m * d * d].reshape(*batch, m, d, d)
+    f, i = f.reshape(*batch, f.shape[1]), i.reshape(*batch, i.shape[1])
+    e, e2 = 12 + m * d, 12 + m * d + m * d * d
+    y, S = f[..., 12:e].reshape(*batch, m, d), f[..., e:e2].reshape(*batch, m, d, d)
     if range_only:
         y, S = y[..., 0], S[..., 0, 0]
     return LandmarkUpdate(
-        AT._trusted(f[:, :3].reshape(*batch, 3), f[:, 3:12].reshape(*batch, 3, 3)),
-        i[:, m : 2 * m].reshape(*batch, m),
-        f[:, e + m * d * d : e + m * d * d + m].reshape(*batch, m),
-        i[:, :m].reshape(*batch, m),
-        y, S, f[:, -2].reshape(batch), f[:, -1].reshape(batch),
+        AT._trusted(f[..., :3], f[..., 3:12].reshape(*batch, 3, 3)), i[..., m : 2 * m],
+        f[..., e2 : e2 + m], i[..., :m], y, S, f[..., -2], f[..., -1],
     )  # fmt: skip
 
 
