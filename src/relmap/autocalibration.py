@@ -261,7 +261,9 @@ def logpdf(d2: ArrayLike, logdet: ArrayLike, d: int, nu: ArrayLike) -> FloatArra
     The density is relmap's compiled one (the filter's likelihood, scale parametrization), at
     the scale's Mahalanobis distance ``d2 ν/(ν - 2)`` and log-determinant
     ``logdet + d log((ν - 2)/ν)``."""
-    d2, logdet, v = np.broadcast_arrays(*(np.asarray(a, dtype=np.float64) for a in (d2, logdet, nu)))
+    d2, logdet, v = np.broadcast_arrays(
+        *(np.asarray(a, dtype=np.float64) for a in (d2, logdet, nu))
+    )
     with np.errstate(invalid="ignore", divide="ignore"):
         ratio = np.where(np.isinf(v), 1.0, (v - 2.0) / v)  # scale / covariance
         args = (d2 / ratio, logdet + d * np.log(ratio), v)
