@@ -292,6 +292,39 @@ def loglik(out, nu, d=2):
 
 
 # ----------------------------------------------------------------------------- fitting
+def ascend(f, x, tol, max_evals, *, keep_going):
+    """Coordinate ascent of ``f`` from ``x`` in steps of log 2, halved whenever no move gains,
+    until below ``tol`` or ``max_evals`` evaluations; ``keep_going``: a move that gains is
+    repeated while it gains. Returns ``(x, f(x), evaluations)``."""
+    best, step, evals = f(x), math.log(2.0), 1
+
+    def moved(x, j, sgn):
+        xt = x.copy()
+        xt[j] += sgn * step
+        return xt
+
+    while step > tol and evals < max_evals:
+        gained = False
+        for j in range(len(x)):
+            for sgn in (1, -1):
+                xt = moved(x, j, sgn)
+                v = f(xt)
+                evals += 1
+                if v > best + 1e-6:
+                    x, best, gained = xt, v, True
+                    while keep_going:  # the same way while it gains
+                        xt = moved(x, j, sgn)
+                        v = f(xt)
+                        evals += 1
+                        if not v > best + 1e-6:
+                            break
+                        x, best = xt, v
+                    break
+        if not gained:
+            step /= 2
+    return x, best, evals
+
+
 def fit_bias(log, lm, p, start, comp, nu, sigma, d=2, per="landmark", iters=30, parts=None,
              x0=None, tol=math.log(1.02)):
     """Maximum likelihood of (σ_w, σ_c, τ) for range (and bearing) by coordinate ascent in
@@ -309,32 +342,7 @@ def fit_bias(log, lm, p, start, comp, nu, sigma, d=2, per="landmark", iters=30, 
         c = comp if parts is None else with_k(parts, v[3 * d:])
         return loglik(run_bias(log, lm, p, start, b, c, d=d, keep_all=False), nu, d)
 
-    best = f(x)
-    step = math.log(2.0)
-    evals = 1
-    while step > tol and evals < 400:
-        gained = False
-        for j in range(len(x)):
-            for sgn in (1, -1):
-                xt = x.copy()
-                xt[j] += sgn * step
-                v = f(xt)
-                evals += 1
-                if v > best + 1e-6:
-                    x, best, gained = xt, v, True
-                    # keep going the same way
-                    while True:
-                        xt = x.copy()
-                        xt[j] += sgn * step
-                        v = f(xt)
-                        evals += 1
-                        if v > best + 1e-6:
-                            x, best = xt, v
-                        else:
-                            break
-                    break
-        if not gained:
-            step /= 2
+    x, best, evals = ascend(f, x, tol, 400, keep_going=True)
     v = np.exp(x)
     return Bias(v[:d], v[d:2 * d], v[2 * d:3 * d], per), best, evals, v[3 * d:]
 
@@ -402,20 +410,7 @@ def fit_total(log, lm, p, start, parts, nu, share, tau, per, d=2, tol=math.log(1
         c = with_k(parts, v[d:])
         return loglik(run_bias(log, lm, p, start, bias(v), c, d=d, keep_all=False), nu, d)
 
-    best, step, evals = f(x), math.log(2.0), 1
-    while step > tol and evals < 300:
-        gained = False
-        for j in range(len(x)):
-            for sgn in (1, -1):
-                xt = x.copy()
-                xt[j] += sgn * step
-                v = f(xt)
-                evals += 1
-                if v > best + 1e-6:
-                    x, best, gained = xt, v, True
-                    break
-        if not gained:
-            step /= 2
+    x, best, evals = ascend(f, x, tol, 300, keep_going=False)
     v = np.exp(x)
     return bias(v), v[d:], best, evals
 
