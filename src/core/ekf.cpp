@@ -378,6 +378,13 @@ inline double mahalanobis2(const Predicted& pr, const double* v, int d) {
     return (v[0] * v[0] * pr.S[3] - 2.0 * v[0] * v[1] * pr.S[1] + v[1] * v[1] * pr.S[0]) / pr.det;
 }
 
+// A pair's innovation v (d) given the correction δ (3) of the pairs before it: v - H δ.
+inline void innovation_given(int d, const double* v, const double* H, const double* delta,
+                             double* out) {
+    for (int a = 0; a < d; ++a)
+        out[a] = v[a] - H[3 * a] * delta[0] - H[3 * a + 1] * delta[1] - H[3 * a + 2] * delta[2];
+}
+
 // One pair's block of the stacked correction, on the running (δ, P) of a pose filter (see
 // kalman_block), with the pair's noise R (d, diagonal) divided by weight w.
 // y_out (d), S_out (d × d) if non-null: the block's innovation y' = y - H δ and its S.
@@ -388,10 +395,7 @@ inline bool pair_block(int d, double* delta, double* P, const Pair& q, const Pre
     const double R[4] = {w == 1.0 ? pr.R[0] : pr.R[0] / w, w == 1.0 ? pr.Rx : pr.Rx / w,
                          w == 1.0 ? pr.Rx : pr.Rx / w,
                          d == 2 ? (w == 1.0 ? pr.R[1] : pr.R[1] / w) : 0.0};
-    if (y_out)
-        for (int a = 0; a < d; ++a)
-            y_out[a] = q.v[a] - pr.H[3 * a] * delta[0] - pr.H[3 * a + 1] * delta[1] -
-                       pr.H[3 * a + 2] * delta[2];
+    if (y_out) innovation_given(d, q.v, pr.H, delta, y_out);
     if (d == 2) return kalman_block<3, 2>(3, 2, delta, P, q.v, pr.H, R, S_out, nis, logdet);
     return kalman_block<3, 1>(3, 1, delta, P, q.v, pr.H, R, S_out, nis, logdet);
 }
@@ -1100,9 +1104,7 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
         if (status[i] == GATED && given_ok && has) {  // given the used readings (if any)
             Predicted g = pred[q->l];
             innovation_cov(g, PL, d);
-            for (int a = 0; a < d; ++a)
-                out.y_given[i * d + a] =
-                    q->v[a] - g.H[3 * a] * dL[0] - g.H[3 * a + 1] * dL[1] - g.H[3 * a + 2] * dL[2];
+            innovation_given(d, q->v, g.H, dL, out.y_given + i * d);
             std::copy(g.S, g.S + d * d, out.S_given + i * d * d);
         } else {
             for (int a = 0; a < d; ++a) out.y_given[i * d + a] = NaN;
