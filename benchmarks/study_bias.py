@@ -480,7 +480,7 @@ def main() -> None:
         else:
             data = read_mrclam(DATA / "landmarks" / "mrclam6")
         rec = recording(data, robot)
-        log = rec.log(cal.delay, cal.scale)
+        log = rec.log(*cal.clock)
         assert np.allclose(log.t, c["t"]), "log differs from the localization's"
         p = cal.parameters
         start = _start(c["truth"][0])

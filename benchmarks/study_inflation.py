@@ -100,7 +100,7 @@ def sim(steps: int, seeds: list[int], gate: float) -> None:
         cal = autocalibration.calibrate(rec, LANDMARKS, start=start, gate=gate,
                                         landmark_signatures=signatures)  # fmt: skip
         took = time.perf_counter() - t0
-        log = rec.log(cal.delay)
+        log = rec.log(*cal.clock)
 
         def loglik(p: ekf.NoiseParameters, nu: float, log: ekf.Log = log) -> float:
             tr = ekf.run(log, LANDMARKS, p._replace(nu=np.inf, inflation=1.0), start=start(0.0),

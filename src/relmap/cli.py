@@ -374,7 +374,7 @@ def _localize(args: argparse.Namespace) -> int:
         args.calibrate_from = int(number)
     stages = (
         "estimating the noise from the run's innovations",
-        "searching the odometry's clock offset",
+        "searching the odometry's clock offset and turn-rate bias",
         "refining the noise",
         "measuring the innovations' whiteness",
         "running the filter",
@@ -420,6 +420,7 @@ def _localize(args: argparse.Namespace) -> int:
         source = (
             f"this run's innovations (clock offset {cal.delay:g} s"
             + (f", range scale {cal.scale:g}" if ranges_only else "")
+            + (f", turn-rate bias {cal.turn_bias:.3g} rad/s" if cal.turn_bias else "")
             + f"; update σ ×{cal.inflation:.2f} for correlated readings, ρ "
             + f"{cal.correlation[0]:.2f})"
         )
