@@ -62,8 +62,8 @@ never read. Three stages, each a standard tool of filter tuning:
    ``benchmarks/study_bias.py``.)
 
 Every constant of the method is fixed here, once, for all runs (:data:`START`, :data:`DELAYS`,
-:data:`SCALES`, :data:`TURN_BIASES`, :data:`PAIR_GAP`, :data:`WHITENING_PASSES`, :data:`ITERATIONS`,
-:data:`COARSE`, :data:`REFINE_STEPS`, :data:`FINE`).
+:data:`SCALES`, :data:`TURN_BIASES`, :data:`PAIR_GAP`, :data:`WHITENING_PASSES`,
+:data:`ITERATIONS`, :data:`COARSE`, :data:`REFINE_STEPS`, :data:`FINE`).
 """
 
 from __future__ import annotations
