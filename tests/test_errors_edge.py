@@ -305,6 +305,22 @@ def test_map_files_refuse_with_file_name(tmp_path, name, text, message):
     assert str(info.value).startswith(str(p))
 
 
+@pytest.mark.parametrize(
+    "text",
+    ["[" * 100_000 + "]" * 100_000, "a:\n" + "".join(" " * k + "a:\n" for k in range(1, 3000))],
+)
+def test_deep_yaml_without_libyaml_is_refused(tmp_path, monkeypatch, text):
+    """PyYAML without its C parser (no libyaml on the platform): the pure-Python composer
+    recurses, and the RecursionError is said as the nesting, naming the file."""
+    import yaml
+
+    monkeypatch.delattr(yaml, "CSafeLoader", raising=False)
+    p = _write(tmp_path, "deep.yaml", text)
+    with pytest.raises(FileFormatError, match="nested too deeply") as info:
+        load_map(p)
+    assert str(info.value).startswith(str(p))
+
+
 def test_non_utf8_bytes_name_file_and_line(tmp_path):
     p = _write(tmp_path, "m.yaml", b"ats:\n  - {from: a, to: b\xff, mean: [1, 2, 3]}\n")
     with pytest.raises(FileFormatError, match=r"m\.yaml:2: not UTF-8"):
