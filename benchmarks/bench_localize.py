@@ -2,7 +2,7 @@
 gives, how long it takes, and what the noise from another run's ground truth gave.
 
 For each MRCLAM robot and association mode (signatures, mahalanobis, jcbb) and for CMU Plaza:
-the autocalibration's wall-clock time, its clock offset, whitening factor and the innovations'
+the autocalibration's wall-clock time, its clock offset, turn-rate bias, whitening factor and the innovations'
 correlation before it, and the filter's scores against the ground truth (position RMSE,
 coverage of the 90% ellipse, ANEES). ``--from-run`` adds the filters with the noise of the next
 robot's run against its ground truth (the default before autocalibration). The #14 targets are
@@ -27,7 +27,8 @@ DATA = Path(os.environ.get("RELMAP_DATA", Path(__file__).resolve().parents[2] / 
 def row(name: str, run, seconds: float | None) -> str:
     s, cal = run.score, run.calibration
     how = (
-        f"{seconds:5.1f} s  delay {cal.delay:4.2f} s  σ ×{cal.inflation:4.2f}  ρ {cal.correlation[0]:4.2f}"
+        f"{seconds:5.1f} s  delay {cal.delay:4.2f} s  bias {cal.turn_bias:+.4f} rad/s  "
+        f"σ ×{cal.inflation:4.2f}  ρ {cal.correlation[0]:4.2f}"
         if seconds is not None
         else f"{'from ' + cal.trained_on:>40s}"
     )
