@@ -1113,34 +1113,22 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
     }
 }
 
+Map::Map(int64_t L_, const double* xy_, const int64_t* s) : L(L_), store(xy_, xy_ + 2 * L_) {
+    xy = store.data();
+    rows.resize(L);
+    for (int64_t l = 0; l < L; ++l) rows[l] = l;
+    sig_landmark = rows;
+    if (!std::is_sorted(s, s + L))  // (sorted already: the rows are their order)
+        std::stable_sort(sig_landmark.begin(), sig_landmark.end(),
+                         [&](int64_t a, int64_t b) { return s[a] < s[b]; });
+    sig_sorted.resize(L);
+    for (int64_t k = 0; k < L; ++k) sig_sorted[k] = s[sig_landmark[k]];
+}
+
 // ----------------------------------------------------------------------------- bindings
 namespace {
 
 using UInt8_2 = nb::ndarray<const uint8_t, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
-
-// The map; the signatures sorted only for signature candidates (else every row is one).
-Map make_map(Float2 landmarks, Index1 landmark_sig, bool signatures) {
-    Map map;
-    map.L = static_cast<int64_t>(landmarks.shape(0));
-    if (landmarks.shape(1) != 2) throw nb::value_error("landmarks must be (L, 2)");
-    map.xy = landmarks.data();
-    if (static_cast<int64_t>(landmark_sig.shape(0)) != map.L)
-        throw nb::value_error("landmark signatures must be (L,)");
-    std::vector<int64_t> order(map.L);
-    for (int64_t l = 0; l < map.L; ++l) order[l] = l;
-    if (!signatures) {
-        map.rows = std::move(order);
-        return map;
-    }
-    const int64_t* s = landmark_sig.data();
-    if (!std::is_sorted(s, s + map.L))  // (sorted already: the rows are their order)
-        std::stable_sort(order.begin(), order.end(),
-                         [&](int64_t a, int64_t b) { return s[a] < s[b]; });
-    map.sig_sorted.resize(map.L);
-    for (int64_t k = 0; k < map.L; ++k) map.sig_sorted[k] = s[order[k]];
-    map.sig_landmark = std::move(order);
-    return map;
-}
 
 Options make_options(int sensor, int noise_model, int method, int cost, bool signatures,
                      double gate2, Float1 joint_gate2, int64_t jcbb_nodes) {
@@ -1218,6 +1206,20 @@ void register_ekf(nb::module_& m) {
         nb::arg("d2"), nb::arg("logdet"), nb::arg("D"), nb::arg("nu"),
         "Log-density (n,) of the normal (nu inf) or the Student-t with scale S and nu dof, at "
         "Mahalanobis d2 = yᵀS⁻¹y with logdet = log det S.");
+    nb::class_<Map>(m, "EkfMap",
+                    "A landmark map checked and prepared once (internal: see "
+                    "relmap.ekf.LandmarkMap).")
+        .def(
+            "__init__",
+            [](Map* self, Float2 landmarks, Index1 signatures) {
+                if (landmarks.shape(1) != 2) throw nb::value_error("landmarks must be (L, 2)");
+                if (signatures.shape(0) != landmarks.shape(0))
+                    throw nb::value_error("landmark signatures must be (L,)");
+                new (self) Map(static_cast<int64_t>(landmarks.shape(0)), landmarks.data(),
+                               signatures.data());
+            },
+            nb::arg("landmarks"), nb::arg("signatures"))
+        .def_prop_ro("L", [](const Map& map) { return map.L; });
     m.def(
         "ekf_predict_covariance",
         [](Float3 P, Float3 F, Float3 Q) {
@@ -1282,8 +1284,8 @@ void register_ekf(nb::module_& m) {
 
     m.def(
         "ekf_correct_readings",
-        [](Float2 x, Float3 P, Float3 z, UInt8_2 present, Index2 signature, Float2 landmarks,
-           Index1 landmark_sig, Float2 params, int sensor, int noise_model, int method, int cost,
+        [](Float2 x, Float3 P, Float3 z, UInt8_2 present, Index2 signature, const Map& map,
+           Float2 params, int sensor, int noise_model, int method, int cost,
            bool signatures, double gate2, Float1 joint_gate2, int64_t jcbb_nodes) {
             check_filters(x, P);
             const size_t B = x.shape(0), mm = z.shape(1), d = z.shape(2);
@@ -1295,7 +1297,6 @@ void register_ekf(nb::module_& m) {
                 signature.shape(1) != mm)
                 throw nb::value_error("present and signature must be (B, m)");
             const size_t ps = check_params(params, B);
-            const Map map = make_map(landmarks, landmark_sig, opt.signatures);
             // two packed outputs (one NumPy array each costs more than the arithmetic here):
             // floats per filter x (3), P (9), y (m d), S (m d d), d² (m), loglik, nis;
             // integers per filter status (m), landmark (m), dof
@@ -1327,7 +1328,7 @@ void register_ekf(nb::module_& m) {
             return nb::make_tuple(fo, io);
         },
         nb::arg("x"), nb::arg("P"), nb::arg("z"), nb::arg("present"), nb::arg("signature"),
-        nb::arg("landmarks"), nb::arg("landmark_sig"), nb::arg("params"), nb::arg("sensor"),
+        nb::arg("map"), nb::arg("params"), nb::arg("sensor"),
         nb::arg("noise_model"), nb::arg("method"), nb::arg("cost"), nb::arg("signatures"),
         nb::arg("gate2"), nb::arg("joint_gate2"), nb::arg("jcbb_nodes"),
         "Association, gating and one stacked correction per filter of the readings of one time "
@@ -1336,7 +1337,7 @@ void register_ekf(nb::module_& m) {
     m.def(
         "ekf_run",
         [](Float2 x0, Float3 P0, Float2 motion, Index1 reading_index, Float2 z, Index1 signature,
-           Float2 landmarks, Index1 landmark_sig, Float2 params, int sensor, int noise_model,
+           const Map& map, Float2 params, int sensor, int noise_model,
            int method, int cost, bool signatures, double gate2, Float1 joint_gate2,
            int64_t jcbb_nodes, int keep, bool readings_out) {
             check_filters(x0, P0);
@@ -1354,7 +1355,6 @@ void register_ekf(nb::module_& m) {
                     throw nb::value_error("reading_index must be non-decreasing in [0, K]");
             const size_t ps = check_params(params, B);
             if (keep < 0 || keep > 2) throw nb::value_error("keep must be 0, 1 or 2");
-            const Map map = make_map(landmarks, landmark_sig, opt.signatures);
             // the time stamps with readings: readings lo[e]:lo[e + 1] at time index at[e]
             std::vector<int64_t> lo, at;
             for (size_t r = 0; r < M; ++r)
@@ -1433,8 +1433,7 @@ void register_ekf(nb::module_& m) {
             return res;
         },
         nb::arg("x0"), nb::arg("P0"), nb::arg("motion"), nb::arg("reading_index"), nb::arg("z"),
-        nb::arg("signature"), nb::arg("landmarks"), nb::arg("landmark_sig"), nb::arg("params"),
-        nb::arg("sensor"), nb::arg("noise_model"), nb::arg("method"), nb::arg("cost"),
+        nb::arg("signature"), nb::arg("map"), nb::arg("params"), nb::arg("sensor"), nb::arg("noise_model"), nb::arg("method"), nb::arg("cost"),
         nb::arg("signatures"), nb::arg("gate2"), nb::arg("joint_gate2"), nb::arg("jcbb_nodes"),
         nb::arg("keep"), nb::arg("readings_out"),
         "A batch of pose filters over one log: predict each odometry step, correct at the time "

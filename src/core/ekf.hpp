@@ -76,14 +76,22 @@ struct Options {
     int64_t jcbb_nodes = 10000;        // JCBB: search nodes at most (then the best so far)
 };
 
-// The map: landmark positions and, for signature association, their signatures sorted with
-// the landmark of each.
+// The map: landmark positions and their signatures, checked and prepared once (Python's
+// relmap.ekf.LandmarkMap holds one): the signatures sorted with the landmark of each (signature
+// candidates) and the rows 0..L-1 (every landmark a candidate). Owns its data.
 struct Map {
     int64_t L = 0;
-    const double* xy = nullptr;        // (L, 2)
+    const double* xy = nullptr;        // (L, 2), into store
     std::vector<int64_t> sig_sorted;   // signatures in increasing order (signature candidates)
     std::vector<int64_t> sig_landmark; // the landmark of each sorted signature (ditto)
     std::vector<int64_t> rows;         // 0, 1, ..., L - 1 (every landmark a candidate)
+
+    Map(int64_t L, const double* xy, const int64_t* signatures);
+    Map(const Map&) = delete;
+    Map& operator=(const Map&) = delete;
+
+  private:
+    std::vector<double> store;
 };
 
 // What one correction reports per reading (pointers into the caller's arrays; may be null).

@@ -95,6 +95,7 @@ __all__ = [
     "Belief",
     "Correction",
     "Keep",
+    "LandmarkMap",
     "LandmarkUpdate",
     "Log",
     "Motion",
@@ -529,20 +530,66 @@ def _gates(gate: float, d: int, k: int) -> tuple[float, FloatArray]:
     return float(gaussian.confidence_k2(gate, d)), joint
 
 
-def _map(
-    landmarks: ArrayLike, landmark_signatures: ArrayLike | None
-) -> tuple[FloatArray, IntArray]:
-    lm = np.ascontiguousarray(landmarks, dtype=np.float64)
-    if lm.ndim != 2 or lm.shape[1] != 2:
-        raise ShapeError(f"landmarks must have shape (L, 2); got {lm.shape}")
-    if not np.isfinite(lm).all():
-        raise NonFiniteError("landmark positions must be finite")
-    if landmark_signatures is None:
-        return lm, np.arange(len(lm), dtype=np.int64)
-    sig = np.ascontiguousarray(landmark_signatures, dtype=np.int64)
-    if sig.shape != (len(lm),):
-        raise ShapeError(f"landmark_signatures must have shape ({len(lm)},); got {sig.shape}")
-    return lm, sig
+class LandmarkMap:
+    """A map of point landmarks, checked once: positions ``xy`` (L, 2) in the world frame and
+    integer ``signatures`` (L,) (e.g. barcodes; default the rows 0..L-1), read-only.
+
+    :func:`correct_landmarks` and :func:`run` take one in place of the positions array (an
+    array given there is made into one at each call, through this class): a filter that
+    corrects at every step with one map builds it once, and the checks (shapes, finite
+    positions) and the core's preparation (the signatures sorted) are not redone at every step.
+    Landmarks are referred to by their row, as ``LandmarkUpdate.landmark`` reports them.
+
+    >>> import numpy as np, relmap as rm
+    >>> from relmap import ekf
+    >>> from relmap.sensors import RangeBearingSensor
+    >>> landmarks = ekf.LandmarkMap([[4.0, 0.0], [0.0, 3.0]], signatures=[17, 42])
+    >>> prior = rm.AT([0.0, 0.0, 0.0], np.diag([0.1, 0.1, 0.01]))
+    >>> sensor = RangeBearingSensor(0.1, 0.01)
+    >>> up = ekf.correct_landmarks(prior, [[3.1, 1.6]], sensor, landmarks,
+    ...                            associate="signatures", signatures=[42])
+    >>> print(up.landmark, up.status)  # the row of signature 42, used
+    [1] [0]
+    """
+
+    __slots__ = ("_core", "signatures", "xy")
+    xy: FloatArray
+    signatures: IntArray
+
+    def __init__(self, xy: ArrayLike, signatures: ArrayLike | None = None) -> None:
+        lm = np.array(xy, dtype=np.float64)
+        if lm.ndim != 2 or lm.shape[1] != 2:
+            raise ShapeError(f"landmarks must have shape (L, 2); got {lm.shape}")
+        if not np.isfinite(lm).all():
+            raise NonFiniteError("landmark positions must be finite")
+        if signatures is None:
+            sig = np.arange(len(lm), dtype=np.int64)
+        else:
+            sig = np.array(signatures, dtype=np.int64)
+            if sig.shape != (len(lm),):
+                raise ShapeError(
+                    f"landmark_signatures must have shape ({len(lm)},); got {sig.shape}"
+                )
+        lm.flags.writeable = sig.flags.writeable = False
+        self.xy, self.signatures = lm, sig
+        self._core = _core.EkfMap(lm, sig)
+
+    def __len__(self) -> int:
+        return len(self.xy)
+
+    def __repr__(self) -> str:
+        return f"LandmarkMap({len(self)} landmarks)"
+
+
+def _landmark_map(landmarks: LandmarkMap | ArrayLike, signatures: ArrayLike | None) -> LandmarkMap:
+    """``landmarks`` as a :class:`LandmarkMap` (an array checked and prepared here)."""
+    if isinstance(landmarks, LandmarkMap):
+        if signatures is not None:
+            raise ParameterError(
+                "landmark_signatures belong to the LandmarkMap: give them when building it"
+            )
+        return landmarks
+    return LandmarkMap(landmarks, signatures)
 
 
 def _ndim(a: object) -> int:
@@ -565,7 +612,7 @@ def correct_landmarks(
     state: AT,
     readings: ArrayLike,
     sensor: RangeBearingSensor,
-    landmarks: ArrayLike,
+    landmarks: LandmarkMap | ArrayLike,
     *,
     associate: Association | str = Association.MAHALANOBIS,
     pairing: Pairing | str = Pairing.ONE_TO_ONE,
@@ -609,7 +656,7 @@ def correct_landmarks(
             f"readings must have shape (..., m{', 2' if d == 2 else ''}); got {z.shape}"
         )
     m = z.shape[-2]
-    lm, lsig = _map(landmarks, landmark_signatures)
+    lmap = _landmark_map(landmarks, landmark_signatures)
     a, method, cost = _association(associate, pairing, signatures is not None)
     if state.ndim == 0 and z.ndim == 2 and _ndim(valid) <= 1 and _ndim(signatures) <= 1:
         batch: tuple[int, ...] = ()  # one filter, one scan: no broadcasting to work out
@@ -634,7 +681,7 @@ def correct_landmarks(
         x, P = _flat(state.mean, batch, (3,)), _flat(state.cov, batch, (3, 3))
         zz = _flat(z, batch, (m, d))
     r = _core.ekf_correct_readings(
-        x, P, zz, present, sig, lm, lsig, params, 1 if range_only else 0,
+        x, P, zz, present, sig, lmap._core, params, 1 if range_only else 0,
         _NOISE_MODELS[sensor.noise_model], method, cost, signatures is not None, gate2, joint,
         _JCBB_NODES,
     )  # fmt: skip
@@ -767,7 +814,7 @@ class Trace(NamedTuple):
 
 def run(
     log: Log,
-    landmarks: ArrayLike,
+    landmarks: LandmarkMap | ArrayLike,
     params: NoiseParameters,
     *,
     start: AT,
@@ -816,7 +863,7 @@ def run(
     use_sig = a is Association.SIGNATURES  # else signatures only label the readings
     sig = (np.zeros(M, np.int64) if log.signature is None
            else np.ascontiguousarray(log.signature, dtype=np.int64))  # fmt: skip
-    lm, lsig = _map(landmarks, landmark_signatures)
+    lmap = _landmark_map(landmarks, landmark_signatures)
     p = params.array()
     batch = params.batch_shape
     B = len(p)
@@ -828,7 +875,7 @@ def run(
     P0 = _flat(start.cov, batch, (3, 3)).reshape(B, 3, 3)
     keep_code = {"summary": 0, "events": 1, "all": 2}[kp.value]
     r = _core.ekf_run(
-        x0, P0, motion, index, z, sig, lm, lsig, p, 1 if d == 1 else 0,
+        x0, P0, motion, index, z, sig, lmap._core, p, 1 if d == 1 else 0,
         _NOISE_MODELS[noise_model], method, cost, use_sig, gate2, joint, _JCBB_NODES, keep_code,
         readings,
     )  # fmt: skip
