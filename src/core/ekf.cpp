@@ -1128,8 +1128,6 @@ Map::Map(int64_t L_, const double* xy_, const int64_t* s) : L(L_), store(xy_, xy
 // ----------------------------------------------------------------------------- bindings
 namespace {
 
-using UInt8_2 = nb::ndarray<const uint8_t, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
-
 Options make_options(int sensor, int noise_model, int method, int cost, bool signatures,
                      double gate2, Float1 joint_gate2, int64_t jcbb_nodes) {
     if (sensor < 0 || sensor > 1) throw nb::value_error("unknown sensor kind");
@@ -1265,50 +1263,65 @@ void register_ekf(nb::module_& m) {
 
     m.def(
         "ekf_predict_odometry",
-        [](Float2 x, Float3 P, Float2 motion, Float2 params) {
-            check_filters(x, P);
-            const size_t B = x.shape(0);
-            if (motion.shape(0) != B || motion.shape(1) != 2)
-                throw nb::value_error("motion must be (B, 2)");
+        [](FloatN x, FloatN P, FloatN motion, Float2 params) {
+            const size_t n = x.ndim();
+            if (n < 1 || x.shape(n - 1) != 3 || P.ndim() != n + 1 || P.shape(n) != 3 ||
+                P.shape(n - 1) != 3 || motion.ndim() < 1 || motion.shape(motion.ndim() - 1) != 2)
+                throw nb::value_error("x must be (..., 3), P (..., 3, 3) and motion (..., 2)");
+            const size_t B = x.size() / 3;
+            if (P.size() != 9 * B || motion.size() != 2 * B)
+                throw nb::value_error("x, P and motion must have one batch");
+            const double* mo = motion.data();
+            for (size_t k = 0; k < 2 * B; ++k)
+                if (!std::isfinite(mo[k]))
+                    raise_relmap_error("NonFiniteError",
+                                       "odometry steps must be finite; (Δs, Δθ) of filter " +
+                                           std::to_string(k / 2) + " has " +
+                                           std::to_string(mo[k]));
             const size_t ps = check_params(params, B);
-            auto xo = new_array({B, 3}), Po = new_array({B, 3, 3});
-            std::copy(x.data(), x.data() + B * 3, xo.data());
-            std::copy(P.data(), P.data() + B * 9, Po.data());
+            auto xo = new_result_like(x, n), Po = new_result_like(P, n + 1);
+            std::copy(x.data(), x.data() + B * 3, xo.data);
+            std::copy(P.data(), P.data() + B * 9, Po.data);
             for (size_t b = 0; b < B; ++b)
-                predict_odometry(xo.data() + 3 * b, Po.data() + 9 * b, motion.data()[2 * b],
-                                 motion.data()[2 * b + 1], params.data() + b * ps);
-            return nb::make_tuple(xo, Po);
+                predict_odometry(xo.data + 3 * b, Po.data + 9 * b, mo[2 * b], mo[2 * b + 1],
+                                 params.data() + b * ps);
+            return nb::make_tuple(xo.array, Po.array);
         },
         nb::arg("x"), nb::arg("P"), nb::arg("motion"), nb::arg("params"),
-        "One odometry prediction (midpoint, DistanceNoise) per filter.");
+        "One odometry prediction (midpoint, DistanceNoise) per filter: x (..., 3), P (..., 3, "
+        "3), motion (..., 2) of one batch; non-finite motion raises relmap's NonFiniteError.");
 
     m.def(
         "ekf_correct_readings",
-        [](Float2 x, Float3 P, Float3 z, UInt8_2 present, Index2 signature, const Map& map,
+        [](FloatN x, FloatN P, FloatN z, BoolN present, IndexN signature, const Map& map,
            Float2 params, int sensor, int noise_model, int method, int cost,
            bool signatures, double gate2, Float1 joint_gate2, int64_t jcbb_nodes) {
-            check_filters(x, P);
-            const size_t B = x.shape(0), mm = z.shape(1), d = z.shape(2);
+            const size_t n = x.ndim();  // the batch: x's leading n - 1 axes
+            if (n < 1 || x.shape(n - 1) != 3 || P.ndim() != n + 1 || P.shape(n) != 3 ||
+                P.shape(n - 1) != 3 || z.ndim() != n + 1)
+                throw nb::value_error("x must be (..., 3), P (..., 3, 3) and z (..., m, d)");
+            const size_t B = x.size() / 3, mm = z.shape(n - 1), d = z.shape(n);
             const Options opt = make_options(sensor, noise_model, method, cost, signatures, gate2,
                                              joint_gate2, jcbb_nodes);
-            if (z.shape(0) != B || d != (opt.sensor == RANGE_ONLY ? 1u : 2u))
-                throw nb::value_error("z must be (B, m, d), d = 2 (range-bearing) or 1 (range)");
-            if (present.shape(0) != B || present.shape(1) != mm || signature.shape(0) != B ||
-                signature.shape(1) != mm)
-                throw nb::value_error("present and signature must be (B, m)");
+            if (P.size() != 9 * B || z.size() != B * mm * d ||
+                d != (opt.sensor == RANGE_ONLY ? 1u : 2u))
+                throw nb::value_error("z must be (..., m, d), d = 2 (range-bearing) or 1 (range)");
+            if (present.size() != B * mm || signature.size() != B * mm)
+                throw nb::value_error("present and signature must be (..., m)");
+            const uint8_t* const pr = reinterpret_cast<const uint8_t*>(present.data());
             const size_t ps = check_params(params, B);
             // two packed outputs (one NumPy array each costs more than the arithmetic here):
             // floats per filter x (3), P (9), y (m d), S (m d d), d² (m), loglik, nis;
             // integers per filter status (m), landmark (m), dof
             const size_t F = 12 + mm * (d + d * d + 1) + 2, I = 2 * mm + 1;
-            auto fo = new_array({B, F});
-            auto io = new_array<int64_t>({B, I});
+            auto fo = new_result_like(x, n - 1, {F});
+            auto io = new_result_like<int64_t>(x, n - 1, {I});
             std::vector<int8_t> st(mm);
             std::vector<int32_t> lmo(mm);
             std::vector<int64_t> cands(2 * mm);
             for (size_t b = 0; b < B; ++b) {
-                double* f = fo.data() + b * F;
-                int64_t* iv = io.data() + b * I;
+                double* f = fo.data + b * F;
+                int64_t* iv = io.data + b * I;
                 std::copy(x.data() + 3 * b, x.data() + 3 * b + 3, f);
                 std::copy(P.data() + 9 * b, P.data() + 9 * b + 9, f + 3);
                 ReadingOut out{f + 12, f + 12 + mm * d, f + 12 + mm * (d + d * d), st.data(),
@@ -1318,21 +1331,22 @@ void register_ekf(nb::module_& m) {
                     signature_candidates(map, static_cast<int64_t>(mm), signature.data() + b * mm,
                                          cands.data());
                 correct_readings(f, f + 3, static_cast<int64_t>(mm), z.data() + b * mm * d,
-                                 present.data() + b * mm, cands.data(), map,
+                                 pr + b * mm, cands.data(), map,
                                  params.data() + b * ps, opt, out, totals);
                 f[F - 2] = totals.loglik;
                 f[F - 1] = totals.nis;
                 for (size_t i = 0; i < mm; ++i) iv[i] = st[i], iv[mm + i] = lmo[i];
                 iv[2 * mm] = totals.dof;
             }
-            return nb::make_tuple(fo, io);
+            return nb::make_tuple(fo.array, io.array);
         },
         nb::arg("x"), nb::arg("P"), nb::arg("z"), nb::arg("present"), nb::arg("signature"),
         nb::arg("map"), nb::arg("params"), nb::arg("sensor"),
         nb::arg("noise_model"), nb::arg("method"), nb::arg("cost"), nb::arg("signatures"),
         nb::arg("gate2"), nb::arg("joint_gate2"), nb::arg("jcbb_nodes"),
         "Association, gating and one stacked correction per filter of the readings of one time "
-        "stamp (each filter its own readings).");
+        "stamp (each filter its own readings): x (..., 3), P (..., 3, 3), z (..., m, d), "
+        "present and signature (..., m) of one batch; packed outputs (..., F) and (..., I).");
 
     m.def(
         "ekf_run",

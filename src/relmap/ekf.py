@@ -262,17 +262,17 @@ def _predict_covariance(P: FloatArray, F: FloatArray, Q: FloatArray) -> FloatArr
 
 
 @functools.lru_cache(maxsize=64)
-def _ones(B: int, m: int) -> np.ndarray:
-    """A read-only (B, m) uint8 array of ones ("every reading present"), cached."""
-    a = np.ones((B, m), np.uint8)
+def _ones(batch: tuple[int, ...], m: int) -> np.ndarray:
+    """A read-only (*batch, m) boolean array of ones ("every reading present"), cached."""
+    a = np.ones((*batch, m), bool)
     a.flags.writeable = False
     return a
 
 
 @functools.lru_cache(maxsize=64)
-def _zeros(B: int, m: int) -> np.ndarray:
-    """A read-only (B, m) int64 array of zeros (signatures unused), cached."""
-    a = np.zeros((B, m), np.int64)
+def _zeros(batch: tuple[int, ...], m: int) -> np.ndarray:
+    """A read-only (*batch, m) int64 array of zeros (signatures unused), cached."""
+    a = np.zeros((*batch, m), np.int64)
     a.flags.writeable = False
     return a
 
@@ -324,19 +324,18 @@ def predict(
         return _like(state, x_new, _predict_covariance(P, np.asarray(F), Q))
     if not isinstance(state, AT):
         raise ParameterError("odometry predicts a pose AT; use a Motion model for a Belief")
-    m = _pairs(u, "motion")
+    k = model.core_params(integration)
+    m = _pairs(u, "motion", finite=k is None)  # (the core checks the steps it is given)
     if drive is not None:
         m = drive.motion(m)
-    k = model.core_params(integration)
-    if k is not None:  # the core's built-in odometry model
-        if x.ndim == 1 and m.ndim == 1:  # one filter, one step: no broadcasting
-            xo, Po = _core.ekf_predict_odometry(x[None], P[None], m[None], k)
-            return AT._trusted(xo[0], Po[0])
+    if k is not None:  # the core's built-in odometry model (k: one parameter row, shared)
+        if x.shape[:-1] == m.shape[:-1]:  # one batch: no broadcasting
+            xo, Po = _core.ekf_predict_odometry(x, P, m, k)
+            return AT._trusted(xo, Po)
         batch = np.broadcast_shapes(x.shape[:-1], m.shape[:-1])
-        B = int(np.prod(batch))
         xo, Po = _core.ekf_predict_odometry(
             _flat(x, batch, (3,)), _flat(P, batch, (3, 3)), _flat(m, batch, (2,)), k
-        )  # (k: one parameter row, shared by the filters)
+        )
         return AT._trusted(xo.reshape(*batch, 3), Po.reshape(*batch, 3, 3))
     batch = np.broadcast_shapes(x.shape[:-1], m.shape[:-1])
     step = _step_ats(m, model, integration, drive)
@@ -599,13 +598,12 @@ def _ndim(a: object) -> int:
     return a.ndim if isinstance(a, np.ndarray) else np.ndim(a)
 
 
-def _rows(a: ArrayLike, dtype: type, batch: tuple[int, ...], m: int) -> np.ndarray:
-    """``a`` broadcast to ``(*batch, m)`` as a C-contiguous ``(B, m)`` array of ``dtype``
-    (no broadcast when it has that shape already: np.broadcast_to costs microseconds)."""
+def _rows(a: ArrayLike, dtype: type, shape: tuple[int, ...]) -> np.ndarray:
+    """``a`` as an array of ``dtype`` broadcast to ``shape`` (no broadcast when it has that
+    shape already: np.broadcast_to costs microseconds). The core's bindings copy what is not
+    C-contiguous."""
     arr = np.asarray(a, dtype=dtype)
-    if arr.shape != (*batch, m):
-        arr = np.broadcast_to(arr, (*batch, m))
-    return np.ascontiguousarray(arr.reshape(math.prod(batch), m))
+    return arr if arr.shape == shape else np.broadcast_to(arr, shape)
 
 
 def correct_landmarks(
@@ -666,27 +664,19 @@ def correct_landmarks(
             batch = np.broadcast_shapes(batch, np.shape(valid)[:-1])
         if signatures is not None:
             batch = np.broadcast_shapes(batch, np.shape(signatures)[:-1])
-    B = math.prod(batch)
-    present = _ones(B, m) if valid is None else _rows(valid, bool, batch, m).view(np.uint8)
-    sig = _zeros(B, m) if signatures is None else _rows(
-        signatures, np.int64, batch, m
-    )  # fmt: skip
+    present = _ones(batch, m) if valid is None else _rows(valid, bool, (*batch, m))
+    sig = _zeros(batch, m) if signatures is None else _rows(signatures, np.int64, (*batch, m))
     params = _sensor_params(
         sensor.sigma_range, sensor.sigma_bearing, tuple(sensor.mount.tolist()), float(nu)
     )
     gate2, joint = _gates(gate, d, m if a is Association.JCBB else 0)
-    if batch == ():  # one filter: no broadcasting
-        x, P, zz = state.mean[None], state.cov[None], np.ascontiguousarray(z)[None]
-    else:
-        x, P = _flat(state.mean, batch, (3,)), _flat(state.cov, batch, (3, 3))
-        zz = _flat(z, batch, (m, d))
-    r = _core.ekf_correct_readings(
-        x, P, zz, present, sig, lmap._core, params, 1 if range_only else 0,
-        _NOISE_MODELS[sensor.noise_model], method, cost, signatures is not None, gate2, joint,
-        _JCBB_NODES,
+    # packed outputs (*batch, F) and (*batch, I): see the core's ekf_correct_readings
+    f, i = _core.ekf_correct_readings(
+        _rows(state.mean, np.float64, (*batch, 3)), _rows(state.cov, np.float64, (*batch, 3, 3)),
+        _rows(z, np.float64, (*batch, m, d)), present, sig, lmap._core, params,
+        1 if range_only else 0, _NOISE_MODELS[sensor.noise_model], method, cost,
+        signatures is not None, gate2, joint, _JCBB_NODES,
     )  # fmt: skip
-    f, i = r  # packed: see the core's ekf_correct_readings
-    f, i = f.reshape(*batch, f.shape[1]), i.reshape(*batch, i.shape[1])
     e, e2 = 12 + m * d, 12 + m * d + m * d * d
     y, S = f[..., 12:e].reshape(*batch, m, d), f[..., e:e2].reshape(*batch, m, d, d)
     if range_only:
