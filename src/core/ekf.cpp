@@ -560,24 +560,7 @@ void predict_odometry(double* x, double* P, double ds, double dth, const double*
 
 void signature_candidates(const Map& map, int64_t m, const int64_t* signature,
                           int64_t* candidates) {
-    // std::equal_range's two bisections, without branches (a signature's place in the map is
-    // as good as random: a branch per halving would be mispredicted half the time)
-    const int64_t* const a = map.sig_sorted.data();
-    const int64_t L = map.L;
-    auto first = [&](int64_t s, bool after) {  // first k with a[k] >= s (after: a[k] > s)
-        if (L == 0) return int64_t{0};
-        const int64_t* base = a;
-        for (int64_t n = L; n > 1;) {
-            const int64_t half = n / 2;
-            base = (after ? base[half] <= s : base[half] < s) ? base + half : base;
-            n -= half;
-        }
-        return (base - a) + static_cast<int64_t>(after ? *base <= s : *base < s);
-    };
-    for (int64_t i = 0; i < m; ++i) {
-        candidates[2 * i] = first(signature[i], false);
-        candidates[2 * i + 1] = first(signature[i], true);
-    }
+    for (int64_t i = 0; i < m; ++i) map.find(signature[i], candidates[2 * i], candidates[2 * i + 1]);
 }
 
 void correct_readings(double* x, double* P, int64_t m, const double* z, const uint8_t* present,
@@ -1123,6 +1106,30 @@ Map::Map(int64_t L_, const double* xy_, const int64_t* s) : L(L_), store(xy_, xy
                          [&](int64_t a, int64_t b) { return s[a] < s[b]; });
     sig_sorted.resize(L);
     for (int64_t k = 0; k < L; ++k) sig_sorted[k] = s[sig_landmark[k]];
+    // the table: at least twice as many slots as signatures (short probes)
+    size_t size = 2;
+    while (size < 2 * static_cast<size_t>(L)) size *= 2, --shift;
+    table.assign(size, Slot{});
+    for (int64_t k = 0; k < L;) {
+        int64_t e = k + 1;
+        while (e < L && sig_sorted[e] == sig_sorted[k]) ++e;
+        size_t h = slot_of(sig_sorted[k]);
+        while (table[h].lo >= 0) h = (h + 1) & (size - 1);
+        table[h] = {sig_sorted[k], k, e};
+        k = e;
+    }
+}
+
+void Map::find(int64_t s, int64_t& lo, int64_t& hi) const {
+    const size_t mask = table.size() - 1;
+    for (size_t h = slot_of(s);; h = (h + 1) & mask) {
+        const Slot& e = table[h];
+        if (e.lo < 0 || e.key == s) {
+            lo = e.lo < 0 ? 0 : e.lo;
+            hi = e.lo < 0 ? 0 : e.hi;
+            return;
+        }
+    }
 }
 
 // ----------------------------------------------------------------------------- bindings

@@ -90,8 +90,20 @@ struct Map {
     Map(const Map&) = delete;
     Map& operator=(const Map&) = delete;
 
+    // The landmarks of signature s: sig_landmark[lo .. hi) (lo == hi: none). A hash table of
+    // the distinct signatures (open addressing, linear probing), built once.
+    void find(int64_t s, int64_t& lo, int64_t& hi) const;
+
   private:
+    struct Slot {
+        int64_t key, lo = -1, hi = -1;  // lo < 0: empty
+    };
     std::vector<double> store;
+    std::vector<Slot> table;
+    int shift = 63;  // the hash's top bits index the table
+    size_t slot_of(int64_t s) const {
+        return static_cast<size_t>((static_cast<uint64_t>(s) * 0x9E3779B97F4A7C15ull) >> shift);
+    }
 };
 
 // What one correction reports per reading (pointers into the caller's arrays; may be null).
@@ -136,8 +148,7 @@ bool kalman_update(int n, int D, double* x, double* P, const double* y, const do
 void predict_odometry(double* x, double* P, double ds, double dth, const double* params);
 
 // The candidates of m readings of signatures signature (m): reading i's are the landmarks
-// map.sig_landmark[candidates[2i] .. candidates[2i + 1]) (a reading's signature is looked up
-// once, not once per filter).
+// map.sig_landmark[candidates[2i] .. candidates[2i + 1]) (Map::find).
 void signature_candidates(const Map& map, int64_t m, const int64_t* signature,
                           int64_t* candidates);
 
