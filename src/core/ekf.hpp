@@ -152,11 +152,24 @@ void predict_odometry(double* x, double* P, double ds, double dth, const double*
 void signature_candidates(const Map& map, int64_t m, const int64_t* signature,
                           int64_t* candidates);
 
-// The correction of one pose filter (x, P) with the m readings z (m × d) of one time stamp;
-// with signature association, candidates (2m) from signature_candidates.
-void correct_readings(double* x, double* P, int64_t m, const double* z, const uint8_t* present,
-                      const int64_t* candidates, const Map& map, const double* params,
-                      const Options& opt, ReadingOut out, Totals& totals);
+// One pose filter's correction with the m readings z (m × d) of one time stamp: its state
+// (x, P), updated in place, and what it reports (out, totals); present (m) or null (all
+// present); with signature association, candidates (2m) from signature_candidates.
+struct Call {
+    double* x;
+    double* P;
+    int64_t m;
+    const double* z;
+    const uint8_t* present;
+    const int64_t* candidates;
+    const double* p;  // the filter's parameters (Param)
+    ReadingOut out;
+    Totals* totals;
+};
+
+// The corrections of W filters (W <= 2: two are corrected side by side, their update blocks
+// interleaved; each filter's result is what it gives alone, bit for bit).
+void correct_filters(int W, const Call* calls, const Map& map, const Options& opt);
 
 void register_ekf(nb::module_& m);
 

@@ -510,7 +510,17 @@ class LandmarkUpdate(NamedTuple):
 def _association(
     associate: object, pairing: object, signatures: bool
 ) -> tuple[Association, int, int]:
-    """``(association, method, cost)`` of the core."""
+    """``(association, method, cost)`` of the core (cached: a filter asks at every step)."""
+    try:
+        return _association_codes(associate, pairing, signatures)
+    except TypeError:  # an unhashable option is no member: the uncached call says so
+        return _association_codes.__wrapped__(associate, pairing, signatures)
+
+
+@functools.lru_cache(maxsize=64)
+def _association_codes(
+    associate: object, pairing: object, signatures: bool
+) -> tuple[Association, int, int]:
     a = _option(Association, associate, "associate")
     p = _option(Pairing, pairing, "pairing")
     if a is Association.SIGNATURES and not signatures:
