@@ -139,10 +139,10 @@ RELMAP_INLINE void predict_cov(int n, const double* F, const double* P, const do
 // W lanes: the blocks of W independent filters side by side (lane l: delta[l], P[l], y[l], ...;
 // ok[l] whether its S is positive definite), each lane's arithmetic exactly that of the lane
 // alone. One block's steps depend on each other (P → S → its factor → K → P), so one filter's
-// blocks in turn leave the processor waiting; two filters' chains interleaved keep it busy
-// (the batch runners pair their filters). With W = 1 it is kalman_block below; the sizes
-// known at run time (N_ = 0) have one lane. A lane whose S is not positive definite goes on
-// with a harmless factor (the identity) and its results are to be dropped.
+// blocks in turn leave the processor waiting; several filters' chains interleaved keep it busy
+// (the batch runners take their filters LANES at a time). With W = 1 it is kalman_block below;
+// the sizes known at run time (N_ = 0) have one lane. A lane whose S is not positive definite
+// goes on with a harmless factor (the identity) and its results are to be dropped.
 template <int N_, int D_, int W>
 void kalman_lanes(int n, int D, double* const* delta, double* const* P, const double* const* y,
                   const double* const* H, const double* const* R, double* const* S_out,
@@ -617,7 +617,7 @@ struct Work {
 // This thread's scratch, looked up once per call: not inlined, so the compiler cannot redo the
 // lookup (a call, __tls_get_addr, in a shared library) at every use.
 RELMAP_NOINLINE Work* thread_work() {
-    thread_local Work work[2];  // a call corrects at most two filters side by side
+    thread_local Work work[LANES];  // a call corrects up to LANES filters side by side
     return work;
 }
 
@@ -1092,7 +1092,9 @@ void report(const Call& c, const Options& opt, Work& w, const double* delta, con
             double nis, double logdet, bool ok);
 
 // The correction of W filters (each its own call and scratch), their association first, then
-// their updates side by side (kalman_lanes), then what each reports.
+// their updates side by side (kalman_lanes), then what each reports. (The filters of a batch
+// often see the same readings: associated one after the other, they also take the same
+// branches.)
 template <int W>
 void correct_lanes(const Call* calls, const Map& map, const Options& opt) {
     const int d = opt.sensor == RANGE_ONLY ? 1 : 2;
@@ -1126,43 +1128,44 @@ void correct_lanes(const Call* calls, const Map& map, const Options& opt) {
         return !out.y_given ? nullptr
                             : (k ? out.S_given + q->i * d * d : out.y_given + q->i * d);
     };
-    for (size_t u = 0; u < most; ++u) {
-        // a lane with no pair u (or a failed one) computes a copy of an active lane's block
-        // into scratch, dropped
-        double *delta[W], *Pp[W], wgt[W], nis[W], logdet[W], *yo[W], *So[W];
-        const Pair* q[W];
-        const Predicted* pr[W];
-        bool active[W], okl[W];
-        int any = -1;
-        for (int l = 0; l < W; ++l) {
-            active[l] = lane[l].ok && u < work[l].update.size();
-            if (active[l]) any = l;
-        }
-        if (any < 0) break;
-        double sd[W][3], sP[W][9];
-        for (int l = 0; l < W; ++l) {
-            const int a = active[l] ? l : any;
-            Lane& s = lane[a];
-            const double* p = calls[a].p;
-            q[l] = work[a].update[u];
-            pr[l] = work[a].upred[u];
+    // Pair u of every lane side by side while every lane has one (and has not failed), then
+    // the lanes left one by one.
+    auto step = [&](auto lanes, const int* which, size_t u) {
+        constexpr int V = decltype(lanes)::value;
+        double *delta[V], *Pp[V], wgt[V], *yo[V], *So[V];
+        const Pair* q[V];
+        const Predicted* pr[V];
+        bool okl[V];
+        for (int v = 0; v < V; ++v) {
+            const int l = which[v];
+            Lane& s = lane[l];
+            const double* p = calls[l].p;
+            q[v] = work[l].update[u];
+            pr[v] = work[l].upred[u];
             // Student-t readings: the reading's weight (ν + d)/(ν + d²) scales R by its inverse
-            wgt[l] = (s.robust ? (p[NU] + d) / (p[NU] + q[l]->d2) : 1.0) / s.c2;
-            if (s.lambda > 0.0) wgt[l] *= landmark_probability(*q[l], *pr[l], d, p, s.lambda);
-            if (active[l]) {
-                delta[l] = s.delta, Pp[l] = s.Pn, nis[l] = s.nis, logdet[l] = s.logdet;
-                yo[l] = s.reweighted ? nullptr : given(l, q[l], 0);
-                So[l] = s.reweighted ? nullptr : given(l, q[l], 1);
-            } else {
-                std::copy(s.delta, s.delta + 3, sd[l]);
-                std::copy(s.Pn, s.Pn + 9, sP[l]);
-                delta[l] = sd[l], Pp[l] = sP[l], nis[l] = logdet[l] = 0.0;
-                yo[l] = So[l] = nullptr;
-            }
+            wgt[v] = (s.robust ? (p[NU] + d) / (p[NU] + q[v]->d2) : 1.0) / s.c2;
+            if (s.lambda > 0.0) wgt[v] *= landmark_probability(*q[v], *pr[v], d, p, s.lambda);
+            delta[v] = s.delta, Pp[v] = s.Pn;
+            yo[v] = s.reweighted ? nullptr : given(l, q[v], 0);
+            So[v] = s.reweighted ? nullptr : given(l, q[v], 1);
         }
-        pair_lanes<W>(d, delta, Pp, q, pr, wgt, nis, logdet, yo, So, okl);
+        double nis[V], logdet[V];
+        for (int v = 0; v < V; ++v) nis[v] = lane[which[v]].nis, logdet[v] = lane[which[v]].logdet;
+        pair_lanes<V>(d, delta, Pp, q, pr, wgt, nis, logdet, yo, So, okl);
+        for (int v = 0; v < V; ++v) {
+            Lane& s = lane[which[v]];
+            s.ok = okl[v], s.nis = nis[v], s.logdet = logdet[v];
+        }
+    };
+    for (size_t u = 0; u < most; ++u) {
+        int which[W], na = 0;
         for (int l = 0; l < W; ++l)
-            if (active[l]) lane[l].ok = okl[l], lane[l].nis = nis[l], lane[l].logdet = logdet[l];
+            if (lane[l].ok && u < work[l].update.size()) which[na++] = l;
+        if (na == W) {
+            step(std::integral_constant<int, W>{}, which, u);
+        } else {
+            for (int v = 0; v < na; ++v) step(std::integral_constant<int, 1>{}, which + v, u);
+        }
     }
     for (int l = 0; l < W; ++l) report(calls[l], opt, work[l], lane[l].delta, lane[l].Pn,
                                        lane[l].nis, lane[l].logdet, lane[l].ok);
@@ -1258,8 +1261,8 @@ void report(const Call& c, const Options& opt, Work& w, const double* delta, con
 }  // namespace
 
 void correct_filters(int W, const Call* calls, const Map& map, const Options& opt) {
-    if (W == 2)
-        correct_lanes<2>(calls, map, opt);
+    if (W == LANES)
+        correct_lanes<LANES>(calls, map, opt);
     else
         for (int l = 0; l < W; ++l) correct_lanes<1>(calls + l, map, opt);
 }
@@ -1491,13 +1494,13 @@ void register_ekf(nb::module_& m) {
             const size_t F = 12 + mm * (d + d * d + 1) + 2, I = 2 * mm + 1;
             auto fo = new_result_like(x, n - 1, {F});
             auto io = new_result_like<int64_t>(x, n - 1, {I});
-            std::vector<int8_t> st(2 * mm);
-            std::vector<int32_t> lmo(2 * mm);
-            std::vector<int64_t> cands(4 * mm);
-            for (size_t b0 = 0; b0 < B; b0 += 2) {  // two filters side by side
-                const int W = B - b0 >= 2 ? 2 : 1;
-                Call calls[2];
-                Totals totals[2];
+            std::vector<int8_t> st(LANES * mm);
+            std::vector<int32_t> lmo(LANES * mm);
+            std::vector<int64_t> cands(2 * LANES * mm);
+            for (size_t b0 = 0; b0 < B; b0 += LANES) {  // LANES filters side by side
+                const int W = static_cast<int>(std::min<size_t>(LANES, B - b0));
+                Call calls[LANES];
+                Totals totals[LANES];
                 for (int l = 0; l < W; ++l) {
                     const size_t b = b0 + l;
                     double* f = fo.data + b * F;
@@ -1579,10 +1582,10 @@ void register_ekf(nb::module_& m) {
             std::vector<Totals> totals(B);
             {
                 nb::gil_scoped_release release;
-                for (size_t b0 = 0; b0 < B; b0 += 2) {  // two filters side by side
-                    const int W = B - b0 >= 2 ? 2 : 1;
-                    double x[2][3], P[2][9];
-                    const double* p[2];
+                for (size_t b0 = 0; b0 < B; b0 += LANES) {  // LANES filters side by side
+                    const int W = static_cast<int>(std::min<size_t>(LANES, B - b0));
+                    double x[LANES][3], P[LANES][9];
+                    const double* p[LANES];
                     for (int l = 0; l < W; ++l) {
                         const size_t b = b0 + l;
                         std::copy(x0.data() + 3 * b, x0.data() + 3 * b + 3, x[l]);
@@ -1603,7 +1606,7 @@ void register_ekf(nb::module_& m) {
                             for (int l = 0; l < W; ++l) predict_step(x[l], P[l], steps[j - 1], p[l]);
                         if (e < E && at[e] == static_cast<int64_t>(j)) {
                             const int64_t r0 = lo[e], m = lo[e + 1] - lo[e];
-                            Call calls[2];
+                            Call calls[LANES];
                             for (int l = 0; l < W; ++l) {
                                 const size_t b = b0 + l;
                                 ReadingOut out;

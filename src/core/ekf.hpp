@@ -167,8 +167,9 @@ struct Call {
     Totals* totals;
 };
 
-// The corrections of W filters (W <= 2: two are corrected side by side, their update blocks
-// interleaved; each filter's result is what it gives alone, bit for bit).
+// The corrections of W <= LANES filters (LANES of them are corrected side by side, their update
+// blocks interleaved; each filter's result is what it gives alone, bit for bit).
+constexpr int LANES = 4;
 void correct_filters(int W, const Call* calls, const Map& map, const Options& opt);
 
 void register_ekf(nb::module_& m);
