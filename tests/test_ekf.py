@@ -208,7 +208,9 @@ def test_a_landmark_map_checked_once_gives_what_the_array_gives():
         for x, y in zip(a, b, strict=True):
             x, y = (x.mean, y.mean) if isinstance(x, rm.AT) else (x, y)
             np.testing.assert_array_equal(x, y)
-    up = ekf.correct_landmarks(PRIOR, z, SENSOR, lm, associate="signatures", signatures=[40, 30, 99])
+    up = ekf.correct_landmarks(
+        PRIOR, z, SENSOR, lm, associate="signatures", signatures=[40, 30, 99]
+    )
     assert list(up.landmark) == [3, 0, -1]  # rows; signature 99 is no landmark's
     assert list(up.status) == [ekf.Status.USED, ekf.Status.USED, ekf.Status.UNKNOWN]
     with pytest.raises(ParameterError, match="LandmarkMap"):

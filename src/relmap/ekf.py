@@ -75,7 +75,6 @@ from __future__ import annotations
 
 import enum
 import functools
-import math
 from collections.abc import Callable
 from typing import NamedTuple
 
@@ -631,12 +630,14 @@ def correct_landmarks(
     range_only: bool = False,
     nu: float = np.inf,
 ) -> LandmarkUpdate:
-    """Correct with readings of point landmarks ``(L, 2)``: range-bearing ``(r, φ)``
+    """Correct with readings of point landmarks ``(L, 2)`` (or a :class:`LandmarkMap`, checked
+    once: a filter correcting at every step builds one): range-bearing ``(r, φ)``
     (..., m, 2) from ``sensor`` (Eq. 20, its mount and noise model), or with ``range_only``
     ranges (..., m) (Eq. 20's first row; σ = ``sensor.sigma_range``).
 
     Association (:class:`Association`): ``signatures`` pairs a reading with the landmark of
-    equal signature (``signatures`` (..., m), ``landmark_signatures`` (L,), default the rows);
+    equal signature (``signatures`` (..., m), ``landmark_signatures`` (L,), default the rows;
+    a :class:`LandmarkMap` has its own);
     ``mahalanobis`` (Eq. 23) and ``euclidean`` (Eq. 22) with the nearest landmark, ``jcbb`` the
     largest jointly compatible set. Signatures, when given, restrict the candidates under every
     method. :class:`Pairing` one to one (greedy, cheapest pair first; the others LOST) or per
@@ -827,13 +828,13 @@ def run(
     keep: Keep | str = Keep.ALL,
     readings: bool = True,
 ) -> Trace:
-    """Run pose filters over ``log`` with the map ``landmarks`` (L, 2): one filter per
-    parameter set of ``params`` (its batch shape), each from ``start`` (an AT, broadcast to
-    the batch). Predict every odometry step (built-in odometry model), correct at every time
-    index with readings (all of them in one stacked update; association, gate and sensor as in
-    :func:`correct_landmarks`). ``readings=False`` skips the per-reading arrays (then empty).
-    All loops run in the core; the filters of a batch are independent (each gives what it
-    gives alone, bitwise)."""
+    """Run pose filters over ``log`` with the map ``landmarks`` (L, 2) or a
+    :class:`LandmarkMap`: one filter per parameter set of ``params`` (its batch shape), each
+    from ``start`` (an AT, broadcast to the batch). Predict every odometry step (built-in
+    odometry model), correct at every time index with readings (all of them in one stacked
+    update; association, gate and sensor as in :func:`correct_landmarks`). ``readings=False``
+    skips the per-reading arrays (then empty). All loops run in the core; the filters of a
+    batch are independent (each gives what it gives alone, bitwise)."""
     kind = _option(SensorKind, sensor, "sensor")
     d = 1 if kind is SensorKind.RANGE_ONLY else 2
     kp = _option(Keep, keep, "keep")
