@@ -675,21 +675,24 @@ def correct_landmarks(
             batch = np.broadcast_shapes(batch, np.shape(valid)[:-1])
         if signatures is not None:
             batch = np.broadcast_shapes(batch, np.shape(signatures)[:-1])
-    present = _ones(batch, m) if valid is None else _rows(valid, bool, (*batch, m))
-    sig = _zeros(batch, m) if signatures is None else _rows(signatures, np.int64, (*batch, m))
+    rows = (*batch, m)
+    present = _ones(batch, m) if valid is None else _rows(valid, bool, rows)
+    sig = _zeros(batch, m) if signatures is None else _rows(signatures, np.int64, rows)
     params = _sensor_params(
         sensor.sigma_range, sensor.sigma_bearing, tuple(sensor.mount.tolist()), float(nu)
     )
     gate2, joint = _gates(gate, d, m if a is Association.JCBB else 0)
+    x, P = state.mean, state.cov  # (float64 already: broadcast if the batch is larger)
+    if x.shape[:-1] != batch:
+        x, P = np.broadcast_to(x, (*batch, 3)), np.broadcast_to(P, (*batch, 3, 3))
     # packed outputs (*batch, F) and (*batch, I): see the core's ekf_correct_readings
     f, i = _core.ekf_correct_readings(
-        _rows(state.mean, np.float64, (*batch, 3)), _rows(state.cov, np.float64, (*batch, 3, 3)),
-        _rows(z, np.float64, (*batch, m, d)), present, sig, lmap._core, params,
+        x, P, _rows(z, np.float64, (*rows, d)), present, sig, lmap._core, params,
         1 if range_only else 0, _NOISE_MODELS[sensor.noise_model], method, cost,
         signatures is not None, gate2, joint, _JCBB_NODES,
     )  # fmt: skip
     e, e2 = 12 + m * d, 12 + m * d + m * d * d
-    y, S = f[..., 12:e].reshape(*batch, m, d), f[..., e:e2].reshape(*batch, m, d, d)
+    y, S = f[..., 12:e].reshape(*rows, d), f[..., e:e2].reshape(*rows, d, d)
     if range_only:
         y, S = y[..., 0], S[..., 0, 0]
     return LandmarkUpdate(
