@@ -202,6 +202,8 @@ def test_a_landmark_map_checked_once_gives_what_the_array_gives():
     lm = ekf.LandmarkMap(LANDMARKS, signatures=sig)
     assert len(lm) == 5 and repr(lm) == "LandmarkMap(5 landmarks)"
     assert not lm.xy.flags.writeable and not lm.signatures.flags.writeable
+    with pytest.raises(AttributeError):
+        lm.xy = LANDMARKS  # type: ignore[misc]
     for kw in ({"associate": "signatures", "signatures": [40, 30, 99]}, {}, {"associate": "jcbb"}):
         a = ekf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS, landmark_signatures=sig, **kw)
         b = ekf.correct_landmarks(PRIOR, z, SENSOR, lm, **kw)

@@ -579,8 +579,12 @@ class LandmarkMap:
                     f"landmark_signatures must have shape ({len(lm)},); got {sig.shape}"
                 )
         lm.flags.writeable = sig.flags.writeable = False
-        self.xy, self.signatures = lm, sig
-        self._core = _core.EkfMap(lm, sig)
+        object.__setattr__(self, "xy", lm)
+        object.__setattr__(self, "signatures", sig)
+        object.__setattr__(self, "_core", _core.EkfMap(lm, sig))
+
+    def __setattr__(self, name: str, value: object) -> None:
+        raise AttributeError("a LandmarkMap is immutable; build a new one")
 
     def __len__(self) -> int:
         return len(self.xy)
