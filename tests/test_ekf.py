@@ -7,7 +7,7 @@ import pytest
 
 import relmap as rm
 from relmap import ekf, gaussian
-from relmap.errors import ParameterError, ShapeError
+from relmap.errors import NonFiniteError, ParameterError, ShapeError
 from relmap.lie import se2
 from relmap.robot import DistanceNoise, step
 from relmap.sensors import RangeBearingSensor
@@ -193,6 +193,46 @@ def test_bad_input():
         ekf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS, associate="signatures")
     with pytest.raises(ParameterError):
         ekf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS, gate=1.0)
+
+
+def test_a_landmark_map_checked_once_gives_what_the_array_gives():
+    rng = np.random.default_rng(4)
+    z = readings(PRIOR.mean, [3, 0, 2], noise=1.0, rng=rng)
+    sig = np.array([30, 10, 20, 40, 50])  # signatures not in row order
+    lm = ekf.LandmarkMap(LANDMARKS, signatures=sig)
+    assert len(lm) == 5 and repr(lm) == "LandmarkMap(5 landmarks)"
+    assert not lm.xy.flags.writeable and not lm.signatures.flags.writeable
+    with pytest.raises(AttributeError):
+        lm.xy = LANDMARKS  # type: ignore[misc]
+    for kw in ({"associate": "signatures", "signatures": [40, 30, 99]}, {}, {"associate": "jcbb"}):
+        a = ekf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS, landmark_signatures=sig, **kw)
+        b = ekf.correct_landmarks(PRIOR, z, SENSOR, lm, **kw)
+        for x, y in zip(a, b, strict=True):
+            x, y = (x.mean, y.mean) if isinstance(x, rm.AT) else (x, y)
+            np.testing.assert_array_equal(x, y)
+    up = ekf.correct_landmarks(
+        PRIOR, z, SENSOR, lm, associate="signatures", signatures=[40, 30, 99]
+    )
+    assert list(up.landmark) == [3, 0, -1]  # rows; signature 99 is no landmark's
+    assert list(up.status) == [ekf.Status.USED, ekf.Status.USED, ekf.Status.UNKNOWN]
+    with pytest.raises(ParameterError, match="LandmarkMap"):
+        ekf.correct_landmarks(PRIOR, z, SENSOR, lm, landmark_signatures=sig)
+    with pytest.raises(ShapeError):
+        ekf.LandmarkMap(LANDMARKS[:, :1])
+    with pytest.raises(ShapeError):
+        ekf.LandmarkMap(LANDMARKS, signatures=[1, 2])
+    with pytest.raises(NonFiniteError):
+        ekf.LandmarkMap([[0.0, np.nan]])
+
+
+def test_predict_rejects_non_finite_steps():
+    noise = DistanceNoise(0.01, 0.02, 0.005)
+    for u in ([np.nan, 0.1], [[0.5, 0.1], [0.5, np.inf]]):
+        with pytest.raises(NonFiniteError, match="finite"):
+            ekf.predict(PRIOR, u, noise)
+    batch = rm.AT.stack([PRIOR, PRIOR])
+    with pytest.raises(NonFiniteError):
+        ekf.predict(batch, [[0.5, 0.1], [np.nan, 0.1]], noise)
 
 
 def mixture_update(state: rm.AT, z: np.ndarray, cluster: np.ndarray) -> rm.AT:

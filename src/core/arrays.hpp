@@ -5,6 +5,7 @@
 
 #include <cstdint>
 #include <initializer_list>
+#include <string>
 #include <vector>
 
 #include "core.hpp"
@@ -25,6 +26,39 @@ nb::ndarray<nb::numpy, T> new_array(std::initializer_list<size_t> shape) {
     T* data = new T[size ? size : 1]();
     nb::capsule owner(data, [](void* p) noexcept { delete[] static_cast<T*>(p); });
     return nb::ndarray<nb::numpy, T>(data, shape, owner);
+}
+
+// Arrays of any rank (a batch of vectors or matrices: the leading axes are the batch).
+using FloatN = nb::ndarray<const double, nb::c_contig, nb::device::cpu>;
+using IndexN = nb::ndarray<const int64_t, nb::c_contig, nb::device::cpu>;
+using BoolN = nb::ndarray<const bool, nb::c_contig, nb::device::cpu>;
+
+// A new zero-filled NumPy array of the shape of a's first `lead` axes, then `tail`, read-only
+// to Python (a result: relmap's values are immutable, and Python need not make a read-only
+// view of it); `data` writes it.
+template <class T>
+struct Result {
+    nb::ndarray<nb::numpy, const T> array;
+    T* data;
+};
+template <class T = double, class A>
+Result<T> new_result_like(const A& a, size_t lead, std::initializer_list<size_t> tail = {}) {
+    std::vector<size_t> shape;
+    for (size_t k = 0; k < lead; ++k) shape.push_back(a.shape(k));
+    shape.insert(shape.end(), tail.begin(), tail.end());
+    size_t size = 1;
+    for (size_t s : shape) size *= s;
+    T* data = new T[size ? size : 1]();
+    nb::capsule owner(data, [](void* p) noexcept { delete[] static_cast<T*>(p); });
+    return {nb::ndarray<nb::numpy, const T>(data, shape.size(), shape.data(), owner), data};
+}
+
+// Raises relmap.errors.<name>(message): the error relmap's Python API promises for bad input,
+// when the core is where the input is first looked at.
+[[noreturn]] inline void raise_relmap_error(const char* name, const std::string& message) {
+    nb::object kind = nb::module_::import_("relmap.errors").attr(name);
+    PyErr_SetString(kind.ptr(), message.c_str());
+    throw nb::python_error();
 }
 
 // The normal equations' scatter targets in range (or ValueError): n_slots slots into the CSC

@@ -135,61 +135,95 @@ RELMAP_INLINE void predict_cov(int n, const double* F, const double* P, const do
 // a 2k × 2k solve becomes k 2 × 2 ones. False (δ, P partly updated: the caller keeps copies)
 // when S is not positive definite (a 0/0), i.e. exactly when the stacked S is not.
 // S_out (D × D) if non-null. N_, D_ > 0 fix the sizes at compile time.
-template <int N_, int D_>
-bool kalman_block(int n, int D, double* delta, double* P, const double* y, const double* H,
-                  const double* R, double* S_out, double& nis, double& logdet) {
+//
+// W lanes: the blocks of W independent filters side by side (lane l: delta[l], P[l], y[l], ...;
+// ok[l] whether its S is positive definite), each lane's arithmetic exactly that of the lane
+// alone. One block's steps depend on each other (P → S → its factor → K → P), so one filter's
+// blocks in turn leave the processor waiting; several filters' chains interleaved keep it busy
+// (the batch runners take their filters LANES at a time). With W = 1 it is kalman_block below;
+// the sizes known at run time (N_ = 0) have one lane. A lane whose S is not positive definite
+// goes on with a harmless factor (the identity) and its results are to be dropped.
+template <int N_, int D_, int W>
+void kalman_lanes(int n, int D, double* const* delta, double* const* P, const double* const* y,
+                  const double* const* H, const double* const* R, double* const* S_out,
+                  double* nis, double* logdet, bool* ok) {
+    static_assert(W >= 1 && (N_ > 0 || W == 1), "lanes need sizes known at compile time");
     if (N_ > 0) n = N_;
     if (D_ > 0) D = D_;
-    constexpr int ND = N_ * D_, DD = D_ * D_, NN = N_ * N_;
+    constexpr int ND = N_ * D_ * W, DD = D_ * D_ * W, NN = N_ * N_ * W, DW = D_ * W;
+    // lane l's matrices at l × their size
     const size_t nD = static_cast<size_t>(n) * D, dd = static_cast<size_t>(D) * D,
                  nn = static_cast<size_t>(n) * n;
     Scratch<ND> PHt_(ND ? 0 : nD), K_(ND ? 0 : nD), KR_(ND ? 0 : nD);
     Scratch<DD> S_(DD ? 0 : dd), L_(DD ? 0 : dd);
     Scratch<NN> A_(NN ? 0 : nn), AP_(NN ? 0 : nn);
-    Scratch<D_ ? D_ : 0> u_(D_ ? 0 : D), inv_(D_ ? 0 : D);
+    Scratch<DW> u_(DW ? 0 : D), inv_(DW ? 0 : D);
     double *PHt = PHt_.data(), *K = K_.data(), *KR = KR_.data(), *S = S_.data(), *Lw = L_.data();
     double *A = A_.data(), *AP = AP_.data(), *u = u_.data(), *inv = inv_.data();
     for (int i = 0; i < n; ++i)  // P Hᵀ
-        for (int a = 0; a < D; ++a) {
-            double s = 0.0;
-            for (int k = 0; k < n; ++k) s += P[i * n + k] * H[a * n + k];
-            PHt[i * D + a] = s;
-        }
+        for (int a = 0; a < D; ++a)
+            for (int l = 0; l < W; ++l) {
+                double s = 0.0;
+                for (int k = 0; k < n; ++k) s += P[l][i * n + k] * H[l][a * n + k];
+                PHt[l * nD + i * D + a] = s;
+            }
     for (int a = 0; a < D; ++a)  // S = H P Hᵀ + R, symmetrized
-        for (int b = 0; b <= a; ++b) {
-            double s = 0.0;
-            for (int k = 0; k < n; ++k) s += H[a * n + k] * PHt[k * D + b];
-            S[a * D + b] = S[b * D + a] = s + 0.5 * (R[a * D + b] + R[b * D + a]);
-        }
-    if (S_out) std::copy(S, S + dd, S_out);
-    if (!cholesky<D_>(D, S, Lw)) return false;
-    for (int a = 0; a < D; ++a) inv[a] = 1.0 / Lw[a * D + a];
+        for (int b = 0; b <= a; ++b)
+            for (int l = 0; l < W; ++l) {
+                double s = 0.0;
+                for (int k = 0; k < n; ++k) s += H[l][a * n + k] * PHt[l * nD + k * D + b];
+                S[l * dd + a * D + b] = S[l * dd + b * D + a] =
+                    s + 0.5 * (R[l][a * D + b] + R[l][b * D + a]);
+            }
+    bool any = false;
+    for (int l = 0; l < W; ++l) {
+        if (S_out[l]) std::copy(S + l * dd, S + (l + 1) * dd, S_out[l]);
+        ok[l] = cholesky<D_>(D, S + l * dd, Lw + l * dd);
+        if (!ok[l])
+            for (int a = 0; a < D; ++a)
+                for (int b = 0; b <= a; ++b) Lw[l * dd + a * D + b] = a == b ? 1.0 : 0.0;
+        any = any || ok[l];
+    }
+    if (!any) return;
+    for (int l = 0; l < W; ++l)
+        for (int a = 0; a < D; ++a) inv[l * D + a] = 1.0 / Lw[l * dd + a * D + a];
     // y'ᵀ S⁻¹ y' = |L⁻¹ y'|², log det S = 2 log Π Lᵢᵢ (one log; the product is taken in
     // pieces that can neither overflow nor underflow)
-    double q = 0.0, ld = 0.0, prod = 1.0;
-    for (int a = 0; a < D; ++a) {
-        double s = y[a];
-        for (int k = 0; k < n; ++k) s -= H[a * n + k] * delta[k];
-        for (int k = 0; k < a; ++k) s -= Lw[a * D + k] * u[k];
-        u[a] = s * inv[a];
-        q += u[a] * u[a];
-        prod *= Lw[a * D + a];
-        if (!(prod > 1e-150 && prod < 1e150)) ld += std::log(prod), prod = 1.0;
+    double q[W], ld[W], prod[W];
+    for (int l = 0; l < W; ++l) q[l] = 0.0, ld[l] = 0.0, prod[l] = 1.0;
+    for (int a = 0; a < D; ++a)
+        for (int l = 0; l < W; ++l) {
+            const double* Ll = Lw + l * dd;
+            double* ul = u + l * D;
+            double s = y[l][a];
+            for (int k = 0; k < n; ++k) s -= H[l][a * n + k] * delta[l][k];
+            for (int k = 0; k < a; ++k) s -= Ll[a * D + k] * ul[k];
+            ul[a] = s * inv[l * D + a];
+            q[l] += ul[a] * ul[a];
+            prod[l] *= Ll[a * D + a];
+            if (!(prod[l] > 1e-150 && prod[l] < 1e150)) ld[l] += std::log(prod[l]), prod[l] = 1.0;
+        }
+    for (int l = 0; l < W; ++l) {
+        nis[l] += q[l];
+        logdet[l] += 2.0 * (ld[l] + std::log(prod[l]));
     }
-    nis += q;
-    logdet += 2.0 * (ld + std::log(prod));
-    for (int a = D - 1; a >= 0; --a) {  // u = S⁻¹ y' (Lᵀ u = L⁻¹ y')
-        double s = u[a];
-        for (int k = a + 1; k < D; ++k) s -= Lw[k * D + a] * u[k];
-        u[a] = s * inv[a];
-    }
-    for (int i = 0; i < n; ++i) {  // row i of K = P Hᵀ S⁻¹; δ += P Hᵀ S⁻¹ y'
-        std::copy(PHt + i * D, PHt + (i + 1) * D, K + i * D);
-        cholesky_solve<D_>(D, Lw, inv, K + i * D);
-        double s = 0.0;
-        for (int a = 0; a < D; ++a) s += PHt[i * D + a] * u[a];
-        delta[i] += s;
-    }
+    for (int a = D - 1; a >= 0; --a)  // u = S⁻¹ y' (Lᵀ u = L⁻¹ y')
+        for (int l = 0; l < W; ++l) {
+            double* ul = u + l * D;
+            double s = ul[a];
+            for (int k = a + 1; k < D; ++k) s -= Lw[l * dd + k * D + a] * ul[k];
+            ul[a] = s * inv[l * D + a];
+        }
+    for (int i = 0; i < n; ++i)  // row i of K = P Hᵀ S⁻¹; δ += P Hᵀ S⁻¹ y'
+        for (int l = 0; l < W; ++l) {
+            double* Kl = K + l * nD;
+            const double* Pl = PHt + l * nD;
+            std::copy(Pl + i * D, Pl + (i + 1) * D, Kl + i * D);
+            cholesky_solve<D_>(D, Lw + l * dd, inv + l * D, Kl + i * D);
+            double s = 0.0;
+            for (int a = 0; a < D; ++a) s += Pl[i * D + a] * u[l * D + a];
+            delta[l][i] += s;
+        }
     // Joseph form P = (I - KH) P (I - KH)ᵀ + K R Kᵀ rather than Eq. 28's P - K S Kᵀ: a sum of
     // two congruences, so P stays symmetric positive semi-definite under rounding (and for any
     // gain, e.g. a robust filter's reweighted one), even after many updates or with a reading
@@ -197,27 +231,41 @@ bool kalman_block(int n, int D, double* delta, double* P, const double* y, const
     // Evaluated without forming I - KH (P symmetric, so H P = (P Hᵀ)ᵀ):
     //   AP = (I - KH) P = P - K (P Hᵀ)ᵀ,   AP (I - KH)ᵀ + K R Kᵀ = AP - (AP Hᵀ - K R) Kᵀ.
     for (int i = 0; i < n; ++i)
-        for (int j = 0; j < n; ++j) {
-            double s = P[i * n + j];
-            for (int a = 0; a < D; ++a) s -= K[i * D + a] * PHt[j * D + a];
-            AP[i * n + j] = s;
-        }
+        for (int j = 0; j < n; ++j)
+            for (int l = 0; l < W; ++l) {
+                double s = P[l][i * n + j];
+                for (int a = 0; a < D; ++a) s -= K[l * nD + i * D + a] * PHt[l * nD + j * D + a];
+                AP[l * nn + i * n + j] = s;
+            }
     for (int i = 0; i < n; ++i)  // KR ← AP Hᵀ - K R
-        for (int b = 0; b < D; ++b) {
-            double s = 0.0;
-            for (int k = 0; k < n; ++k) s += AP[i * n + k] * H[b * n + k];
-            for (int a = 0; a < D; ++a) s -= K[i * D + a] * R[a * D + b];
-            KR[i * D + b] = s;
-        }
+        for (int b = 0; b < D; ++b)
+            for (int l = 0; l < W; ++l) {
+                double s = 0.0;
+                for (int k = 0; k < n; ++k) s += AP[l * nn + i * n + k] * H[l][b * n + k];
+                for (int a = 0; a < D; ++a) s -= K[l * nD + i * D + a] * R[l][a * D + b];
+                KR[l * nD + i * D + b] = s;
+            }
     for (int i = 0; i < n; ++i)
-        for (int j = 0; j < n; ++j) {
-            double s = AP[i * n + j];
-            for (int b = 0; b < D; ++b) s -= KR[i * D + b] * K[j * D + b];
-            A[i * n + j] = s;
-        }
+        for (int j = 0; j < n; ++j)
+            for (int l = 0; l < W; ++l) {
+                double s = AP[l * nn + i * n + j];
+                for (int b = 0; b < D; ++b) s -= KR[l * nD + i * D + b] * K[l * nD + j * D + b];
+                A[l * nn + i * n + j] = s;
+            }
     for (int i = 0; i < n; ++i)  // symmetrized, into P (read no more)
-        for (int j = 0; j < n; ++j) P[i * n + j] = 0.5 * (A[i * n + j] + A[j * n + i]);
-    return true;
+        for (int j = 0; j < n; ++j)
+            for (int l = 0; l < W; ++l)
+                P[l][i * n + j] = 0.5 * (A[l * nn + i * n + j] + A[l * nn + j * n + i]);
+}
+
+// One filter's block (kalman_lanes with one lane); false (nothing updated) when S is not
+// positive definite.
+template <int N_, int D_>
+bool kalman_block(int n, int D, double* delta, double* P, const double* y, const double* H,
+                  const double* R, double* S_out, double& nis, double& logdet) {
+    bool ok;
+    kalman_lanes<N_, D_, 1>(n, D, &delta, &P, &y, &H, &R, &S_out, &nis, &logdet, &ok);
+    return ok;
 }
 
 }  // namespace
@@ -388,16 +436,37 @@ inline void innovation_given(int d, const double* v, const double* H, const doub
 // One pair's block of the stacked correction, on the running (δ, P) of a pose filter (see
 // kalman_block), with the pair's noise R (d, diagonal) divided by weight w.
 // y_out (d), S_out (d × d) if non-null: the block's innovation y' = y - H δ and its S.
+// W lanes: one pair of each of W filters (kalman_lanes); pair_block: one filter's.
+template <int W>
+void pair_lanes(int d, double* const* delta, double* const* P, const Pair* const* q,
+                const Predicted* const* pr, const double* w, double* nis, double* logdet,
+                double* const* y_out, double* const* S_out, bool* ok) {
+    double R[W][4];
+    const double *Rp[W], *y[W], *H[W];
+    for (int l = 0; l < W; ++l) {
+        const Predicted& p = *pr[l];
+        const double wl = w[l];
+        // (x / 1 is x: no division for an unweighted reading)
+        R[l][0] = wl == 1.0 ? p.R[0] : p.R[0] / wl;
+        R[l][1] = R[l][2] = wl == 1.0 ? p.Rx : p.Rx / wl;
+        R[l][3] = d == 2 ? (wl == 1.0 ? p.R[1] : p.R[1] / wl) : 0.0;
+        if (y_out[l]) innovation_given(d, q[l]->v, p.H, delta[l], y_out[l]);
+        Rp[l] = R[l], y[l] = q[l]->v, H[l] = p.H;
+    }
+    if (d == 2)
+        kalman_lanes<3, 2, W>(3, 2, delta, P, y, H, Rp, S_out, nis, logdet, ok);
+    else
+        kalman_lanes<3, 1, W>(3, 1, delta, P, y, H, Rp, S_out, nis, logdet, ok);
+}
+
 inline bool pair_block(int d, double* delta, double* P, const Pair& q, const Predicted& pr,
                        double w, double& nis, double& logdet, double* y_out = nullptr,
                        double* S_out = nullptr) {
-    // (x / 1 is x: no division for an unweighted reading)
-    const double R[4] = {w == 1.0 ? pr.R[0] : pr.R[0] / w, w == 1.0 ? pr.Rx : pr.Rx / w,
-                         w == 1.0 ? pr.Rx : pr.Rx / w,
-                         d == 2 ? (w == 1.0 ? pr.R[1] : pr.R[1] / w) : 0.0};
-    if (y_out) innovation_given(d, q.v, pr.H, delta, y_out);
-    if (d == 2) return kalman_block<3, 2>(3, 2, delta, P, q.v, pr.H, R, S_out, nis, logdet);
-    return kalman_block<3, 1>(3, 1, delta, P, q.v, pr.H, R, S_out, nis, logdet);
+    const Pair* qq = &q;
+    const Predicted* pp = &pr;
+    bool ok;
+    pair_lanes<1>(d, &delta, &P, &qq, &pp, &w, &nis, &logdet, &y_out, &S_out, &ok);
+    return ok;
 }
 
 // A reading with k >= 2 landmarks inside its gate (candidates c[0..k), pairs of one reading i)
@@ -547,8 +616,8 @@ struct Work {
 
 // This thread's scratch, looked up once per call: not inlined, so the compiler cannot redo the
 // lookup (a call, __tls_get_addr, in a shared library) at every use.
-RELMAP_NOINLINE Work& thread_work() {
-    thread_local Work work;
+RELMAP_NOINLINE Work* thread_work() {
+    thread_local Work work[LANES];  // a call corrects up to LANES filters side by side
     return work;
 }
 
@@ -560,32 +629,23 @@ void predict_odometry(double* x, double* P, double ds, double dth, const double*
 
 void signature_candidates(const Map& map, int64_t m, const int64_t* signature,
                           int64_t* candidates) {
-    // std::equal_range's two bisections, without branches (a signature's place in the map is
-    // as good as random: a branch per halving would be mispredicted half the time)
-    const int64_t* const a = map.sig_sorted.data();
-    const int64_t L = map.L;
-    auto first = [&](int64_t s, bool after) {  // first k with a[k] >= s (after: a[k] > s)
-        if (L == 0) return int64_t{0};
-        const int64_t* base = a;
-        for (int64_t n = L; n > 1;) {
-            const int64_t half = n / 2;
-            base = (after ? base[half] <= s : base[half] < s) ? base + half : base;
-            n -= half;
-        }
-        return (base - a) + static_cast<int64_t>(after ? *base <= s : *base < s);
-    };
-    for (int64_t i = 0; i < m; ++i) {
-        candidates[2 * i] = first(signature[i], false);
-        candidates[2 * i + 1] = first(signature[i], true);
-    }
+    for (int64_t i = 0; i < m; ++i) map.find(signature[i], candidates[2 * i], candidates[2 * i + 1]);
 }
 
-void correct_readings(double* x, double* P, int64_t m, const double* z, const uint8_t* present,
-                      const int64_t* candidates, const Map& map, const double* p,
-                      const Options& opt, ReadingOut out, Totals& totals) {
+namespace {
+
+// The association of a filter's readings (Eqs. 21-25) and the pairs of its update: fills w's
+// status, landmark, pair_d2, chosen, pred and update / upred (the used pairs in update order
+// and their predictions; an ambiguous reading's mixture, w.mixed / w.mixpred).
+void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
+    const double* const x = c.x;
+    const double* const P = c.P;
+    const int64_t m = c.m;
+    const double* const z = c.z;
+    const uint8_t* const present = c.present;
+    const int64_t* const candidates = c.candidates;
+    const double* const p = c.p;
     const int d = opt.sensor == RANGE_ONLY ? 1 : 2;
-    // scratch of this thread, reused between calls (no allocation per time stamp)
-    Work& w = thread_work();
     w.status.assign(m, 0);
     w.landmark.assign(m, -1);
     w.nearest.assign(m, INF);
@@ -1026,6 +1086,110 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
         pair_d2[i] = q->d2;
         upred.back() = &w.mixpred[i];
     }
+}
+
+void report(const Call& c, const Options& opt, Work& w, const double* delta, const double* Pn,
+            double nis, double logdet, bool ok);
+
+// The correction of W filters (each its own call and scratch), their association first, then
+// their updates side by side (kalman_lanes), then what each reports. (The filters of a batch
+// often see the same readings: associated one after the other, they also take the same
+// branches.)
+template <int W>
+void correct_lanes(const Call* calls, const Map& map, const Options& opt) {
+    const int d = opt.sensor == RANGE_ONLY ? 1 : 2;
+    // scratch of this thread, reused between calls (no allocation per time stamp)
+    Work* const work = thread_work();
+    for (int l = 0; l < W; ++l) associate(calls[l], map, opt, work[l]);
+    // The correction with the used pairs (Eqs. 26-28), one per time stamp: their stacked
+    // update, done pair by pair (kalman_block: each pair's noise is its own, so R is block
+    // diagonal and the 2 × 2 blocks in turn are the stacked 2k × 2k update).
+    struct Lane {
+        double delta[3] = {0.0, 0.0, 0.0}, Pn[9], nis = 0.0, logdet = 0.0, c2, lambda;
+        bool ok = true, robust, reweighted;
+    };
+    Lane lane[W];
+    size_t most = 0;  // the most pairs of a lane
+    for (int l = 0; l < W; ++l) {
+        Lane& s = lane[l];
+        const double* p = calls[l].p;
+        std::copy(calls[l].P, calls[l].P + 9, s.Pn);
+        s.robust = std::isfinite(p[NU]);
+        // correlated readings carry less information than their spread says: the update's R
+        // is inflated by c² (NoiseParameters.inflation); association, gate and likelihood
+        // keep the readings' R
+        s.c2 = p[INFLATION] * p[INFLATION];
+        s.lambda = p[CLUTTER];
+        s.reweighted = s.robust || s.c2 != 1.0 || s.lambda > 0.0;
+        most = std::max(most, work[l].update.size());
+    }
+    auto given = [&](int l, const Pair* q, int k) -> double* {  // where the pair's y', S' go
+        const ReadingOut& out = calls[l].out;
+        return !out.y_given ? nullptr
+                            : (k ? out.S_given + q->i * d * d : out.y_given + q->i * d);
+    };
+    // Pair u of every lane side by side while every lane has one (and has not failed), then
+    // the lanes left one by one.
+    auto step = [&](auto lanes, const int* which, size_t u) {
+        constexpr int V = decltype(lanes)::value;
+        double *delta[V], *Pp[V], wgt[V], *yo[V], *So[V];
+        const Pair* q[V];
+        const Predicted* pr[V];
+        bool okl[V];
+        for (int v = 0; v < V; ++v) {
+            const int l = which[v];
+            Lane& s = lane[l];
+            const double* p = calls[l].p;
+            q[v] = work[l].update[u];
+            pr[v] = work[l].upred[u];
+            // Student-t readings: the reading's weight (ν + d)/(ν + d²) scales R by its inverse
+            wgt[v] = (s.robust ? (p[NU] + d) / (p[NU] + q[v]->d2) : 1.0) / s.c2;
+            if (s.lambda > 0.0) wgt[v] *= landmark_probability(*q[v], *pr[v], d, p, s.lambda);
+            delta[v] = s.delta, Pp[v] = s.Pn;
+            yo[v] = s.reweighted ? nullptr : given(l, q[v], 0);
+            So[v] = s.reweighted ? nullptr : given(l, q[v], 1);
+        }
+        double nis[V], logdet[V];
+        for (int v = 0; v < V; ++v) nis[v] = lane[which[v]].nis, logdet[v] = lane[which[v]].logdet;
+        pair_lanes<V>(d, delta, Pp, q, pr, wgt, nis, logdet, yo, So, okl);
+        for (int v = 0; v < V; ++v) {
+            Lane& s = lane[which[v]];
+            s.ok = okl[v], s.nis = nis[v], s.logdet = logdet[v];
+        }
+    };
+    for (size_t u = 0; u < most; ++u) {
+        int which[W], na = 0;
+        for (int l = 0; l < W; ++l)
+            if (lane[l].ok && u < work[l].update.size()) which[na++] = l;
+        if (na == W) {
+            step(std::integral_constant<int, W>{}, which, u);
+        } else {
+            for (int v = 0; v < na; ++v) step(std::integral_constant<int, 1>{}, which + v, u);
+        }
+    }
+    for (int l = 0; l < W; ++l) report(calls[l], opt, work[l], lane[l].delta, lane[l].Pn,
+                                       lane[l].nis, lane[l].logdet, lane[l].ok);
+}
+
+// After the update of a filter's used pairs (delta, Pn, nis, logdet, ok from correct_lanes):
+// the likelihood's sequence for a reweighted update, the filter's new state and totals, and
+// what it reports per reading.
+void report(const Call& c, const Options& opt, Work& w, const double* delta, const double* Pn,
+            double nis, double logdet, bool ok) {
+    double* const x = c.x;
+    double* const P = c.P;
+    const int64_t m = c.m;
+    const double* const p = c.p;
+    const ReadingOut& out = c.out;
+    Totals& totals = *c.totals;
+    const int d = opt.sensor == RANGE_ONLY ? 1 : 2;
+    int8_t* const status = w.status.data();
+    const int32_t* const landmark = w.landmark.data();
+    const double* const pair_d2 = w.pair_d2.data();
+    const Pair* const* const chosen = w.chosen.data();
+    const Predicted* const pred = w.pred.data();
+    const std::vector<const Pair*>& update = w.update;
+    const std::vector<const Predicted*>& upred = w.upred;
     // The likelihood's sequence (R itself) through the used pairs, each pair's innovation and S
     // given the pairs before it (ReadingOut::y_given), and where it ends: a gated reading's
     // given state.
@@ -1036,30 +1200,11 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
         return !out.y_given ? nullptr
                             : (k ? out.S_given + q->i * d * d : out.y_given + q->i * d);
     };
-    // The correction with the used pairs (Eqs. 26-28), one per time stamp: their stacked
-    // update, done pair by pair (kalman_block: each pair's noise is its own, so R is block
-    // diagonal and the 2 × 2 blocks in turn are the stacked 2k × 2k update).
     if (!update.empty()) {
         const int D = d * static_cast<int>(update.size());
         const bool robust = std::isfinite(p[NU]);
-        // correlated readings carry less information than their spread says: the update's R
-        // is inflated by c² (NoiseParameters.inflation); association, gate and likelihood
-        // keep the readings' R
-        const double c2 = p[INFLATION] * p[INFLATION];
-        const double lambda = p[CLUTTER];
-        const bool reweighted = robust || c2 != 1.0 || lambda > 0.0;
-        double delta[3] = {0.0, 0.0, 0.0}, Pn[9], nis = 0.0, logdet = 0.0;
-        std::copy(P, P + 9, Pn);
-        bool ok = true;
-        for (size_t u = 0; u < update.size(); ++u) {
-            const Pair* q = update[u];
-            // Student-t readings: the reading's weight (ν + d)/(ν + d²) scales R by its inverse
-            double wgt = (robust ? (p[NU] + d) / (p[NU] + q->d2) : 1.0) / c2;
-            if (lambda > 0.0) wgt *= landmark_probability(*q, *upred[u], d, p, lambda);
-            ok = ok && pair_block(d, delta, Pn, *q, *upred[u], wgt, nis, logdet,
-                                  reweighted ? nullptr : given(q, 0),
-                                  reweighted ? nullptr : given(q, 1));
-        }
+        const bool reweighted =
+            robust || p[INFLATION] * p[INFLATION] != 1.0 || p[CLUTTER] > 0.0;
         if (reweighted && ok) {  // the likelihood is that of S with R itself, not reweighted
             nis = logdet = 0.0;
             for (size_t u = 0; u < update.size(); ++u)
@@ -1113,34 +1258,53 @@ void correct_readings(double* x, double* P, int64_t m, const double* z, const ui
     }
 }
 
+}  // namespace
+
+void correct_filters(int W, const Call* calls, const Map& map, const Options& opt) {
+    if (W == LANES)
+        correct_lanes<LANES>(calls, map, opt);
+    else
+        for (int l = 0; l < W; ++l) correct_lanes<1>(calls + l, map, opt);
+}
+
+Map::Map(int64_t L_, const double* xy_, const int64_t* s) : L(L_), store(xy_, xy_ + 2 * L_) {
+    xy = store.data();
+    rows.resize(L);
+    for (int64_t l = 0; l < L; ++l) rows[l] = l;
+    sig_landmark = rows;
+    if (!std::is_sorted(s, s + L))  // (sorted already: the rows are their order)
+        std::stable_sort(sig_landmark.begin(), sig_landmark.end(),
+                         [&](int64_t a, int64_t b) { return s[a] < s[b]; });
+    sig_sorted.resize(L);
+    for (int64_t k = 0; k < L; ++k) sig_sorted[k] = s[sig_landmark[k]];
+    // the table: at least twice as many slots as signatures (short probes)
+    size_t size = 2;
+    while (size < 2 * static_cast<size_t>(L)) size *= 2, --shift;
+    table.assign(size, Slot{});
+    for (int64_t k = 0; k < L;) {
+        int64_t e = k + 1;
+        while (e < L && sig_sorted[e] == sig_sorted[k]) ++e;
+        size_t h = slot_of(sig_sorted[k]);
+        while (table[h].lo >= 0) h = (h + 1) & (size - 1);
+        table[h] = {sig_sorted[k], k, e};
+        k = e;
+    }
+}
+
+void Map::find(int64_t s, int64_t& lo, int64_t& hi) const {
+    const size_t mask = table.size() - 1;
+    for (size_t h = slot_of(s);; h = (h + 1) & mask) {
+        const Slot& e = table[h];
+        if (e.lo < 0 || e.key == s) {
+            lo = e.lo < 0 ? 0 : e.lo;
+            hi = e.lo < 0 ? 0 : e.hi;
+            return;
+        }
+    }
+}
+
 // ----------------------------------------------------------------------------- bindings
 namespace {
-
-using UInt8_2 = nb::ndarray<const uint8_t, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
-
-// The map; the signatures sorted only for signature candidates (else every row is one).
-Map make_map(Float2 landmarks, Index1 landmark_sig, bool signatures) {
-    Map map;
-    map.L = static_cast<int64_t>(landmarks.shape(0));
-    if (landmarks.shape(1) != 2) throw nb::value_error("landmarks must be (L, 2)");
-    map.xy = landmarks.data();
-    if (static_cast<int64_t>(landmark_sig.shape(0)) != map.L)
-        throw nb::value_error("landmark signatures must be (L,)");
-    std::vector<int64_t> order(map.L);
-    for (int64_t l = 0; l < map.L; ++l) order[l] = l;
-    if (!signatures) {
-        map.rows = std::move(order);
-        return map;
-    }
-    const int64_t* s = landmark_sig.data();
-    if (!std::is_sorted(s, s + map.L))  // (sorted already: the rows are their order)
-        std::stable_sort(order.begin(), order.end(),
-                         [&](int64_t a, int64_t b) { return s[a] < s[b]; });
-    map.sig_sorted.resize(map.L);
-    for (int64_t k = 0; k < map.L; ++k) map.sig_sorted[k] = s[order[k]];
-    map.sig_landmark = std::move(order);
-    return map;
-}
 
 Options make_options(int sensor, int noise_model, int method, int cost, bool signatures,
                      double gate2, Float1 joint_gate2, int64_t jcbb_nodes) {
@@ -1218,6 +1382,20 @@ void register_ekf(nb::module_& m) {
         nb::arg("d2"), nb::arg("logdet"), nb::arg("D"), nb::arg("nu"),
         "Log-density (n,) of the normal (nu inf) or the Student-t with scale S and nu dof, at "
         "Mahalanobis d2 = yᵀS⁻¹y with logdet = log det S.");
+    nb::class_<Map>(m, "EkfMap",
+                    "A landmark map checked and prepared once (internal: see "
+                    "relmap.ekf.LandmarkMap).")
+        .def(
+            "__init__",
+            [](Map* self, Float2 landmarks, Index1 signatures) {
+                if (landmarks.shape(1) != 2) throw nb::value_error("landmarks must be (L, 2)");
+                if (signatures.shape(0) != landmarks.shape(0))
+                    throw nb::value_error("landmark signatures must be (L,)");
+                new (self) Map(static_cast<int64_t>(landmarks.shape(0)), landmarks.data(),
+                               signatures.data());
+            },
+            nb::arg("landmarks"), nb::arg("signatures"))
+        .def_prop_ro("L", [](const Map& map) { return map.L; });
     m.def(
         "ekf_predict_covariance",
         [](Float3 P, Float3 F, Float3 Q) {
@@ -1263,80 +1441,107 @@ void register_ekf(nb::module_& m) {
 
     m.def(
         "ekf_predict_odometry",
-        [](Float2 x, Float3 P, Float2 motion, Float2 params) {
-            check_filters(x, P);
-            const size_t B = x.shape(0);
-            if (motion.shape(0) != B || motion.shape(1) != 2)
-                throw nb::value_error("motion must be (B, 2)");
+        [](FloatN x, FloatN P, FloatN motion, Float2 params) {
+            const size_t n = x.ndim();
+            if (n < 1 || x.shape(n - 1) != 3 || P.ndim() != n + 1 || P.shape(n) != 3 ||
+                P.shape(n - 1) != 3 || motion.ndim() < 1 || motion.shape(motion.ndim() - 1) != 2)
+                throw nb::value_error("x must be (..., 3), P (..., 3, 3) and motion (..., 2)");
+            const size_t B = x.size() / 3;
+            if (P.size() != 9 * B || motion.size() != 2 * B)
+                throw nb::value_error("x, P and motion must have one batch");
+            const double* mo = motion.data();
+            for (size_t k = 0; k < 2 * B; ++k)
+                if (!std::isfinite(mo[k]))
+                    raise_relmap_error("NonFiniteError",
+                                       "odometry steps must be finite; (Δs, Δθ) of filter " +
+                                           std::to_string(k / 2) + " has " +
+                                           std::to_string(mo[k]));
             const size_t ps = check_params(params, B);
-            auto xo = new_array({B, 3}), Po = new_array({B, 3, 3});
-            std::copy(x.data(), x.data() + B * 3, xo.data());
-            std::copy(P.data(), P.data() + B * 9, Po.data());
+            auto xo = new_result_like(x, n), Po = new_result_like(P, n + 1);
+            std::copy(x.data(), x.data() + B * 3, xo.data);
+            std::copy(P.data(), P.data() + B * 9, Po.data);
             for (size_t b = 0; b < B; ++b)
-                predict_odometry(xo.data() + 3 * b, Po.data() + 9 * b, motion.data()[2 * b],
-                                 motion.data()[2 * b + 1], params.data() + b * ps);
-            return nb::make_tuple(xo, Po);
+                predict_odometry(xo.data + 3 * b, Po.data + 9 * b, mo[2 * b], mo[2 * b + 1],
+                                 params.data() + b * ps);
+            return nb::make_tuple(xo.array, Po.array);
         },
         nb::arg("x"), nb::arg("P"), nb::arg("motion"), nb::arg("params"),
-        "One odometry prediction (midpoint, DistanceNoise) per filter.");
+        "One odometry prediction (midpoint, DistanceNoise) per filter: x (..., 3), P (..., 3, "
+        "3), motion (..., 2) of one batch; non-finite motion raises relmap's NonFiniteError.");
 
     m.def(
         "ekf_correct_readings",
-        [](Float2 x, Float3 P, Float3 z, UInt8_2 present, Index2 signature, Float2 landmarks,
-           Index1 landmark_sig, Float2 params, int sensor, int noise_model, int method, int cost,
+        [](FloatN x, FloatN P, FloatN z, BoolN present, IndexN signature, const Map& map,
+           Float2 params, int sensor, int noise_model, int method, int cost,
            bool signatures, double gate2, Float1 joint_gate2, int64_t jcbb_nodes) {
-            check_filters(x, P);
-            const size_t B = x.shape(0), mm = z.shape(1), d = z.shape(2);
+            const size_t n = x.ndim();  // the batch: x's leading n - 1 axes
+            if (n < 1 || x.shape(n - 1) != 3 || P.ndim() != n + 1 || P.shape(n) != 3 ||
+                P.shape(n - 1) != 3 || z.ndim() != n + 1)
+                throw nb::value_error("x must be (..., 3), P (..., 3, 3) and z (..., m, d)");
+            const size_t B = x.size() / 3, mm = z.shape(n - 1), d = z.shape(n);
             const Options opt = make_options(sensor, noise_model, method, cost, signatures, gate2,
                                              joint_gate2, jcbb_nodes);
-            if (z.shape(0) != B || d != (opt.sensor == RANGE_ONLY ? 1u : 2u))
-                throw nb::value_error("z must be (B, m, d), d = 2 (range-bearing) or 1 (range)");
-            if (present.shape(0) != B || present.shape(1) != mm || signature.shape(0) != B ||
-                signature.shape(1) != mm)
-                throw nb::value_error("present and signature must be (B, m)");
+            if (P.size() != 9 * B || z.size() != B * mm * d ||
+                d != (opt.sensor == RANGE_ONLY ? 1u : 2u))
+                throw nb::value_error("z must be (..., m, d), d = 2 (range-bearing) or 1 (range)");
+            if (present.size() != B * mm || signature.size() != B * mm)
+                throw nb::value_error("present and signature must be (..., m)");
+            const uint8_t* const pr = reinterpret_cast<const uint8_t*>(present.data());
             const size_t ps = check_params(params, B);
-            const Map map = make_map(landmarks, landmark_sig, opt.signatures);
             // two packed outputs (one NumPy array each costs more than the arithmetic here):
             // floats per filter x (3), P (9), y (m d), S (m d d), d² (m), loglik, nis;
             // integers per filter status (m), landmark (m), dof
             const size_t F = 12 + mm * (d + d * d + 1) + 2, I = 2 * mm + 1;
-            auto fo = new_array({B, F});
-            auto io = new_array<int64_t>({B, I});
-            std::vector<int8_t> st(mm);
-            std::vector<int32_t> lmo(mm);
-            std::vector<int64_t> cands(2 * mm);
-            for (size_t b = 0; b < B; ++b) {
-                double* f = fo.data() + b * F;
-                int64_t* iv = io.data() + b * I;
-                std::copy(x.data() + 3 * b, x.data() + 3 * b + 3, f);
-                std::copy(P.data() + 9 * b, P.data() + 9 * b + 9, f + 3);
-                ReadingOut out{f + 12, f + 12 + mm * d, f + 12 + mm * (d + d * d), st.data(),
-                               lmo.data()};
-                Totals totals;
-                if (opt.signatures)
-                    signature_candidates(map, static_cast<int64_t>(mm), signature.data() + b * mm,
-                                         cands.data());
-                correct_readings(f, f + 3, static_cast<int64_t>(mm), z.data() + b * mm * d,
-                                 present.data() + b * mm, cands.data(), map,
-                                 params.data() + b * ps, opt, out, totals);
-                f[F - 2] = totals.loglik;
-                f[F - 1] = totals.nis;
-                for (size_t i = 0; i < mm; ++i) iv[i] = st[i], iv[mm + i] = lmo[i];
-                iv[2 * mm] = totals.dof;
+            auto fo = new_result_like(x, n - 1, {F});
+            auto io = new_result_like<int64_t>(x, n - 1, {I});
+            std::vector<int8_t> st(LANES * mm);
+            std::vector<int32_t> lmo(LANES * mm);
+            std::vector<int64_t> cands(2 * LANES * mm);
+            for (size_t b0 = 0; b0 < B; b0 += LANES) {  // LANES filters side by side
+                const int W = static_cast<int>(std::min<size_t>(LANES, B - b0));
+                Call calls[LANES];
+                Totals totals[LANES];
+                for (int l = 0; l < W; ++l) {
+                    const size_t b = b0 + l;
+                    double* f = fo.data + b * F;
+                    std::copy(x.data() + 3 * b, x.data() + 3 * b + 3, f);
+                    std::copy(P.data() + 9 * b, P.data() + 9 * b + 9, f + 3);
+                    int64_t* cl = cands.data() + 2 * mm * l;
+                    if (opt.signatures)
+                        signature_candidates(map, static_cast<int64_t>(mm),
+                                             signature.data() + b * mm, cl);
+                    calls[l] = {f, f + 3, static_cast<int64_t>(mm), z.data() + b * mm * d,
+                                pr + b * mm, cl, params.data() + b * ps,
+                                ReadingOut{f + 12, f + 12 + mm * d, f + 12 + mm * (d + d * d),
+                                           st.data() + mm * l, lmo.data() + mm * l},
+                                &totals[l]};
+                }
+                correct_filters(W, calls, map, opt);
+                for (int l = 0; l < W; ++l) {
+                    const size_t b = b0 + l;
+                    double* f = fo.data + b * F;
+                    int64_t* iv = io.data + b * I;
+                    f[F - 2] = totals[l].loglik;
+                    f[F - 1] = totals[l].nis;
+                    for (size_t i = 0; i < mm; ++i)
+                        iv[i] = st[mm * l + i], iv[mm + i] = lmo[mm * l + i];
+                    iv[2 * mm] = totals[l].dof;
+                }
             }
-            return nb::make_tuple(fo, io);
+            return nb::make_tuple(fo.array, io.array);
         },
         nb::arg("x"), nb::arg("P"), nb::arg("z"), nb::arg("present"), nb::arg("signature"),
-        nb::arg("landmarks"), nb::arg("landmark_sig"), nb::arg("params"), nb::arg("sensor"),
+        nb::arg("map"), nb::arg("params"), nb::arg("sensor"),
         nb::arg("noise_model"), nb::arg("method"), nb::arg("cost"), nb::arg("signatures"),
         nb::arg("gate2"), nb::arg("joint_gate2"), nb::arg("jcbb_nodes"),
         "Association, gating and one stacked correction per filter of the readings of one time "
-        "stamp (each filter its own readings).");
+        "stamp (each filter its own readings): x (..., 3), P (..., 3, 3), z (..., m, d), "
+        "present and signature (..., m) of one batch; packed outputs (..., F) and (..., I).");
 
     m.def(
         "ekf_run",
         [](Float2 x0, Float3 P0, Float2 motion, Index1 reading_index, Float2 z, Index1 signature,
-           Float2 landmarks, Index1 landmark_sig, Float2 params, int sensor, int noise_model,
+           const Map& map, Float2 params, int sensor, int noise_model,
            int method, int cost, bool signatures, double gate2, Float1 joint_gate2,
            int64_t jcbb_nodes, int keep, bool readings_out) {
             check_filters(x0, P0);
@@ -1354,7 +1559,6 @@ void register_ekf(nb::module_& m) {
                     throw nb::value_error("reading_index must be non-decreasing in [0, K]");
             const size_t ps = check_params(params, B);
             if (keep < 0 || keep > 2) throw nb::value_error("keep must be 0, 1 or 2");
-            const Map map = make_map(landmarks, landmark_sig, opt.signatures);
             // the time stamps with readings: readings lo[e]:lo[e + 1] at time index at[e]
             std::vector<int64_t> lo, at;
             for (size_t r = 0; r < M; ++r)
@@ -1378,42 +1582,56 @@ void register_ekf(nb::module_& m) {
             std::vector<Totals> totals(B);
             {
                 nb::gil_scoped_release release;
-                for (size_t b = 0; b < B; ++b) {
-                    double x[3] = {x0.data()[3 * b], x0.data()[3 * b + 1], x0.data()[3 * b + 2]};
-                    double P[9];
-                    std::copy(P0.data() + 9 * b, P0.data() + 9 * b + 9, P);
-                    const double* p = params.data() + b * ps;
-                    double* mo = mean.data() + b * T * 3;
-                    double* co = cov.data() + b * T * 9;
+                for (size_t b0 = 0; b0 < B; b0 += LANES) {  // LANES filters side by side
+                    const int W = static_cast<int>(std::min<size_t>(LANES, B - b0));
+                    double x[LANES][3], P[LANES][9];
+                    const double* p[LANES];
+                    for (int l = 0; l < W; ++l) {
+                        const size_t b = b0 + l;
+                        std::copy(x0.data() + 3 * b, x0.data() + 3 * b + 3, x[l]);
+                        std::copy(P0.data() + 9 * b, P0.data() + 9 * b + 9, P[l]);
+                        p[l] = params.data() + b * ps;
+                    }
                     auto store = [&](size_t slot) {
-                        std::copy(x, x + 3, mo + 3 * slot);
-                        std::copy(P, P + 9, co + 9 * slot);
+                        for (int l = 0; l < W; ++l) {
+                            const size_t b = b0 + l;
+                            std::copy(x[l], x[l] + 3, mean.data() + (b * T + slot) * 3);
+                            std::copy(P[l], P[l] + 9, cov.data() + (b * T + slot) * 9);
+                        }
                     };
                     if (keep == 1) store(0);
                     size_t e = 0;
                     for (size_t j = 0; j <= K; ++j) {
-                        if (j > 0) predict_step(x, P, steps[j - 1], p);
+                        if (j > 0)
+                            for (int l = 0; l < W; ++l) predict_step(x[l], P[l], steps[j - 1], p[l]);
                         if (e < E && at[e] == static_cast<int64_t>(j)) {
                             const int64_t r0 = lo[e], m = lo[e + 1] - lo[e];
-                            ReadingOut out;
-                            if (readings_out) {
-                                const size_t o = b * M + r0;
-                                out = {yo.data() + o * d, So.data() + o * d * d, d2.data() + o,
-                                       st.data() + o, lmo.data() + o, yg.data() + o * d,
-                                       Sg.data() + o * d * d};
+                            Call calls[LANES];
+                            for (int l = 0; l < W; ++l) {
+                                const size_t b = b0 + l;
+                                ReadingOut out;
+                                if (readings_out) {
+                                    const size_t o = b * M + r0;
+                                    out = {yo.data() + o * d, So.data() + o * d * d, d2.data() + o,
+                                           st.data() + o, lmo.data() + o, yg.data() + o * d,
+                                           Sg.data() + o * d * d};
+                                }
+                                calls[l] = {x[l], P[l], m, z.data() + r0 * d, nullptr,
+                                            opt.signatures ? cands.data() + 2 * r0 : nullptr, p[l],
+                                            out, &totals[b]};
                             }
-                            correct_readings(x, P, m, z.data() + r0 * d, nullptr,
-                                             opt.signatures ? cands.data() + 2 * r0 : nullptr, map,
-                                             p, opt, out, totals[b]);
+                            correct_filters(W, calls, map, opt);
                             ++e;
                             if (keep == 1) store(e);
                         }
                         if (keep == 2) store(j);
-                        if (totals[b].overflow < 0) {
+                        for (int l = 0; l < W; ++l) {
+                            Totals& t = totals[b0 + l];
+                            if (t.overflow >= 0) continue;
                             bool finite = true;
-                            for (int k = 0; k < 3; ++k) finite = finite && std::isfinite(x[k]);
-                            for (int k = 0; k < 9; ++k) finite = finite && std::isfinite(P[k]);
-                            if (!finite) totals[b].overflow = static_cast<int64_t>(j);
+                            for (int k = 0; k < 3; ++k) finite = finite && std::isfinite(x[l][k]);
+                            for (int k = 0; k < 9; ++k) finite = finite && std::isfinite(P[l][k]);
+                            if (!finite) t.overflow = static_cast<int64_t>(j);
                         }
                     }
                     if (keep == 0) store(0);
@@ -1433,8 +1651,7 @@ void register_ekf(nb::module_& m) {
             return res;
         },
         nb::arg("x0"), nb::arg("P0"), nb::arg("motion"), nb::arg("reading_index"), nb::arg("z"),
-        nb::arg("signature"), nb::arg("landmarks"), nb::arg("landmark_sig"), nb::arg("params"),
-        nb::arg("sensor"), nb::arg("noise_model"), nb::arg("method"), nb::arg("cost"),
+        nb::arg("signature"), nb::arg("map"), nb::arg("params"), nb::arg("sensor"), nb::arg("noise_model"), nb::arg("method"), nb::arg("cost"),
         nb::arg("signatures"), nb::arg("gate2"), nb::arg("joint_gate2"), nb::arg("jcbb_nodes"),
         nb::arg("keep"), nb::arg("readings_out"),
         "A batch of pose filters over one log: predict each odometry step, correct at the time "

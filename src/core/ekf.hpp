@@ -76,14 +76,34 @@ struct Options {
     int64_t jcbb_nodes = 10000;        // JCBB: search nodes at most (then the best so far)
 };
 
-// The map: landmark positions and, for signature association, their signatures sorted with
-// the landmark of each.
+// The map: landmark positions and their signatures, checked and prepared once (Python's
+// relmap.ekf.LandmarkMap holds one): the signatures sorted with the landmark of each (signature
+// candidates) and the rows 0..L-1 (every landmark a candidate). Owns its data.
 struct Map {
     int64_t L = 0;
-    const double* xy = nullptr;        // (L, 2)
+    const double* xy = nullptr;        // (L, 2), into store
     std::vector<int64_t> sig_sorted;   // signatures in increasing order (signature candidates)
     std::vector<int64_t> sig_landmark; // the landmark of each sorted signature (ditto)
     std::vector<int64_t> rows;         // 0, 1, ..., L - 1 (every landmark a candidate)
+
+    Map(int64_t L, const double* xy, const int64_t* signatures);
+    Map(const Map&) = delete;
+    Map& operator=(const Map&) = delete;
+
+    // The landmarks of signature s: sig_landmark[lo .. hi) (lo == hi: none). A hash table of
+    // the distinct signatures (open addressing, linear probing), built once.
+    void find(int64_t s, int64_t& lo, int64_t& hi) const;
+
+  private:
+    struct Slot {
+        int64_t key, lo = -1, hi = -1;  // lo < 0: empty
+    };
+    std::vector<double> store;
+    std::vector<Slot> table;
+    int shift = 63;  // the hash's top bits index the table
+    size_t slot_of(int64_t s) const {
+        return static_cast<size_t>((static_cast<uint64_t>(s) * 0x9E3779B97F4A7C15ull) >> shift);
+    }
 };
 
 // What one correction reports per reading (pointers into the caller's arrays; may be null).
@@ -128,16 +148,29 @@ bool kalman_update(int n, int D, double* x, double* P, const double* y, const do
 void predict_odometry(double* x, double* P, double ds, double dth, const double* params);
 
 // The candidates of m readings of signatures signature (m): reading i's are the landmarks
-// map.sig_landmark[candidates[2i] .. candidates[2i + 1]) (a reading's signature is looked up
-// once, not once per filter).
+// map.sig_landmark[candidates[2i] .. candidates[2i + 1]) (Map::find).
 void signature_candidates(const Map& map, int64_t m, const int64_t* signature,
                           int64_t* candidates);
 
-// The correction of one pose filter (x, P) with the m readings z (m × d) of one time stamp;
-// with signature association, candidates (2m) from signature_candidates.
-void correct_readings(double* x, double* P, int64_t m, const double* z, const uint8_t* present,
-                      const int64_t* candidates, const Map& map, const double* params,
-                      const Options& opt, ReadingOut out, Totals& totals);
+// One pose filter's correction with the m readings z (m × d) of one time stamp: its state
+// (x, P), updated in place, and what it reports (out, totals); present (m) or null (all
+// present); with signature association, candidates (2m) from signature_candidates.
+struct Call {
+    double* x;
+    double* P;
+    int64_t m;
+    const double* z;
+    const uint8_t* present;
+    const int64_t* candidates;
+    const double* p;  // the filter's parameters (Param)
+    ReadingOut out;
+    Totals* totals;
+};
+
+// The corrections of W <= LANES filters (LANES of them are corrected side by side, their update
+// blocks interleaved; each filter's result is what it gives alone, bit for bit).
+constexpr int LANES = 4;
+void correct_filters(int W, const Call* calls, const Map& map, const Options& opt);
 
 void register_ekf(nb::module_& m);
 

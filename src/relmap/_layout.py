@@ -49,9 +49,12 @@ def components_outermost(arr: FloatArray, k: int) -> FloatArray:
 
 def read_only(arr: FloatArray, shape: tuple[int, ...]) -> FloatArray:
     """A read-only view of ``arr`` broadcast to ``shape`` (a plain view when it has that shape:
-    np.broadcast_to costs microseconds, which matter for single values)."""
+    np.broadcast_to costs microseconds, which matter for single values; ``arr`` itself when it
+    is read-only already, e.g. a result of the compiled core)."""
     if arr.shape != shape:
         return np.broadcast_to(arr, shape)
+    if not arr.flags.writeable:
+        return arr
     view = arr.view()
     view.setflags(write=False)  # (not view.flags.writeable = False: that builds a flags object)
     return view

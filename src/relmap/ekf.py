@@ -75,7 +75,6 @@ from __future__ import annotations
 
 import enum
 import functools
-import math
 from collections.abc import Callable
 from typing import NamedTuple
 
@@ -95,6 +94,7 @@ __all__ = [
     "Belief",
     "Correction",
     "Keep",
+    "LandmarkMap",
     "LandmarkUpdate",
     "Log",
     "Motion",
@@ -261,17 +261,17 @@ def _predict_covariance(P: FloatArray, F: FloatArray, Q: FloatArray) -> FloatArr
 
 
 @functools.lru_cache(maxsize=64)
-def _ones(B: int, m: int) -> np.ndarray:
-    """A read-only (B, m) uint8 array of ones ("every reading present"), cached."""
-    a = np.ones((B, m), np.uint8)
+def _ones(batch: tuple[int, ...], m: int) -> np.ndarray:
+    """A read-only (*batch, m) boolean array of ones ("every reading present"), cached."""
+    a = np.ones((*batch, m), bool)
     a.flags.writeable = False
     return a
 
 
 @functools.lru_cache(maxsize=64)
-def _zeros(B: int, m: int) -> np.ndarray:
-    """A read-only (B, m) int64 array of zeros (signatures unused), cached."""
-    a = np.zeros((B, m), np.int64)
+def _zeros(batch: tuple[int, ...], m: int) -> np.ndarray:
+    """A read-only (*batch, m) int64 array of zeros (signatures unused), cached."""
+    a = np.zeros((*batch, m), np.int64)
     a.flags.writeable = False
     return a
 
@@ -323,19 +323,18 @@ def predict(
         return _like(state, x_new, _predict_covariance(P, np.asarray(F), Q))
     if not isinstance(state, AT):
         raise ParameterError("odometry predicts a pose AT; use a Motion model for a Belief")
-    m = _pairs(u, "motion")
+    k = model.core_params(integration)
+    m = _pairs(u, "motion", finite=k is None)  # (the core checks the steps it is given)
     if drive is not None:
         m = drive.motion(m)
-    k = model.core_params(integration)
-    if k is not None:  # the core's built-in odometry model
-        if x.ndim == 1 and m.ndim == 1:  # one filter, one step: no broadcasting
-            xo, Po = _core.ekf_predict_odometry(x[None], P[None], m[None], k)
-            return AT._trusted(xo[0], Po[0])
+    if k is not None:  # the core's built-in odometry model (k: one parameter row, shared)
+        if x.shape[:-1] == m.shape[:-1]:  # one batch: no broadcasting
+            xo, Po = _core.ekf_predict_odometry(x, P, m, k)
+            return AT._trusted(xo, Po)
         batch = np.broadcast_shapes(x.shape[:-1], m.shape[:-1])
-        B = int(np.prod(batch))
         xo, Po = _core.ekf_predict_odometry(
             _flat(x, batch, (3,)), _flat(P, batch, (3, 3)), _flat(m, batch, (2,)), k
-        )  # (k: one parameter row, shared by the filters)
+        )
         return AT._trusted(xo.reshape(*batch, 3), Po.reshape(*batch, 3, 3))
     batch = np.broadcast_shapes(x.shape[:-1], m.shape[:-1])
     step = _step_ats(m, model, integration, drive)
@@ -510,7 +509,17 @@ class LandmarkUpdate(NamedTuple):
 def _association(
     associate: object, pairing: object, signatures: bool
 ) -> tuple[Association, int, int]:
-    """``(association, method, cost)`` of the core."""
+    """``(association, method, cost)`` of the core (cached: a filter asks at every step)."""
+    try:
+        return _association_codes(associate, pairing, signatures)
+    except TypeError:  # an unhashable option is no member: the uncached call says so
+        return _association_codes.__wrapped__(associate, pairing, signatures)
+
+
+@functools.lru_cache(maxsize=64)
+def _association_codes(
+    associate: object, pairing: object, signatures: bool
+) -> tuple[Association, int, int]:
     a = _option(Association, associate, "associate")
     p = _option(Pairing, pairing, "pairing")
     if a is Association.SIGNATURES and not signatures:
@@ -529,20 +538,70 @@ def _gates(gate: float, d: int, k: int) -> tuple[float, FloatArray]:
     return float(gaussian.confidence_k2(gate, d)), joint
 
 
-def _map(
-    landmarks: ArrayLike, landmark_signatures: ArrayLike | None
-) -> tuple[FloatArray, IntArray]:
-    lm = np.ascontiguousarray(landmarks, dtype=np.float64)
-    if lm.ndim != 2 or lm.shape[1] != 2:
-        raise ShapeError(f"landmarks must have shape (L, 2); got {lm.shape}")
-    if not np.isfinite(lm).all():
-        raise NonFiniteError("landmark positions must be finite")
-    if landmark_signatures is None:
-        return lm, np.arange(len(lm), dtype=np.int64)
-    sig = np.ascontiguousarray(landmark_signatures, dtype=np.int64)
-    if sig.shape != (len(lm),):
-        raise ShapeError(f"landmark_signatures must have shape ({len(lm)},); got {sig.shape}")
-    return lm, sig
+class LandmarkMap:
+    """A map of point landmarks, checked once: positions ``xy`` (L, 2) in the world frame and
+    integer ``signatures`` (L,) (e.g. barcodes; default the rows 0..L-1), read-only.
+
+    :func:`correct_landmarks` and :func:`run` take one in place of the positions array (an
+    array given there is made into one at each call, through this class): a filter that
+    corrects at every step with one map builds it once, and the checks (shapes, finite
+    positions) and the core's preparation (the signatures sorted) are not redone at every step.
+    Landmarks are referred to by their row, as ``LandmarkUpdate.landmark`` reports them.
+
+    >>> import numpy as np, relmap as rm
+    >>> from relmap import ekf
+    >>> from relmap.sensors import RangeBearingSensor
+    >>> landmarks = ekf.LandmarkMap([[4.0, 0.0], [0.0, 3.0]], signatures=[17, 42])
+    >>> prior = rm.AT([0.0, 0.0, 0.0], np.diag([0.1, 0.1, 0.01]))
+    >>> sensor = RangeBearingSensor(0.1, 0.01)
+    >>> up = ekf.correct_landmarks(prior, [[3.1, 1.6]], sensor, landmarks,
+    ...                            associate="signatures", signatures=[42])
+    >>> print(up.landmark, up.status)  # the row of signature 42, used
+    [1] [0]
+    """
+
+    __slots__ = ("_core", "signatures", "xy")
+    xy: FloatArray
+    signatures: IntArray
+
+    def __init__(self, xy: ArrayLike, signatures: ArrayLike | None = None) -> None:
+        lm = np.array(xy, dtype=np.float64)
+        if lm.ndim != 2 or lm.shape[1] != 2:
+            raise ShapeError(f"landmarks must have shape (L, 2); got {lm.shape}")
+        if not np.isfinite(lm).all():
+            raise NonFiniteError("landmark positions must be finite")
+        if signatures is None:
+            sig = np.arange(len(lm), dtype=np.int64)
+        else:
+            sig = np.array(signatures, dtype=np.int64)
+            if sig.shape != (len(lm),):
+                raise ShapeError(
+                    f"landmark_signatures must have shape ({len(lm)},); got {sig.shape}"
+                )
+        lm.flags.writeable = sig.flags.writeable = False
+        object.__setattr__(self, "xy", lm)
+        object.__setattr__(self, "signatures", sig)
+        object.__setattr__(self, "_core", _core.EkfMap(lm, sig))
+
+    def __setattr__(self, name: str, value: object) -> None:
+        raise AttributeError("a LandmarkMap is immutable; build a new one")
+
+    def __len__(self) -> int:
+        return len(self.xy)
+
+    def __repr__(self) -> str:
+        return f"LandmarkMap({len(self)} landmarks)"
+
+
+def _landmark_map(landmarks: LandmarkMap | ArrayLike, signatures: ArrayLike | None) -> LandmarkMap:
+    """``landmarks`` as a :class:`LandmarkMap` (an array checked and prepared here)."""
+    if isinstance(landmarks, LandmarkMap):
+        if signatures is not None:
+            raise ParameterError(
+                "landmark_signatures belong to the LandmarkMap: give them when building it"
+            )
+        return landmarks
+    return LandmarkMap(landmarks, signatures)
 
 
 def _ndim(a: object) -> int:
@@ -552,20 +611,19 @@ def _ndim(a: object) -> int:
     return a.ndim if isinstance(a, np.ndarray) else np.ndim(a)
 
 
-def _rows(a: ArrayLike, dtype: type, batch: tuple[int, ...], m: int) -> np.ndarray:
-    """``a`` broadcast to ``(*batch, m)`` as a C-contiguous ``(B, m)`` array of ``dtype``
-    (no broadcast when it has that shape already: np.broadcast_to costs microseconds)."""
+def _rows(a: ArrayLike, dtype: type, shape: tuple[int, ...]) -> np.ndarray:
+    """``a`` as an array of ``dtype`` broadcast to ``shape`` (no broadcast when it has that
+    shape already: np.broadcast_to costs microseconds). The core's bindings copy what is not
+    C-contiguous."""
     arr = np.asarray(a, dtype=dtype)
-    if arr.shape != (*batch, m):
-        arr = np.broadcast_to(arr, (*batch, m))
-    return np.ascontiguousarray(arr.reshape(math.prod(batch), m))
+    return arr if arr.shape == shape else np.broadcast_to(arr, shape)
 
 
 def correct_landmarks(
     state: AT,
     readings: ArrayLike,
     sensor: RangeBearingSensor,
-    landmarks: ArrayLike,
+    landmarks: LandmarkMap | ArrayLike,
     *,
     associate: Association | str = Association.MAHALANOBIS,
     pairing: Pairing | str = Pairing.ONE_TO_ONE,
@@ -576,12 +634,14 @@ def correct_landmarks(
     range_only: bool = False,
     nu: float = np.inf,
 ) -> LandmarkUpdate:
-    """Correct with readings of point landmarks ``(L, 2)``: range-bearing ``(r, φ)``
+    """Correct with readings of point landmarks ``(L, 2)`` (or a :class:`LandmarkMap`, checked
+    once: a filter correcting at every step builds one): range-bearing ``(r, φ)``
     (..., m, 2) from ``sensor`` (Eq. 20, its mount and noise model), or with ``range_only``
     ranges (..., m) (Eq. 20's first row; σ = ``sensor.sigma_range``).
 
     Association (:class:`Association`): ``signatures`` pairs a reading with the landmark of
-    equal signature (``signatures`` (..., m), ``landmark_signatures`` (L,), default the rows);
+    equal signature (``signatures`` (..., m), ``landmark_signatures`` (L,), default the rows;
+    a :class:`LandmarkMap` has its own);
     ``mahalanobis`` (Eq. 23) and ``euclidean`` (Eq. 22) with the nearest landmark, ``jcbb`` the
     largest jointly compatible set. Signatures, when given, restrict the candidates under every
     method. :class:`Pairing` one to one (greedy, cheapest pair first; the others LOST) or per
@@ -609,7 +669,7 @@ def correct_landmarks(
             f"readings must have shape (..., m{', 2' if d == 2 else ''}); got {z.shape}"
         )
     m = z.shape[-2]
-    lm, lsig = _map(landmarks, landmark_signatures)
+    lmap = _landmark_map(landmarks, landmark_signatures)
     a, method, cost = _association(associate, pairing, signatures is not None)
     if state.ndim == 0 and z.ndim == 2 and _ndim(valid) <= 1 and _ndim(signatures) <= 1:
         batch: tuple[int, ...] = ()  # one filter, one scan: no broadcasting to work out
@@ -619,29 +679,24 @@ def correct_landmarks(
             batch = np.broadcast_shapes(batch, np.shape(valid)[:-1])
         if signatures is not None:
             batch = np.broadcast_shapes(batch, np.shape(signatures)[:-1])
-    B = math.prod(batch)
-    present = _ones(B, m) if valid is None else _rows(valid, bool, batch, m).view(np.uint8)
-    sig = _zeros(B, m) if signatures is None else _rows(
-        signatures, np.int64, batch, m
-    )  # fmt: skip
+    rows = (*batch, m)
+    present = _ones(batch, m) if valid is None else _rows(valid, bool, rows)
+    sig = _zeros(batch, m) if signatures is None else _rows(signatures, np.int64, rows)
     params = _sensor_params(
         sensor.sigma_range, sensor.sigma_bearing, tuple(sensor.mount.tolist()), float(nu)
     )
     gate2, joint = _gates(gate, d, m if a is Association.JCBB else 0)
-    if batch == ():  # one filter: no broadcasting
-        x, P, zz = state.mean[None], state.cov[None], np.ascontiguousarray(z)[None]
-    else:
-        x, P = _flat(state.mean, batch, (3,)), _flat(state.cov, batch, (3, 3))
-        zz = _flat(z, batch, (m, d))
-    r = _core.ekf_correct_readings(
-        x, P, zz, present, sig, lm, lsig, params, 1 if range_only else 0,
-        _NOISE_MODELS[sensor.noise_model], method, cost, signatures is not None, gate2, joint,
-        _JCBB_NODES,
+    x, P = state.mean, state.cov  # (float64 already: broadcast if the batch is larger)
+    if x.shape[:-1] != batch:
+        x, P = np.broadcast_to(x, (*batch, 3)), np.broadcast_to(P, (*batch, 3, 3))
+    # packed outputs (*batch, F) and (*batch, I): see the core's ekf_correct_readings
+    f, i = _core.ekf_correct_readings(
+        x, P, _rows(z, np.float64, (*rows, d)), present, sig, lmap._core, params,
+        1 if range_only else 0, _NOISE_MODELS[sensor.noise_model], method, cost,
+        signatures is not None, gate2, joint, _JCBB_NODES,
     )  # fmt: skip
-    f, i = r  # packed: see the core's ekf_correct_readings
-    f, i = f.reshape(*batch, f.shape[1]), i.reshape(*batch, i.shape[1])
     e, e2 = 12 + m * d, 12 + m * d + m * d * d
-    y, S = f[..., 12:e].reshape(*batch, m, d), f[..., e:e2].reshape(*batch, m, d, d)
+    y, S = f[..., 12:e].reshape(*rows, d), f[..., e:e2].reshape(*rows, d, d)
     if range_only:
         y, S = y[..., 0], S[..., 0, 0]
     return LandmarkUpdate(
@@ -767,7 +822,7 @@ class Trace(NamedTuple):
 
 def run(
     log: Log,
-    landmarks: ArrayLike,
+    landmarks: LandmarkMap | ArrayLike,
     params: NoiseParameters,
     *,
     start: AT,
@@ -780,13 +835,13 @@ def run(
     keep: Keep | str = Keep.ALL,
     readings: bool = True,
 ) -> Trace:
-    """Run pose filters over ``log`` with the map ``landmarks`` (L, 2): one filter per
-    parameter set of ``params`` (its batch shape), each from ``start`` (an AT, broadcast to
-    the batch). Predict every odometry step (built-in odometry model), correct at every time
-    index with readings (all of them in one stacked update; association, gate and sensor as in
-    :func:`correct_landmarks`). ``readings=False`` skips the per-reading arrays (then empty).
-    All loops run in the core; the filters of a batch are independent (each gives what it
-    gives alone, bitwise)."""
+    """Run pose filters over ``log`` with the map ``landmarks`` (L, 2) or a
+    :class:`LandmarkMap`: one filter per parameter set of ``params`` (its batch shape), each
+    from ``start`` (an AT, broadcast to the batch). Predict every odometry step (built-in
+    odometry model), correct at every time index with readings (all of them in one stacked
+    update; association, gate and sensor as in :func:`correct_landmarks`). ``readings=False``
+    skips the per-reading arrays (then empty). All loops run in the core; the filters of a
+    batch are independent (each gives what it gives alone, bitwise)."""
     kind = _option(SensorKind, sensor, "sensor")
     d = 1 if kind is SensorKind.RANGE_ONLY else 2
     kp = _option(Keep, keep, "keep")
@@ -816,7 +871,7 @@ def run(
     use_sig = a is Association.SIGNATURES  # else signatures only label the readings
     sig = (np.zeros(M, np.int64) if log.signature is None
            else np.ascontiguousarray(log.signature, dtype=np.int64))  # fmt: skip
-    lm, lsig = _map(landmarks, landmark_signatures)
+    lmap = _landmark_map(landmarks, landmark_signatures)
     p = params.array()
     batch = params.batch_shape
     B = len(p)
@@ -828,7 +883,7 @@ def run(
     P0 = _flat(start.cov, batch, (3, 3)).reshape(B, 3, 3)
     keep_code = {"summary": 0, "events": 1, "all": 2}[kp.value]
     r = _core.ekf_run(
-        x0, P0, motion, index, z, sig, lm, lsig, p, 1 if d == 1 else 0,
+        x0, P0, motion, index, z, sig, lmap._core, p, 1 if d == 1 else 0,
         _NOISE_MODELS[noise_model], method, cost, use_sig, gate2, joint, _JCBB_NODES, keep_code,
         readings,
     )  # fmt: skip

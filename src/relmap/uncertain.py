@@ -55,19 +55,24 @@ class UncertainPose:
         super().__init_subclass__(**kwargs)
         if "group" in vars(cls):  # SE(n) has n (n + 1) / 2 degrees of freedom
             cls.dim = (math.isqrt(8 * cls.group.dof + 1) - 1) // 2
+            # the group's shapes as plain class attributes (read by every _trusted)
+            cls._point_shape = cls.group.point_shape
+            cls._cov_shape = (cls.group.dof, cls.group.dof)
+
+    _point_shape: ClassVar[tuple[int, ...]]
+    _cov_shape: ClassVar[tuple[int, int]]
 
     # ------------------------------------------------------------------- storage
     def _set(self, mean: FloatArray, cov: FloatArray, batch: tuple[int, ...]) -> None:
         # read-only views: the arrays cannot be modified through the pose
-        dof = self.group.dof
-        object.__setattr__(self, "_mean", read_only(mean, (*batch, *self.group.point_shape)))
-        object.__setattr__(self, "_cov", read_only(cov, (*batch, dof, dof)))
+        object.__setattr__(self, "_mean", read_only(mean, (*batch, *self._point_shape)))
+        object.__setattr__(self, "_cov", read_only(cov, (*batch, *self._cov_shape)))
 
     @classmethod
     def _trusted(cls: type[P], mean: FloatArray, cov: FloatArray) -> P:
         """Build from arrays relmap computed itself (already valid, angles wrapped): no checks."""
         out = object.__new__(cls)
-        batch = mean.shape[: mean.ndim - len(cls.group.point_shape)]
+        batch = mean.shape[: mean.ndim - len(cls._point_shape)]
         if cov.shape[:-2] != batch:
             batch = np.broadcast_shapes(batch, cov.shape[:-2])
         out._set(mean, cov, batch)
@@ -127,12 +132,12 @@ class UncertainPose:
     @property
     def batch_shape(self) -> tuple[int, ...]:
         """Leading batch axes (``()`` for a single pose)."""
-        return self._mean.shape[: self._mean.ndim - len(self.group.point_shape)]
+        return self._mean.shape[: self._mean.ndim - len(self._point_shape)]
 
     @property
     def ndim(self) -> int:
         """Number of batch axes."""
-        return self._mean.ndim - len(self.group.point_shape)
+        return self._mean.ndim - len(self._point_shape)
 
     @property
     def sigmas(self) -> FloatArray:

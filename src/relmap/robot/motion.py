@@ -121,11 +121,13 @@ class DiffDrive:
         return u @ self.wheel_map().T
 
 
-def _pairs(u: ArrayLike, name: str) -> FloatArray:
+def _pairs(u: ArrayLike, name: str, *, finite: bool = True) -> FloatArray:
+    """``u`` as a new float array (..., 2), checked (finite: unless the caller's core checks)."""
     arr = real_array(u, name)
     if arr.ndim == 0 or arr.shape[-1] != 2:
         raise ShapeError(f"{name} must have shape (..., 2); got {arr.shape}")
-    check_finite(arr, name)
+    if finite:
+        check_finite(arr, name)
     return arr
 
 
