@@ -46,4 +46,12 @@ nb::ndarray<nb::numpy, T> vector_array(const std::vector<T>& v) {
     return out;
 }
 
+// A NumPy array that takes over a vector's storage (no copy).
+template <class T>
+nb::ndarray<nb::numpy, T> owned_array(std::vector<T>&& v) {
+    auto* owned = new std::vector<T>(std::move(v));
+    nb::capsule owner(owned, [](void* p) noexcept { delete static_cast<std::vector<T>*>(p); });
+    return nb::ndarray<nb::numpy, T>(owned->data(), {owned->size()}, owner);
+}
+
 }  // namespace relmap

@@ -567,9 +567,96 @@ bool SparseCholesky::selected_inverse_blocks(const int64_t* groups, int64_t coun
     return true;
 }
 
+BlockPattern block_pattern(int64_t nodes, int64_t K, const int64_t* brow, const int64_t* bcol,
+                           int64_t b) {
+    // The kept blocks sorted by (column, row) by two stable counting sorts (row, then column).
+    std::vector<int64_t> count(nodes + 1, 0), by_row, by_col;
+    for (int64_t k = 0; k < K; ++k)
+        if (brow[k] >= 0 && bcol[k] >= 0) ++count[brow[k] + 1];
+    for (int64_t v = 0; v < nodes; ++v) count[v + 1] += count[v];
+    by_row.resize(count[nodes]);
+    by_col.resize(count[nodes]);
+    for (int64_t k = 0; k < K; ++k)
+        if (brow[k] >= 0 && bcol[k] >= 0) by_row[count[brow[k]]++] = k;
+    std::fill(count.begin(), count.end(), 0);
+    for (int64_t k : by_row) ++count[bcol[k] + 1];
+    for (int64_t v = 0; v < nodes; ++v) count[v + 1] += count[v];
+    for (int64_t k : by_row) by_col[count[bcol[k]]++] = k;
+    // Distinct blocks: each block column's in increasing row order; every contribution's block.
+    BlockPattern out;
+    std::vector<int64_t> unique_of(K, -1), start(nodes + 1, 0);
+    std::vector<int64_t>& urow = out.brow;
+    std::vector<int64_t>& ucol = out.bcol;
+    for (size_t e = 0; e < by_col.size(); ++e) {
+        const int64_t k = by_col[e];
+        if (e == 0 || brow[k] != urow.back() || bcol[k] != ucol.back()) {
+            urow.push_back(brow[k]);
+            ucol.push_back(bcol[k]);
+            ++start[bcol[k] + 1];
+        }
+        unique_of[k] = static_cast<int64_t>(urow.size()) - 1;
+    }
+    for (int64_t v = 0; v < nodes; ++v) start[v + 1] += start[v];
+    const int64_t U = static_cast<int64_t>(urow.size()), bb = b * b, nnz = bb * U;
+    // Scalar column (J, a) starts at b²·start[J] + a·b·(blocks of column J); in it, block u of
+    // rank (u - start[J]) holds rows b·urow[u] … b·urow[u] + b - 1.
+    auto column_start = [&](int64_t J, int64_t a) {
+        return bb * start[J] + a * b * (start[J + 1] - start[J]);
+    };
+    out.indptr.resize(b * nodes + 1);
+    for (int64_t J = 0; J < nodes; ++J)
+        for (int64_t a = 0; a < b; ++a) out.indptr[b * J + a] = column_start(J, a);
+    out.indptr[b * nodes] = nnz;
+    out.indices.resize(nnz);
+    for (int64_t u = 0; u < U; ++u) {
+        const int64_t J = ucol[u], rank = u - start[J];
+        for (int64_t a = 0; a < b; ++a) {
+            int64_t* rows = out.indices.data() + column_start(J, a) + b * rank;
+            for (int64_t r = 0; r < b; ++r) rows[r] = b * urow[u] + r;
+        }
+    }
+    out.position.resize(bb * K);
+    for (int64_t c = 0; c < b; ++c) {  // entry q = b r + c of block k: row r of column (J, c)
+        // the slot of the block's row 0 in column (J, c), per distinct block
+        std::vector<int64_t> base(U);
+        for (int64_t u = 0; u < U; ++u) base[u] = column_start(ucol[u], c) + b * (u - start[ucol[u]]);
+        for (int64_t r = 0; r < b; ++r) {
+            int64_t* slots = out.position.data() + (b * r + c) * K;
+            for (int64_t k = 0; k < K; ++k) {
+                const int64_t u = unique_of[k];
+                slots[k] = u >= 0 ? base[u] + r : nnz;
+            }
+        }
+    }
+    return out;
+}
+
 // ---- bindings ------------------------------------------------------------------------------
 
 void register_sparse_chol(nb::module_& m) {
+    m.def(
+        "block_pattern",
+        [](int64_t nodes, Index1 brow, Index1 bcol, int64_t b) {
+            const int64_t K = static_cast<int64_t>(brow.shape(0));
+            if (nodes < 0 || b < 1 || static_cast<int64_t>(bcol.shape(0)) != K)
+                throw nb::value_error("nodes >= 0, b >= 1, and brow and bcol of the same length");
+            for (int64_t k = 0; k < K; ++k)
+                if (brow.data()[k] >= nodes || bcol.data()[k] >= nodes)
+                    throw nb::value_error("block node out of range");
+            BlockPattern p;
+            {
+                nb::gil_scoped_release unlocked;
+                p = block_pattern(nodes, K, brow.data(), bcol.data(), b);
+            }
+            return nb::make_tuple(
+                owned_array(std::move(p.indptr)), owned_array(std::move(p.indices)),
+                owned_array(std::move(p.position)), owned_array(std::move(p.brow)),
+                owned_array(std::move(p.bcol)));
+        },
+        nb::arg("nodes"), nb::arg("brow"), nb::arg("bcol"), nb::arg("b"),
+        "CSC pattern (indptr, indices) of b × b blocks at node pairs (brow, bcol), the slot "
+        "of every contribution laid out [entry q][block k], and the distinct blocks' node "
+        "pairs (internal: see relmap.network.sparse.SymmetricPattern.from_blocks).");
     nb::class_<SparseCholesky>(m, "SparseCholesky",
                                "Supernodal sparse Cholesky A = L Lᵀ with a fixed pattern "
                                "(internal: see relmap.network.sparse).")
