@@ -5,6 +5,7 @@
 #include <cmath>
 #include <memory>
 #include <stdexcept>
+#include <type_traits>
 
 #include "arrays.hpp"
 #include "dense.hpp"
@@ -366,82 +367,86 @@ int64_t SparseCholesky::factorize(const double* data) {
     return -1;
 }
 
+// Calls body(m) with m a compile-time 1 when m_ is 1 (the solves of one right-hand side: the
+// loops over right-hand sides vanish), else with m_ itself; one source for both.
+template <class Body>
+RELMAP_INLINE void with_columns(int64_t m_, Body&& body) {
+    if (m_ == 1)
+        body(std::integral_constant<int64_t, 1>{});
+    else
+        body(m_);
+}
+
 RELMAP_MULTIVERSION
-void SparseCholesky::forward(double* y, int64_t m, const std::vector<int64_t>* only) const {
-    // Supernode by supernode: L_JJ x_J = y_J, then y_S -= L_SJ x_J (one gather-free product
+void SparseCholesky::forward(double* y, int64_t m_, const std::vector<int64_t>* only) const {
+    // Supernode by supernode: L_JJ x_J = y_J, then y_S -= L_SJ x_J (one register-tiled product
     // into a buffer, one scatter).
     const int64_t S = only ? static_cast<int64_t>(only->size()) : supernodes();
     std::vector<double> tmp;
-    for (int64_t t = 0; t < S; ++t) {
-        const int64_t s = only ? (*only)[t] : t;
-        const int64_t f = first_[s], w = first_[s + 1] - f;
-        const int64_t nr = rows_ptr_[s + 1] - rows_ptr_[s], r = nr - w;
-        const int64_t* R = rows_.data() + rows_ptr_[s] + w;
-        const double* L = X_.get() + panel_ptr_[s];
-        double* x = y + f * m;
-        for (int64_t c = 0; c < w; ++c) {
-            const double* Lc = L + c * nr;
-            const double scale = 1.0 / Lc[c];
-            for (int64_t q = 0; q < m; ++q) x[c * m + q] *= scale;
-            for (int64_t i = c + 1; i < w; ++i)
-                for (int64_t q = 0; q < m; ++q) x[i * m + q] -= Lc[i] * x[c * m + q];
-        }
-        tmp.assign(r * m, 0.0);
-        for (int64_t c = 0; c < w; ++c) {
-            const double* Lc = L + c * nr + w;
-            if (m == 1) {
-                const double xc = x[c];
-                for (int64_t i = 0; i < r; ++i) tmp[i] += Lc[i] * xc;
-            } else {
-                for (int64_t i = 0; i < r; ++i)
-                    for (int64_t q = 0; q < m; ++q) tmp[i * m + q] += Lc[i] * x[c * m + q];
+    with_columns(m_, [&](auto m) RELMAP_LAMBDA_INLINE {
+        for (int64_t t = 0; t < S; ++t) {
+            const int64_t s = only ? (*only)[t] : t;
+            const int64_t f = first_[s], w = first_[s + 1] - f;
+            const int64_t nr = rows_ptr_[s + 1] - rows_ptr_[s], r = nr - w;
+            const int64_t* R = rows_.data() + rows_ptr_[s] + w;
+            const double* L = X_.get() + panel_ptr_[s];
+            double* x = y + f * m;
+            for (int64_t c = 0; c < w; ++c) {
+                const double* Lc = L + c * nr;
+                const double scale = 1.0 / Lc[c];
+                for (int64_t q = 0; q < m; ++q) x[c * m + q] *= scale;
+                for (int64_t i = c + 1; i < w; ++i)
+                    for (int64_t q = 0; q < m; ++q) x[i * m + q] -= Lc[i] * x[c * m + q];
             }
+            tmp.assign(r * m, 0.0);  // L_SJ x_J, column-major (r × m)
+            dense::gemm_nt(r, m, w, 1.0, L + w, nr, x, m, tmp.data(), r);
+            for (int64_t i = 0; i < r; ++i)
+                for (int64_t q = 0; q < m; ++q) y[R[i] * m + q] -= tmp[i + q * r];
         }
-        for (int64_t i = 0; i < r; ++i)
-            for (int64_t q = 0; q < m; ++q) y[R[i] * m + q] -= tmp[i * m + q];
-    }
+    });
 }
 
 RELMAP_MULTIVERSION
-void SparseCholesky::backward(double* y, int64_t m) const {
-    // Supernodes in reverse: x_J = L_JJ⁻ᵀ (y_J - L_SJᵀ x_S).
+void SparseCholesky::backward(double* y, int64_t m_) const {
+    // Supernodes in reverse: x_J = L_JJ⁻ᵀ (y_J - L_SJᵀ x_S), L_SJᵀ x_S by dot products sharing
+    // x_S (gathered into a buffer, column-major r × m).
     std::vector<double> tmp;
-    for (int64_t s = supernodes() - 1; s >= 0; --s) {
-        const int64_t f = first_[s], w = first_[s + 1] - f;
-        const int64_t nr = rows_ptr_[s + 1] - rows_ptr_[s], r = nr - w;
-        const int64_t* R = rows_.data() + rows_ptr_[s] + w;
-        const double* L = X_.get() + panel_ptr_[s];
-        double* x = y + f * m;
-        tmp.resize(r * m);
-        for (int64_t i = 0; i < r; ++i)
-            for (int64_t q = 0; q < m; ++q) tmp[i * m + q] = y[R[i] * m + q];
-        for (int64_t c = 0; c < w; ++c) {
-            const double* Lc = L + c * nr + w;
-            if (m == 1) {
-                x[c] -= dense::dot(r, Lc, tmp.data());
-            } else {
-                for (int64_t i = 0; i < r; ++i)
-                    for (int64_t q = 0; q < m; ++q) x[c * m + q] -= Lc[i] * tmp[i * m + q];
+    with_columns(m_, [&](auto m) RELMAP_LAMBDA_INLINE {
+        for (int64_t s = supernodes() - 1; s >= 0; --s) {
+            const int64_t f = first_[s], w = first_[s + 1] - f;
+            const int64_t nr = rows_ptr_[s + 1] - rows_ptr_[s], r = nr - w;
+            const int64_t* R = rows_.data() + rows_ptr_[s] + w;
+            const double* L = X_.get() + panel_ptr_[s];
+            double* x = y + f * m;
+            tmp.resize(r * m);
+            for (int64_t i = 0; i < r; ++i)
+                for (int64_t q = 0; q < m; ++q) tmp[i + q * r] = y[R[i] * m + q];
+            for (int64_t q = 0; q < m; ++q)  // column q of x_J: stride m
+                dense::subtract_dots(w, r, L + w, nr, tmp.data() + q * r, x + q, m);
+            for (int64_t c = w - 1; c >= 0; --c) {
+                const double* Lc = L + c * nr;
+                for (int64_t i = c + 1; i < w; ++i)
+                    for (int64_t q = 0; q < m; ++q) x[c * m + q] -= Lc[i] * x[i * m + q];
+                const double scale = 1.0 / Lc[c];
+                for (int64_t q = 0; q < m; ++q) x[c * m + q] *= scale;
             }
         }
-        for (int64_t c = w - 1; c >= 0; --c) {
-            const double* Lc = L + c * nr;
-            for (int64_t i = c + 1; i < w; ++i)
-                for (int64_t q = 0; q < m; ++q) x[c * m + q] -= Lc[i] * x[i * m + q];
-            const double scale = 1.0 / Lc[c];
-            for (int64_t q = 0; q < m; ++q) x[c * m + q] *= scale;
-        }
-    }
+    });
 }
 
-void SparseCholesky::solve(const double* b, double* x, int64_t m) const {
-    std::vector<double> y(n_ * m);
-    for (int64_t k = 0; k < n_; ++k)
-        std::copy(b + perm_[k] * m, b + perm_[k] * m + m, y.data() + k * m);
-    forward(y.data(), m, nullptr);
-    backward(y.data(), m);
-    for (int64_t k = 0; k < n_; ++k)
-        std::copy(y.data() + k * m, y.data() + k * m + m, x + perm_[k] * m);
+RELMAP_MULTIVERSION
+void SparseCholesky::solve(const double* b, double* x, int64_t m_) const {
+    std::vector<double> y(n_ * m_);
+    with_columns(m_, [&](auto m) RELMAP_LAMBDA_INLINE {
+        for (int64_t k = 0; k < n_; ++k)
+            for (int64_t q = 0; q < m; ++q) y[k * m + q] = b[perm_[k] * m + q];
+    });
+    forward(y.data(), m_, nullptr);
+    backward(y.data(), m_);
+    with_columns(m_, [&](auto m) RELMAP_LAMBDA_INLINE {
+        for (int64_t k = 0; k < n_; ++k)
+            for (int64_t q = 0; q < m; ++q) x[perm_[k] * m + q] = y[k * m + q];
+    });
 }
 
 void SparseCholesky::inverse_submatrix(const int64_t* idx, int64_t k, double* out) const {
