@@ -341,11 +341,9 @@ int64_t SparseCholesky::factorize(const double* data) {
             const int64_t c1 = std::min<int64_t>(c0 + 16, w);
             for (int64_t c = c0; c < c1; ++c) {
                 double* Xc = Xs + c * nr;
-                for (int64_t j = c0; j < c; ++j) {
-                    const double* Xj = Xs + j * nr;
-                    const double a = Xj[c];
-                    for (int64_t i = c; i < nr; ++i) Xc[i] -= Xj[i] * a;
-                }
+                // Xc[c:] -= X[c:, c0:c] X[c, c0:c]ᵀ, eight rows at a time summed in registers
+                dense::columns<1, true>(nr - c, c - c0, -1.0, Xs + c0 * nr + c, nr,
+                                        Xs + c0 * nr + c, nr, Xc + c, nr);
                 const double diag = Xc[c];
                 if (!(diag > 0.0) || !std::isfinite(diag)) return f + c;
                 const double root = std::sqrt(diag), scale = 1.0 / root;
