@@ -26,7 +26,7 @@ planar-only).
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -57,7 +57,7 @@ class Problem(NamedTuple):
     groups: list[tuple[IntArray, FloatArray]]
     guess: FloatArray
     anchor: int
-    names: list[str]
+    names: Sequence[str]
     group: Group = SE2
     frames: list[object] | None = None
 
@@ -276,7 +276,7 @@ def _spread(
     j: IntArray,
     z: FloatArray,
     use: np.ndarray,
-    names: list[str],
+    names: Sequence[str],
     *,
     full: bool,
     atol: float,

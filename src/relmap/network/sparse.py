@@ -65,7 +65,7 @@ class SymmetricPattern:
         node = np.repeat(np.arange(nodes), block)
         pattern._setup(block * nodes, indices, indptr, position, node)
         pattern.block = block
-        pattern._pairs = (block * urow, block * ucol)  # one parameter pair per block, for the ordering
+        pattern._pairs = (block * urow, block * ucol)  # one parameter pair per block (ordering)
         return pattern
 
     def _setup(
