@@ -622,7 +622,8 @@ BlockPattern block_pattern(int64_t nodes, int64_t K, const int64_t* brow, const 
     for (int64_t c = 0; c < b; ++c) {  // entry q = b r + c of block k: row r of column (J, c)
         // the slot of the block's row 0 in column (J, c), per distinct block
         std::vector<int64_t> base(U);
-        for (int64_t u = 0; u < U; ++u) base[u] = column_start(ucol[u], c) + b * (u - start[ucol[u]]);
+        for (int64_t u = 0; u < U; ++u)
+            base[u] = column_start(ucol[u], c) + b * (u - start[ucol[u]]);
         for (int64_t r = 0; r < b; ++r) {
             int64_t* slots = out.position.data() + (b * r + c) * K;
             for (int64_t k = 0; k < K; ++k) {
