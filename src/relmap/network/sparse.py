@@ -1,9 +1,11 @@
 """Sparse symmetric normal matrices: a pattern fixed once, refactorized every iteration.
 
-The pattern is assembled once (CSC, both triangles) with a map from every contribution to its
-slot, so each Gauss-Newton iteration fills the matrix with one ``np.bincount``. A fill-reducing
-ordering is computed once, on the *node* graph (the frames; a frame's parameters stay
-together), by multiple minimum degree.
+The pattern is assembled once (CSC, both triangles; a pattern of dense blocks by the core's
+``block_pattern``) with a map from every contribution to its slot, so each Gauss-Newton
+iteration adds the contributions straight into their slots (the core's normal equations, or
+``np.bincount`` in :meth:`SymmetricPattern.assemble`). A fill-reducing ordering is computed
+once, on the *node* graph (the frames; a frame's parameters stay together), by multiple
+minimum degree.
 
 The factorization is relmap's compiled core (``relmap._core.SparseCholesky``, C++, one
 implementation): a supernodal left-looking Cholesky ``A = L Lᵀ`` whose symbolic analysis
