@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "core.hpp"
+#include "dense.hpp"
 
 namespace relmap {
 
@@ -31,11 +32,9 @@ nb::ndarray<nb::numpy, T> new_array(std::initializer_list<size_t> shape) {
 // data of nnz entries (nnz: the spill slot) and n_g gradient indices into size (size: spill).
 inline void check_targets(const int64_t* slots, int64_t n_slots, const int64_t* g_index,
                           int64_t n_g, int64_t nnz, int64_t size) {
-    for (int64_t e = 0; e < n_slots; ++e)
-        if (slots[e] < 0 || slots[e] > nnz) throw nb::value_error("slot out of range");
-    for (int64_t e = 0; e < n_g; ++e)
-        if (g_index[e] < 0 || g_index[e] > size)
-            throw nb::value_error("gradient index out of range");
+    if (!dense::all_within(slots, n_slots, nnz)) throw nb::value_error("slot out of range");
+    if (!dense::all_within(g_index, n_g, size))
+        throw nb::value_error("gradient index out of range");
 }
 
 // A NumPy copy of a vector.

@@ -190,5 +190,7 @@ void gemm_nn(int64_t m, int64_t n, int64_t k, double alpha, const double* A, int
 // The lower trapezoid of C += alpha A A[:q]ᵀ (see lower_product_t).
 void lower_product(int64_t m, int64_t q, int64_t k, double alpha, const double* A, int64_t lda,
                    double* C, int64_t ldc);
+// Whether 0 <= v[e] <= top for every e < n (one pass without early exit: it vectorizes).
+bool all_within(const int64_t* v, int64_t n, int64_t top);
 
 }  // namespace relmap::dense
