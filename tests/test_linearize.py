@@ -193,3 +193,18 @@ def test_bad_planar_arguments_are_refused_by_the_core():
         _core.normal_equations2(poses, i, j, z, F0, W, slots + 5, g, 1, 1)
     with pytest.raises(ValueError, match="gradient"):
         _core.normal_equations2(poses, i, j, z, F0, W, slots, g + 5, 1, 1)
+
+
+def test_negative_targets_are_refused_by_the_core():
+    """The range check of the scatter targets (one vectorized pass) catches a negative slot or
+    gradient index anywhere, not only a too large one."""
+    from relmap import _core
+
+    r, J = np.zeros((2, 3)), np.zeros((2, 3, 3))
+    slots, g = np.zeros((2, 36), np.int64), np.zeros(12, np.int64)
+    bad_slots, bad_g = slots.copy(), g.copy()
+    bad_slots[1, 35], bad_g[11] = -1, -1
+    with pytest.raises(ValueError, match="slot"):
+        _core.normal_equations(r, J, J, J, bad_slots, g, 1, 1)
+    with pytest.raises(ValueError, match="gradient"):
+        _core.normal_equations(r, J, J, J, slots, bad_g, 1, 1)

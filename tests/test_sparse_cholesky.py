@@ -151,6 +151,31 @@ def test_the_general_scalar_pattern():
         np.testing.assert_allclose(blocks[g], ref[2 * g : 2 * g + 2, 2 * g : 2 * g + 2], atol=1e-12)
 
 
+@pytest.mark.parametrize("b", [1, 3, 6])
+def test_the_block_pattern_puts_every_contribution_where_it_belongs(b):
+    """from_blocks against a dense sum of the blocks: duplicate blocks summed, blocks with a
+    negative node dropped, rows sorted in every column, one pair per distinct block."""
+    rng = np.random.default_rng(b)
+    nodes, K = 9, 40
+    brow, bcol = rng.integers(-1, nodes, K), rng.integers(-1, nodes, K)
+    values = rng.standard_normal((b * b, K))  # [entry q = b·r + c][block k]
+    pattern = SymmetricPattern.from_blocks(nodes, brow, bcol, block=b)
+    dense = np.zeros((b * nodes, b * nodes))
+    for k in np.flatnonzero((brow >= 0) & (bcol >= 0)):
+        r, c = b * brow[k], b * bcol[k]
+        dense[r : r + b, c : c + b] += values[:, k].reshape(b, b)
+    got = pattern.matrix(pattern.assemble(values.reshape(-1))).toarray()
+    np.testing.assert_allclose(got, dense, rtol=1e-15, atol=0)
+    for c in range(b * nodes):
+        rows = pattern.indices[pattern.indptr[c] : pattern.indptr[c + 1]]
+        assert np.all(np.diff(rows) > 0)
+    kept = {(int(r), int(c)) for r, c in zip(brow, bcol, strict=True) if r >= 0 and c >= 0}
+    assert pattern._pairs is not None
+    pairs = list(zip(*(p // b for p in pattern._pairs), strict=True))
+    assert len(pairs) == len(kept) and set(pairs) == kept
+    assert pattern.nnz == b * b * len(kept)
+
+
 def test_refactorization_reuses_the_analysis():
     i, j = _random_graph(80, 60, seed=9)
     pattern, data = _system(80, i, j, 3, seed=9)

@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "core.hpp"
+#include "dense.hpp"
 
 namespace relmap {
 
@@ -65,11 +66,9 @@ Result<T> new_result_like(const A& a, size_t lead, std::initializer_list<size_t>
 // data of nnz entries (nnz: the spill slot) and n_g gradient indices into size (size: spill).
 inline void check_targets(const int64_t* slots, int64_t n_slots, const int64_t* g_index,
                           int64_t n_g, int64_t nnz, int64_t size) {
-    for (int64_t e = 0; e < n_slots; ++e)
-        if (slots[e] < 0 || slots[e] > nnz) throw nb::value_error("slot out of range");
-    for (int64_t e = 0; e < n_g; ++e)
-        if (g_index[e] < 0 || g_index[e] > size)
-            throw nb::value_error("gradient index out of range");
+    if (!dense::all_within(slots, n_slots, nnz)) throw nb::value_error("slot out of range");
+    if (!dense::all_within(g_index, n_g, size))
+        throw nb::value_error("gradient index out of range");
 }
 
 // A NumPy copy of a vector.
@@ -78,6 +77,14 @@ nb::ndarray<nb::numpy, T> vector_array(const std::vector<T>& v) {
     auto out = new_array<T>({v.size()});
     std::copy(v.begin(), v.end(), out.data());
     return out;
+}
+
+// A NumPy array that takes over a vector's storage (no copy).
+template <class T>
+nb::ndarray<nb::numpy, T> owned_array(std::vector<T>&& v) {
+    auto* owned = new std::vector<T>(std::move(v));
+    nb::capsule owner(owned, [](void* p) noexcept { delete static_cast<std::vector<T>*>(p); });
+    return nb::ndarray<nb::numpy, T>(owned->data(), {owned->size()}, owner);
 }
 
 }  // namespace relmap

@@ -20,8 +20,10 @@
 #endif
 #if defined(__GNUC__)
 #define RELMAP_INLINE inline __attribute__((always_inline))
+#define RELMAP_LAMBDA_INLINE __attribute__((always_inline))  // after a lambda's parameters
 #else
 #define RELMAP_INLINE inline
+#define RELMAP_LAMBDA_INLINE
 #endif
 
 namespace relmap::dense {
@@ -152,6 +154,32 @@ RELMAP_INLINE double dot(int64_t n, const double* a, const double* b) {
 #endif
 }
 
+// y[j incy] -= Σ_i A[i + j lda] x[i] for j < n: n dot products sharing x, four at a time (each
+// a reordered sum: equal to rounding).
+RELMAP_INLINE void subtract_dots(int64_t n, int64_t k, const double* A, int64_t lda,
+                                 const double* x, double* y, int64_t incy) {
+    int64_t j = 0;
+    for (; j + 4 <= n; j += 4) {
+        const double* a = A + j * lda;
+        v4 s[4] = {splat4(0.0), splat4(0.0), splat4(0.0), splat4(0.0)};
+        int64_t i = 0;
+        for (; i + 4 <= k; i += 4) {
+            const v4 xi = load4(x + i);
+            for (int t = 0; t < 4; ++t) s[t] += load4(a + t * lda + i) * xi;
+        }
+        for (int t = 0; t < 4; ++t) {
+            double sum = 0.0;
+            for (int64_t e = i; e < k; ++e) sum += a[t * lda + e] * x[e];
+#if defined(__GNUC__)
+            y[(j + t) * incy] -= sum + ((s[t][0] + s[t][1]) + (s[t][2] + s[t][3]));
+#else
+            y[(j + t) * incy] -= sum + ((s[t].x[0] + s[t].x[1]) + (s[t].x[2] + s[t].x[3]));
+#endif
+        }
+    }
+    for (; j < n; ++j) y[j * incy] -= dot(k, A + j * lda, x);
+}
+
 // The entry points (dense.cpp), each compiled per ISA (RELMAP_MULTIVERSION).
 // C (m × n) += alpha A Bᵀ, A (m × k), B (n × k).
 void gemm_nt(int64_t m, int64_t n, int64_t k, double alpha, const double* A, int64_t lda,
@@ -162,5 +190,7 @@ void gemm_nn(int64_t m, int64_t n, int64_t k, double alpha, const double* A, int
 // The lower trapezoid of C += alpha A A[:q]ᵀ (see lower_product_t).
 void lower_product(int64_t m, int64_t q, int64_t k, double alpha, const double* A, int64_t lda,
                    double* C, int64_t ldc);
+// Whether 0 <= v[e] <= top for every e < n (one pass without early exit: it vectorizes).
+bool all_within(const int64_t* v, int64_t n, int64_t top);
 
 }  // namespace relmap::dense

@@ -86,7 +86,7 @@ std::vector<int64_t> minimum_degree(int64_t n, int64_t m, const int64_t* a, cons
                     }
                     if (x != u && x != v) merged.push_back(x);
                 }
-                adj[u].assign(merged.begin(), merged.end());  // merged keeps its capacity
+                adj[u].swap(merged);  // no copy: merged takes over u's old list's storage
             }
         }
         // Indistinguishable neighbours (equal closed neighbourhoods) become one supervariable.

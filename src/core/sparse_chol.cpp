@@ -5,6 +5,7 @@
 #include <cmath>
 #include <memory>
 #include <stdexcept>
+#include <type_traits>
 
 #include "arrays.hpp"
 #include "dense.hpp"
@@ -340,11 +341,9 @@ int64_t SparseCholesky::factorize(const double* data) {
             const int64_t c1 = std::min<int64_t>(c0 + 16, w);
             for (int64_t c = c0; c < c1; ++c) {
                 double* Xc = Xs + c * nr;
-                for (int64_t j = c0; j < c; ++j) {
-                    const double* Xj = Xs + j * nr;
-                    const double a = Xj[c];
-                    for (int64_t i = c; i < nr; ++i) Xc[i] -= Xj[i] * a;
-                }
+                // Xc[c:] -= X[c:, c0:c] X[c, c0:c]ᵀ, eight rows at a time summed in registers
+                dense::columns<1, true>(nr - c, c - c0, -1.0, Xs + c0 * nr + c, nr,
+                                        Xs + c0 * nr + c, nr, Xc + c, nr);
                 const double diag = Xc[c];
                 if (!(diag > 0.0) || !std::isfinite(diag)) return f + c;
                 const double root = std::sqrt(diag), scale = 1.0 / root;
@@ -366,82 +365,86 @@ int64_t SparseCholesky::factorize(const double* data) {
     return -1;
 }
 
+// Calls body(m) with m a compile-time 1 when m_ is 1 (the solves of one right-hand side: the
+// loops over right-hand sides vanish), else with m_ itself; one source for both.
+template <class Body>
+RELMAP_INLINE void with_columns(int64_t m_, Body&& body) {
+    if (m_ == 1)
+        body(std::integral_constant<int64_t, 1>{});
+    else
+        body(m_);
+}
+
 RELMAP_MULTIVERSION
-void SparseCholesky::forward(double* y, int64_t m, const std::vector<int64_t>* only) const {
-    // Supernode by supernode: L_JJ x_J = y_J, then y_S -= L_SJ x_J (one gather-free product
+void SparseCholesky::forward(double* y, int64_t m_, const std::vector<int64_t>* only) const {
+    // Supernode by supernode: L_JJ x_J = y_J, then y_S -= L_SJ x_J (one register-tiled product
     // into a buffer, one scatter).
     const int64_t S = only ? static_cast<int64_t>(only->size()) : supernodes();
     std::vector<double> tmp;
-    for (int64_t t = 0; t < S; ++t) {
-        const int64_t s = only ? (*only)[t] : t;
-        const int64_t f = first_[s], w = first_[s + 1] - f;
-        const int64_t nr = rows_ptr_[s + 1] - rows_ptr_[s], r = nr - w;
-        const int64_t* R = rows_.data() + rows_ptr_[s] + w;
-        const double* L = X_.get() + panel_ptr_[s];
-        double* x = y + f * m;
-        for (int64_t c = 0; c < w; ++c) {
-            const double* Lc = L + c * nr;
-            const double scale = 1.0 / Lc[c];
-            for (int64_t q = 0; q < m; ++q) x[c * m + q] *= scale;
-            for (int64_t i = c + 1; i < w; ++i)
-                for (int64_t q = 0; q < m; ++q) x[i * m + q] -= Lc[i] * x[c * m + q];
-        }
-        tmp.assign(r * m, 0.0);
-        for (int64_t c = 0; c < w; ++c) {
-            const double* Lc = L + c * nr + w;
-            if (m == 1) {
-                const double xc = x[c];
-                for (int64_t i = 0; i < r; ++i) tmp[i] += Lc[i] * xc;
-            } else {
-                for (int64_t i = 0; i < r; ++i)
-                    for (int64_t q = 0; q < m; ++q) tmp[i * m + q] += Lc[i] * x[c * m + q];
+    with_columns(m_, [&](auto m) RELMAP_LAMBDA_INLINE {
+        for (int64_t t = 0; t < S; ++t) {
+            const int64_t s = only ? (*only)[t] : t;
+            const int64_t f = first_[s], w = first_[s + 1] - f;
+            const int64_t nr = rows_ptr_[s + 1] - rows_ptr_[s], r = nr - w;
+            const int64_t* R = rows_.data() + rows_ptr_[s] + w;
+            const double* L = X_.get() + panel_ptr_[s];
+            double* x = y + f * m;
+            for (int64_t c = 0; c < w; ++c) {
+                const double* Lc = L + c * nr;
+                const double scale = 1.0 / Lc[c];
+                for (int64_t q = 0; q < m; ++q) x[c * m + q] *= scale;
+                for (int64_t i = c + 1; i < w; ++i)
+                    for (int64_t q = 0; q < m; ++q) x[i * m + q] -= Lc[i] * x[c * m + q];
             }
+            tmp.assign(r * m, 0.0);  // L_SJ x_J, column-major (r × m)
+            dense::gemm_nt(r, m, w, 1.0, L + w, nr, x, m, tmp.data(), r);
+            for (int64_t i = 0; i < r; ++i)
+                for (int64_t q = 0; q < m; ++q) y[R[i] * m + q] -= tmp[i + q * r];
         }
-        for (int64_t i = 0; i < r; ++i)
-            for (int64_t q = 0; q < m; ++q) y[R[i] * m + q] -= tmp[i * m + q];
-    }
+    });
 }
 
 RELMAP_MULTIVERSION
-void SparseCholesky::backward(double* y, int64_t m) const {
-    // Supernodes in reverse: x_J = L_JJ⁻ᵀ (y_J - L_SJᵀ x_S).
+void SparseCholesky::backward(double* y, int64_t m_) const {
+    // Supernodes in reverse: x_J = L_JJ⁻ᵀ (y_J - L_SJᵀ x_S), L_SJᵀ x_S by dot products sharing
+    // x_S (gathered into a buffer, column-major r × m).
     std::vector<double> tmp;
-    for (int64_t s = supernodes() - 1; s >= 0; --s) {
-        const int64_t f = first_[s], w = first_[s + 1] - f;
-        const int64_t nr = rows_ptr_[s + 1] - rows_ptr_[s], r = nr - w;
-        const int64_t* R = rows_.data() + rows_ptr_[s] + w;
-        const double* L = X_.get() + panel_ptr_[s];
-        double* x = y + f * m;
-        tmp.resize(r * m);
-        for (int64_t i = 0; i < r; ++i)
-            for (int64_t q = 0; q < m; ++q) tmp[i * m + q] = y[R[i] * m + q];
-        for (int64_t c = 0; c < w; ++c) {
-            const double* Lc = L + c * nr + w;
-            if (m == 1) {
-                x[c] -= dense::dot(r, Lc, tmp.data());
-            } else {
-                for (int64_t i = 0; i < r; ++i)
-                    for (int64_t q = 0; q < m; ++q) x[c * m + q] -= Lc[i] * tmp[i * m + q];
+    with_columns(m_, [&](auto m) RELMAP_LAMBDA_INLINE {
+        for (int64_t s = supernodes() - 1; s >= 0; --s) {
+            const int64_t f = first_[s], w = first_[s + 1] - f;
+            const int64_t nr = rows_ptr_[s + 1] - rows_ptr_[s], r = nr - w;
+            const int64_t* R = rows_.data() + rows_ptr_[s] + w;
+            const double* L = X_.get() + panel_ptr_[s];
+            double* x = y + f * m;
+            tmp.resize(r * m);
+            for (int64_t i = 0; i < r; ++i)
+                for (int64_t q = 0; q < m; ++q) tmp[i + q * r] = y[R[i] * m + q];
+            for (int64_t q = 0; q < m; ++q)  // column q of x_J: stride m
+                dense::subtract_dots(w, r, L + w, nr, tmp.data() + q * r, x + q, m);
+            for (int64_t c = w - 1; c >= 0; --c) {
+                const double* Lc = L + c * nr;
+                for (int64_t i = c + 1; i < w; ++i)
+                    for (int64_t q = 0; q < m; ++q) x[c * m + q] -= Lc[i] * x[i * m + q];
+                const double scale = 1.0 / Lc[c];
+                for (int64_t q = 0; q < m; ++q) x[c * m + q] *= scale;
             }
         }
-        for (int64_t c = w - 1; c >= 0; --c) {
-            const double* Lc = L + c * nr;
-            for (int64_t i = c + 1; i < w; ++i)
-                for (int64_t q = 0; q < m; ++q) x[c * m + q] -= Lc[i] * x[i * m + q];
-            const double scale = 1.0 / Lc[c];
-            for (int64_t q = 0; q < m; ++q) x[c * m + q] *= scale;
-        }
-    }
+    });
 }
 
-void SparseCholesky::solve(const double* b, double* x, int64_t m) const {
-    std::vector<double> y(n_ * m);
-    for (int64_t k = 0; k < n_; ++k)
-        std::copy(b + perm_[k] * m, b + perm_[k] * m + m, y.data() + k * m);
-    forward(y.data(), m, nullptr);
-    backward(y.data(), m);
-    for (int64_t k = 0; k < n_; ++k)
-        std::copy(y.data() + k * m, y.data() + k * m + m, x + perm_[k] * m);
+RELMAP_MULTIVERSION
+void SparseCholesky::solve(const double* b, double* x, int64_t m_) const {
+    std::vector<double> y(n_ * m_);
+    with_columns(m_, [&](auto m) RELMAP_LAMBDA_INLINE {
+        for (int64_t k = 0; k < n_; ++k)
+            for (int64_t q = 0; q < m; ++q) y[k * m + q] = b[perm_[k] * m + q];
+    });
+    forward(y.data(), m_, nullptr);
+    backward(y.data(), m_);
+    with_columns(m_, [&](auto m) RELMAP_LAMBDA_INLINE {
+        for (int64_t k = 0; k < n_; ++k)
+            for (int64_t q = 0; q < m; ++q) x[perm_[k] * m + q] = y[k * m + q];
+    });
 }
 
 void SparseCholesky::inverse_submatrix(const int64_t* idx, int64_t k, double* out) const {
@@ -567,9 +570,97 @@ bool SparseCholesky::selected_inverse_blocks(const int64_t* groups, int64_t coun
     return true;
 }
 
+BlockPattern block_pattern(int64_t nodes, int64_t K, const int64_t* brow, const int64_t* bcol,
+                           int64_t b) {
+    // The kept blocks sorted by (column, row) by two stable counting sorts (row, then column).
+    std::vector<int64_t> count(nodes + 1, 0), by_row, by_col;
+    for (int64_t k = 0; k < K; ++k)
+        if (brow[k] >= 0 && bcol[k] >= 0) ++count[brow[k] + 1];
+    for (int64_t v = 0; v < nodes; ++v) count[v + 1] += count[v];
+    by_row.resize(count[nodes]);
+    by_col.resize(count[nodes]);
+    for (int64_t k = 0; k < K; ++k)
+        if (brow[k] >= 0 && bcol[k] >= 0) by_row[count[brow[k]]++] = k;
+    std::fill(count.begin(), count.end(), 0);
+    for (int64_t k : by_row) ++count[bcol[k] + 1];
+    for (int64_t v = 0; v < nodes; ++v) count[v + 1] += count[v];
+    for (int64_t k : by_row) by_col[count[bcol[k]]++] = k;
+    // Distinct blocks: each block column's in increasing row order; every contribution's block.
+    BlockPattern out;
+    std::vector<int64_t> unique_of(K, -1), start(nodes + 1, 0);
+    std::vector<int64_t>& urow = out.brow;
+    std::vector<int64_t>& ucol = out.bcol;
+    for (size_t e = 0; e < by_col.size(); ++e) {
+        const int64_t k = by_col[e];
+        if (e == 0 || brow[k] != urow.back() || bcol[k] != ucol.back()) {
+            urow.push_back(brow[k]);
+            ucol.push_back(bcol[k]);
+            ++start[bcol[k] + 1];
+        }
+        unique_of[k] = static_cast<int64_t>(urow.size()) - 1;
+    }
+    for (int64_t v = 0; v < nodes; ++v) start[v + 1] += start[v];
+    const int64_t U = static_cast<int64_t>(urow.size()), bb = b * b, nnz = bb * U;
+    // Scalar column (J, a) starts at b²·start[J] + a·b·(blocks of column J); in it, block u of
+    // rank (u - start[J]) holds rows b·urow[u] … b·urow[u] + b - 1.
+    auto column_start = [&](int64_t J, int64_t a) {
+        return bb * start[J] + a * b * (start[J + 1] - start[J]);
+    };
+    out.indptr.resize(b * nodes + 1);
+    for (int64_t J = 0; J < nodes; ++J)
+        for (int64_t a = 0; a < b; ++a) out.indptr[b * J + a] = column_start(J, a);
+    out.indptr[b * nodes] = nnz;
+    out.indices.resize(nnz);
+    for (int64_t u = 0; u < U; ++u) {
+        const int64_t J = ucol[u], rank = u - start[J];
+        for (int64_t a = 0; a < b; ++a) {
+            int64_t* rows = out.indices.data() + column_start(J, a) + b * rank;
+            for (int64_t r = 0; r < b; ++r) rows[r] = b * urow[u] + r;
+        }
+    }
+    out.position.resize(bb * K);
+    for (int64_t c = 0; c < b; ++c) {  // entry q = b r + c of block k: row r of column (J, c)
+        // the slot of the block's row 0 in column (J, c), per distinct block
+        std::vector<int64_t> base(U);
+        for (int64_t u = 0; u < U; ++u)
+            base[u] = column_start(ucol[u], c) + b * (u - start[ucol[u]]);
+        for (int64_t r = 0; r < b; ++r) {
+            int64_t* slots = out.position.data() + (b * r + c) * K;
+            for (int64_t k = 0; k < K; ++k) {
+                const int64_t u = unique_of[k];
+                slots[k] = u >= 0 ? base[u] + r : nnz;
+            }
+        }
+    }
+    return out;
+}
+
 // ---- bindings ------------------------------------------------------------------------------
 
 void register_sparse_chol(nb::module_& m) {
+    m.def(
+        "block_pattern",
+        [](int64_t nodes, Index1 brow, Index1 bcol, int64_t b) {
+            const int64_t K = static_cast<int64_t>(brow.shape(0));
+            if (nodes < 0 || b < 1 || static_cast<int64_t>(bcol.shape(0)) != K)
+                throw nb::value_error("nodes >= 0, b >= 1, and brow and bcol of the same length");
+            for (int64_t k = 0; k < K; ++k)
+                if (brow.data()[k] >= nodes || bcol.data()[k] >= nodes)
+                    throw nb::value_error("block node out of range");
+            BlockPattern p;
+            {
+                nb::gil_scoped_release unlocked;
+                p = block_pattern(nodes, K, brow.data(), bcol.data(), b);
+            }
+            return nb::make_tuple(
+                owned_array(std::move(p.indptr)), owned_array(std::move(p.indices)),
+                owned_array(std::move(p.position)), owned_array(std::move(p.brow)),
+                owned_array(std::move(p.bcol)));
+        },
+        nb::arg("nodes"), nb::arg("brow"), nb::arg("bcol"), nb::arg("b"),
+        "CSC pattern (indptr, indices) of b × b blocks at node pairs (brow, bcol), the slot "
+        "of every contribution laid out [entry q][block k], and the distinct blocks' node "
+        "pairs (internal: see relmap.network.sparse.SymmetricPattern.from_blocks).");
     nb::class_<SparseCholesky>(m, "SparseCholesky",
                                "Supernodal sparse Cholesky A = L Lᵀ with a fixed pattern "
                                "(internal: see relmap.network.sparse).")

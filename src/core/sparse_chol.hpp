@@ -80,6 +80,18 @@ private:
     void backward(double* y, int64_t m) const;
 };
 
+// The CSC pattern (both triangles, rows sorted) of a symmetric matrix of dense b × b blocks at
+// the node pairs (brow[k], bcol[k]), k < K (duplicates allowed; a negative node drops the
+// block), and the slot of every contribution: position[q K + k] for entry q = b r + c of block
+// k (K·b² contributions, [entry q][block k]; a dropped block's go to the spare slot nnz). The
+// blocks of one block column are stored row-block by row-block in each of its b columns.
+// brow, bcol: the distinct blocks' node pairs, in (column, row) order.
+struct BlockPattern {
+    std::vector<int64_t> indptr, indices, position, brow, bcol;
+};
+BlockPattern block_pattern(int64_t nodes, int64_t K, const int64_t* brow, const int64_t* bcol,
+                           int64_t b);
+
 void register_sparse_chol(nb::module_& m);
 
 }  // namespace relmap

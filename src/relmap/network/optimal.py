@@ -109,7 +109,7 @@ class Solution:
         self.frames: list[object] = (
             list(problem.frames) if problem.frames is not None else list(range(problem.n))
         )
-        self._row = {f: k for k, f in enumerate(self.frames)}
+        self._row = dict(zip(self.frames, range(len(self.frames)), strict=True))
 
     @property
     def factor(self) -> SymmetricFactor | None:
@@ -805,12 +805,27 @@ def solve_frames(
         [],
         np.array(guess),
         anchor,
-        [f"e{k}" for k in range(m)],
+        _Numbered(m),
         ats.group,
         list(frames),
     )
     options = {} if rtol is None else {"rtol": rtol}
     return optimize(problem, progress=progress, max_iterations=max_iterations, **options)
+
+
+class _Numbered(Sequence[str]):
+    """The names ``e0 … e{m-1}`` of m ATs, each formed only when asked for (in a message)."""
+
+    def __init__(self, m: int) -> None:
+        self._m = m
+
+    def __len__(self) -> int:
+        return self._m
+
+    def __getitem__(self, k):  # type: ignore[no-untyped-def, override]
+        if isinstance(k, slice):
+            return [f"e{i}" for i in range(self._m)[k]]
+        return f"e{range(self._m)[k]}"
 
 
 def _rows(g: MapView, names: Sequence[str], index: dict[Frame, int]) -> tuple[IntArray, IntArray]:

@@ -26,12 +26,13 @@ planar-only).
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
 import numpy as np
 
 from relmap.errors import InconsistentMapError, SolverError
+from relmap.gaussian import max_over_last
 from relmap.lie import SE2, Group, se2
 from relmap.typing import FloatArray, IntArray
 
@@ -57,7 +58,7 @@ class Problem(NamedTuple):
     groups: list[tuple[IntArray, FloatArray]]
     guess: FloatArray
     anchor: int
-    names: list[str]
+    names: Sequence[str]
     group: Group = SE2
     frames: list[object] | None = None
 
@@ -159,9 +160,9 @@ class Parameterization(NamedTuple):
 
 def _exact_kind(cov: FloatArray, atol: float) -> IntArray:
     """0: fully uncertain, 1: heading exact only, 2: exact. Other singular forms raise."""
-    scale = np.abs(cov).max(axis=(-2, -1))
+    scale = max_over_last(np.abs(cov), 2)
     exact = scale <= atol
-    heading_exact = ~exact & (np.abs(cov[:, 2, :]).max(axis=-1) <= 1e-12 * scale)
+    heading_exact = ~exact & (max_over_last(np.abs(cov[:, 2, :]), 1) <= 1e-12 * scale)
     return np.where(exact, 2, np.where(heading_exact, 1, 0))
 
 
@@ -276,7 +277,7 @@ def _spread(
     j: IntArray,
     z: FloatArray,
     use: np.ndarray,
-    names: list[str],
+    names: Sequence[str],
     *,
     full: bool,
     atol: float,

@@ -1,9 +1,11 @@
 """Sparse symmetric normal matrices: a pattern fixed once, refactorized every iteration.
 
-The pattern is assembled once (CSC, both triangles) with a map from every contribution to its
-slot, so each Gauss-Newton iteration fills the matrix with one ``np.bincount``. A fill-reducing
-ordering is computed once, on the *node* graph (the frames; a frame's parameters stay
-together), by multiple minimum degree.
+The pattern is assembled once (CSC, both triangles; a pattern of dense blocks by the core's
+``block_pattern``) with a map from every contribution to its slot, so each Gauss-Newton
+iteration adds the contributions straight into their slots (the core's normal equations, or
+``np.bincount`` in :meth:`SymmetricPattern.assemble`). A fill-reducing ordering is computed
+once, on the *node* graph (the frames; a frame's parameters stay together), by multiple
+minimum degree.
 
 The factorization is relmap's compiled core (``relmap._core.SparseCholesky``, C++, one
 implementation): a supernodal left-looking Cholesky ``A = L Lᵀ`` whose symbolic analysis
@@ -54,39 +56,18 @@ class SymmetricPattern:
 
         Contributions are ordered ``[entry q = block·r + c][k]`` for block k (a negative node
         drops the block): the layout :class:`relmap.network.optimal` fills. Built from the
-        K blocks rather than the block²·K scalars, so it costs a fraction of the general path.
+        K blocks rather than the block²·K scalars, by relmap's compiled core
+        (``relmap._core.block_pattern``: two counting sorts, no comparison sort).
         """
-        b = block
-        keep = (brow >= 0) & (bcol >= 0)
-        keys = bcol.astype(np.int64)[keep] * nodes + brow[keep]
-        unique, inv = np.unique(keys, return_inverse=True)
-        ucol, urow = unique // nodes, unique % nodes
-        count = np.bincount(ucol, minlength=nodes)
-        start = np.concatenate([[0], np.cumsum(count)[:-1]])  # first block of each block column
-        rank = np.arange(len(unique)) - start[ucol]
-        # scalar column (J, a) starts at b²·start[J] + a·b·count[J]
-        col_start = (b * b * start)[:, None] + np.arange(b)[None, :] * (b * count)[:, None]
-        indptr = np.concatenate([col_start.reshape(-1), [b * b * len(unique)]])
-        # rows: column (J, a) lists, for each block of column J in order, its b rows
-        order = np.argsort(ucol, kind="stable")  # already sorted; kept for clarity
-        per_col_rows = (b * urow[order])[:, None] + np.arange(b)  # (blocks, b)
-        indices = np.empty(b * b * len(unique), dtype=np.int64)
-        for a in range(b):
-            # the slots of column (J, a) are col_start[J, a] + b·rank + r
-            slot = col_start[ucol, a][:, None] + b * rank[:, None] + np.arange(b)
-            indices[slot.reshape(-1)] = per_col_rows.reshape(-1)
-        # contribution (q = b·r + c, k) → slot of scalar (b·I + r, b·J + c)
-        kb = np.full(len(brow), -1, dtype=np.int64)
-        kb[keep] = inv
-        q = np.arange(b * b)
-        r_, c_ = q // b, q % b
-        slot = col_start[ucol[kb], :][:, c_].T + b * rank[kb][None, :] + r_[:, None]  # (b², K)
-        position = np.where(kb[None, :] >= 0, slot, len(indices)).reshape(-1)
-        node = np.repeat(np.arange(nodes), b)
+        c = np.ascontiguousarray
+        indptr, indices, position, urow, ucol = _core.block_pattern(
+            nodes, c(brow, dtype=np.int64), c(bcol, dtype=np.int64), block
+        )
         pattern = cls.__new__(cls)
-        pattern._setup(b * nodes, indices, indptr, position, node)
-        pattern.block = b
-        pattern._pairs = (b * urow, b * ucol)  # one parameter pair per block, for the ordering
+        node = np.repeat(np.arange(nodes), block)
+        pattern._setup(block * nodes, indices, indptr, position, node)
+        pattern.block = block
+        pattern._pairs = (block * urow, block * ucol)  # one parameter pair per block (ordering)
         return pattern
 
     def _setup(
