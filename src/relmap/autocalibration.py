@@ -522,12 +522,12 @@ def calibrate(
         raise ShapeError(f"landmarks must have shape (L, 2) with L ≥ 1; got {lm.shape}")
     if not len(recording.reading_t):
         raise ParameterError("cannot calibrate from innovations: the run has no readings")
+    landmark_map = ekf.LandmarkMap(lm, landmark_signatures)  # checked once for every filter
 
     def run(log: ekf.Log, p: ekf.NoiseParameters) -> ekf.Trace:
         trace = ekf.run(
-            log, lm, p._replace(nu=np.inf), start=start(float(log.t[0])), keep="summary",
-            association=association, landmark_signatures=landmark_signatures, gate=gate,
-            sensor=kind,
+            log, landmark_map, p._replace(nu=np.inf), start=start(float(log.t[0])),
+            keep="summary", association=association, gate=gate, sensor=kind,
         )  # fmt: skip
         return trace._replace(loglik=loglik(trace, p.nu, p.clutter, volume))
 
