@@ -487,7 +487,7 @@ def _localization(
     def start(t0: float) -> AT:
         return _start(truth_at(np.array([t0]))[0])
 
-    kw = dict(landmark_signatures=np.arange(len(landmarks)), sensor=sensor, gate=gate)
+    kw = dict(sensor=sensor, gate=gate)  # landmarks named by their rows (the default)
     noise: Calibration | autocalibration.Calibrated
     if cal is None:
         noise = autocalibration.calibrate(recording, landmarks, start=start,
@@ -500,10 +500,11 @@ def _localization(
         log = recording.log(0.0, noise.range_scale)
     tick(STAGES - 1, STAGES)
     params = noise.parameters
-    trace = ekf.run(log, landmarks, params, start=start(float(log.t[0])), association=associate,
-                    **kw)  # fmt: skip
+    landmark_map = ekf.LandmarkMap(landmarks)  # checked once for the filter and dead reckoning
+    trace = ekf.run(log, landmark_map, params, start=start(float(log.t[0])),
+                    association=associate, **kw)  # fmt: skip
     quiet = log._replace(reading_index=log.reading_index[:0], z=log.z[:0], signature=None)
-    dr = ekf.run(quiet, landmarks, params, start=start(float(log.t[0])),
+    dr = ekf.run(quiet, landmark_map, params, start=start(float(log.t[0])),
                  association="mahalanobis", readings=False, **kw)  # fmt: skip
     tick(STAGES, STAGES)
     true_landmark = log.signature
