@@ -68,7 +68,9 @@ class Hypothesis(NamedTuple):
 
 
 class Study:
-    def __init__(self, log, landmarks, cal, start, *, gate, hypotheses, walk, expire, inflate):
+    def __init__(
+        self, log, landmarks, cal, start, *, gate, hypotheses, walk, expire, inflate, exclusion
+    ):
         self.log, self.lmap, self.start = log, landmarks, start
         self.params = cal.parameters._replace(clutter=0.0)
         self.nu, self.loglam = cal.nu, float(np.log(float(cal.parameters.clutter)))
@@ -80,6 +82,7 @@ class Study:
         self.dR = (1.0 - 1.0 / c2) * self.R if inflate else 0.0 * self.R
         self.gate, self.gate2 = gate, float(gaussian.confidence_k2(gate, 2))
         self.N, self.walk, self.expire = hypotheses, walk, expire
+        self.xy, self.exclusion = np.asarray(landmarks.xy), exclusion
         T = len(log.t)
         self.mean, self.cov = np.empty((T, 3)), np.empty((T, 3, 3))
 
@@ -200,7 +203,8 @@ class Study:
                         objects = (*h.objects[:j], seen, *h.objects[j + 1 :])
                         children.append(h._replace(logw=h.logw + lp, objects=objects,
                                                    history=(row, OBJECT, h.history)))  # fmt: skip
-                born = (*h.objects, seen) if self.all_objects or paired else h.objects
+                apart = np.hypot(*(self.xy - seen[0]).T).min() >= self.exclusion
+                born = (*h.objects, seen) if (self.all_objects or paired) and apart else h.objects
                 children.append(h._replace(logw=h.logw + self.loglam, objects=born,
                                            history=(row, NEW, h.history)))  # fmt: skip
             hyps = self._prune(children)
@@ -256,6 +260,9 @@ def main() -> None:
         action="store_true",
         help="a landmark's reading density with the update's σ factor (objects')",
     )
+    ap.add_argument(
+        "--exclusion", type=float, default=0.0, help="m: no object born this close to a landmark"
+    )
     ap.add_argument("--minutes", action="store_true", help="error and explanations per minute")
     a = ap.parse_args()
     data = read_mrclam(DATA / "landmarks" / "mrclam6")
@@ -273,7 +280,7 @@ def main() -> None:
         t0 = time.perf_counter()
         study = Study(log, landmarks, cal, localize._start(truth[0]), gate=a.gate,
                       hypotheses=a.hypotheses, walk=a.object_walk, expire=a.expire,
-                      inflate=a.inflate_landmarks)  # fmt: skip
+                      inflate=a.inflate_landmarks, exclusion=a.exclusion)  # fmt: skip
         est, how = study.run(a.model)
         s = localize.score(est, truth)
         print(f"robot {robot}: one hypothesis {fmt(one.score)}; {a.hypotheses} ({a.model}) "
