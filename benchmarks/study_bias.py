@@ -12,6 +12,12 @@ Schmidt–Kalman filter (the biases' covariance carried, their gain zero). Every
 stamp, one reading per landmark and time stamp); ``--check`` confirms that with σ_c → 0 it
 gives the C++ filter's states (at inflation 1) to rounding.
 
+``--factor-consider``: not a new filter but relmap's own (the σ-factor gain, its states to
+rounding) with the covariance its gain gives under the Gauss–Markov model whose structure
+(correlated share, τ) comes from the autocorrelation of its innovations and whose total σ is
+the calibrated one (:func:`run_factor`, a consider analysis of the gain): does the correlation
+model give the σ-factor filter an honest covariance?
+
 Noise, without ground truth: the odometry's k, the clock and ν are those of
 ``relmap.autocalibration.calibrate`` (what ``relmap localize`` runs; cached in ``--cache``);
 then (default) the bias model's (σ_w, σ_c, τ) for range and bearing by maximum likelihood of
@@ -31,7 +37,8 @@ which is the stepwise EKF's prediction exactly; the pose at every filter time, f
 from the same compositions. Robot 0 is Plaza (range-only).
 
 Run: ``python benchmarks/study_bias.py [--robots 0 1 2 3 4 5] [--per landmark|robot|mixed]
-[--fit-k | --acf | --fixed ... | --oracle ...] [--consider]``, ``--residuals``, ``--sim 1 2``.
+[--fit-k | --acf | --fixed ... | --oracle ...] [--consider]``, ``--factor-consider [--per ...]``,
+``--residuals``, ``--sim 1 2``.
 """
 
 from __future__ import annotations
@@ -284,6 +291,109 @@ def run_bias(log, lm, p, start, bias: Bias, comp, *, d=2, keep_all=True, gate2=N
     return out
 
 
+def run_factor(log, lm, p, start, bias: Bias, comp, *, d=2):
+    """relmap's σ-factor filter (signatures, its χ² gate on ``R``, the gain and Joseph update
+    with ``inflation² R``: :func:`relmap.ekf.run`'s states) and, for the same gain, the
+    covariance of its error under the Gauss–Markov reading model ``bias`` (the gain's
+    *consider* analysis: the augmented error [pose; biases] through ``(I - K_a H_a)`` with
+    ``K_a = [K; 0]``, the biases decaying between time stamps). Returns the filter's mean and
+    covariance and the considered covariance at every filter time."""
+    base, D, Q = comp
+    L = len(lm)
+    if bias.per == "landmark":
+        ir, ib = 3 + d * np.arange(L), 3 + d * np.arange(L) + 1
+    elif bias.per == "robot":
+        ir, ib = np.full(L, 3), np.full(L, 4)
+    else:
+        ir, ib = 3 + np.arange(L), np.full(L, 3 + L)
+    n = 3 + int(max(ir.max(), ib.max() if d == 2 else 0)) - 2
+    c2 = float(p.inflation) ** 2
+    var = np.array([float(p.sigma_r) ** 2, float(p.sigma_b) ** 2])[:d]
+    x = np.asarray(start.mean, float).copy()
+    Pc = np.asarray(start.cov, float).copy()
+    Pa = np.zeros((n, n))
+    Pa[:3, :3] = Pc
+    sc2, tau = np.zeros(n), np.ones(n)
+    sc2[ir], tau[ir] = bias.sc[0] ** 2, bias.tau[0]
+    if d == 2:
+        sc2[ib], tau[ib] = bias.sc[1] ** 2, bias.tau[1]
+    sc2, tau = sc2[3:], tau[3:]
+    Pa[3:, 3:] = np.diag(sc2)
+    gate2 = CHI2_2_99 if d == 2 else CHI2_1_99
+    t = log.t
+    ri = np.asarray(log.reading_index)
+    z = np.asarray(log.z, float).reshape(len(ri), -1)
+    sig = np.asarray(log.signature)
+    ev_idx, ev_lo = np.unique(ri, return_index=True)
+    ev_hi = np.append(ev_lo[1:], len(ri))
+    post = np.zeros((len(ev_idx), 3)), np.zeros((len(ev_idx), 3, 3)), np.zeros((len(ev_idx), 3, 3))
+    last_t = t[0]
+    for e, (k, lo, hi) in enumerate(zip(ev_idx, ev_lo, ev_hi, strict=True)):
+        x, F, R = apply(x, None, D[k], Q[k])
+        RQR = R @ Q[k] @ R.T
+        Pc = F @ Pc @ F.T + RQR
+        phi = np.exp(-(t[k] - last_t) / tau)
+        last_t = t[k]
+        Pa[:3, 3:] = F @ Pa[:3, 3:] * phi
+        Pa[3:, :3] = Pa[:3, 3:].T
+        Pa[:3, :3] = F @ Pa[:3, :3] @ F.T + RQR
+        Pa[3:, 3:] = Pa[3:, 3:] * np.outer(phi, phi) + np.diag(sc2 * (1 - phi**2))
+        best = {}
+        for i in range(lo, hi):
+            lk = int(sig[i])
+            if not 0 <= lk < L:
+                continue
+            dx, dy = lm[lk, 0] - x[0], lm[lk, 1] - x[1]
+            q = dx * dx + dy * dy
+            r = math.sqrt(q)
+            Hx = np.zeros((d, 3))
+            Hx[0] = (-dx / r, -dy / r, 0.0)
+            yv = np.array([z[i, 0] - r, 0.0])[:d]
+            if d == 2:
+                Hx[1] = (dy / q, -dx / q, -1.0)
+                yv[1] = wrap(z[i, 1] - (math.atan2(dy, dx) - x[2]))
+            d2 = float(yv @ np.linalg.solve(Hx @ Pc @ Hx.T + np.diag(var), yv))
+            if d2 > gate2 or (lk in best and best[lk][0] <= d2):
+                continue
+            Ha = np.zeros((d, n))
+            Ha[:, :3] = Hx
+            Ha[0, ir[lk]] = 1.0
+            if d == 2:
+                Ha[1, ib[lk]] = 1.0
+            best[lk] = (d2, Hx, Ha, yv)
+        if best:
+            Hx = np.concatenate([v[1] for v in best.values()])
+            Ha = np.concatenate([v[2] for v in best.values()])
+            yv = np.concatenate([v[3] for v in best.values()])
+            m = len(best)
+            Rc = np.kron(np.eye(m), np.diag(c2 * var))
+            K = np.linalg.solve(Hx @ Pc @ Hx.T + Rc, Hx @ Pc).T
+            x = x + K @ yv
+            x[2] = wrap(x[2])
+            IKH = np.eye(3) - K @ Hx
+            Pc = IKH @ Pc @ IKH.T + K @ Rc @ K.T
+            Ka = np.zeros((n, len(yv)))
+            Ka[:3] = K
+            IKHa = np.eye(n) - Ka @ Ha
+            Rw = np.kron(np.eye(m), np.diag(bias.sw**2))
+            Pa = IKHa @ Pa @ IKHa.T + Ka @ Rw @ Ka.T
+            Pa = 0.5 * (Pa + Pa.T)
+        post[0][e], post[1][e], post[2][e] = x, Pc, Pa[:3, :3]
+    T = len(t)
+    ev_of = np.full(T, -1, np.int64)
+    ev_of[ev_idx] = np.arange(len(ev_idx))
+    j = ev_of[base]
+    out = []
+    for which, s0 in ((1, start.cov), (2, start.cov)):
+        bx = np.where(j[:, None] >= 0, post[0][np.maximum(j, 0)], start.mean)
+        bP = np.where(j[:, None, None] >= 0, post[which][np.maximum(j, 0)], s0)
+        xs, F, R = apply(bx, None, D, Q)
+        Ps = F @ bP @ np.swapaxes(F, -1, -2) + R @ Q @ np.swapaxes(R, -1, -2)
+        xs[ev_idx], Ps[ev_idx] = post[0], post[which]
+        out.append((xs, Ps))
+    return out[0][0], out[0][1], out[1][1]
+
+
 def loglik(out, nu, d=2):
     tr = ekf.Trace(None, None, None, out["y"] if d == 2 else out["y"][:, 0],
                    out["S"] if d == 2 else out["S"][:, 0, 0], None, out["status"], None,
@@ -451,6 +561,9 @@ def main() -> None:
     ap.add_argument("--acf", action="store_true",
                     help="structure from the innovations' autocorrelation, σ and k by ML")
     ap.add_argument("--residuals", action="store_true", help="ground-truth error structure")
+    ap.add_argument("--factor-consider", action="store_true",
+                    help="relmap's σ-factor filter with its error covariance under the "
+                         "Gauss–Markov model of the innovations' autocorrelation")
     ap.add_argument("--oracle", type=float, nargs=3, default=None,
                     metavar=("SHARE", "TAU_R", "TAU_B"),
                     help="diagnostic: k and σ from the robot's ground truth, white share, τ")
@@ -512,6 +625,24 @@ def main() -> None:
             sh, tr, tb = a.oracle
             sg = np.array([g.sigma_range, g.sigma_bearing])
             a.fixed = [*(sg * np.sqrt(sh)), *(sg * np.sqrt(1 - sh)), tr, tb]
+        if a.factor_consider:  # the σ-factor gain kept; its covariance under the GM model
+            tr = ekf.run(log, lm, p, start=start, landmark_signatures=np.arange(len(lm)),
+                         sensor="range_only" if d == 1 else "range_bearing")  # fmt: skip
+            acf = innovation_acf(tr, log.t[log.reading_index], d)
+            share, tau = structure(acf)
+            sg = np.asarray(sigma[:d])
+            b = Bias(sg * np.sqrt(1 - share), sg * np.sqrt(share), tau, a.per)
+            mean, Pc, Pa = run_factor(log, lm, p, start, b, comp, d=d)
+            from relmap.at import AT
+
+            sc, sa = score(AT(mean, Pc), c["truth"]), score(AT(mean, Pa), c["truth"])
+            print("  innovation ACF at " + ", ".join(f"{v:g}" for v in ACF_LAGS) + " s: "
+                  + "; ".join(" ".join(f"{v:.2f}" for v in row) for row in acf))
+            print(f"  {b}; |Δmean| vs relmap {np.abs(mean - tr.mean).max():.1e}, |ΔP| "
+                  f"{np.abs(Pc - tr.cov).max():.1e}\n  filter's P: {sc.rmse_position:.3f}/"
+                  f"{sc.coverage_90:.2f}/{sc.anees:.2f}; considered: {sa.rmse_position:.3f}/"
+                  f"{sa.coverage_90:.2f}/{sa.anees:.2f}; {time.time() - t0:.0f} s", flush=True)  # fmt: skip
+            continue
         if a.acf:  # structure from the innovations' autocorrelation, the rest by ML
             tr = ekf.run(log, lm, p, start=start, landmark_signatures=np.arange(len(lm)),
                          sensor="range_only" if d == 1 else "range_bearing")  # fmt: skip
