@@ -24,7 +24,8 @@ reading branches every hypothesis:
   landmark or object is clutter.
 
 ``--inflate-landmarks`` (object models): a landmark reading's density with the update's σ
-factor too (``S + (c² - 1) R``), as the objects' readings have it.
+factor too (``S + (c² - 1) R``), as the objects' readings have it; ``--exclusion E``: no object
+born within E m of a landmark.
 
 The estimate at every time is the mixture's moments. Scored against the ground truth (RMSE m /
 coverage_90 / ANEES), beside the one-hypothesis filter of ``relmap localize``, with per-minute
@@ -32,7 +33,7 @@ error and, for the most likely final hypothesis, how it explained the readings o
 of no landmark (barcodes read only to count). Ground truth scores; the method never reads it.
 
 Run: ``python benchmarks/study_hypotheses.py [--model objects] [--hypotheses 16]
-[--robots 1 2 3 4 5] [--gate 0.99] [--inflate-landmarks] [--minutes]``.
+[--robots 1 2 3 4 5] [--gate 0.99] [--inflate-landmarks] [--exclusion 0.5] [--minutes]``.
 """
 
 from __future__ import annotations
