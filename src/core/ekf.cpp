@@ -744,13 +744,12 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
                           std::isfinite(py) && !std::isnan(qlo) && !std::isnan(qhi) &&
                           !std::isnan(rho2);
         int64_t x0 = 0, x1 = map.nx - 1, y0 = 0, y1 = map.ny - 1;
-        if (clip) {  // the cells of the box around both discs
-            const double es = std::sqrt(qhi) * (1.0 + 1e-6), ep = std::sqrt(rho2) * (1.0 + 1e-6);
+        if (clip) {  // the cells of the box around both discs (the grid's cell of a coordinate)
+            const double es = rhi * (1.0 + 1e-5), ep = rho * (1.0 + 1e-5);
             const double slack =
                 1e-12 * (std::fabs(sp.x) + std::fabs(sp.y) + std::fabs(px) + std::fabs(py));
             auto cells = [&](double a, double b, double g, int64_t n, int64_t& ca, int64_t& cb) {
-                const double fa = std::floor((a - slack - g) / map.cell);
-                const double fb = std::floor((b + slack - g) / map.cell);
+                const double fa = (a - slack - g) * map.inv_cell, fb = (b + slack - g) * map.inv_cell;
                 ca = fa > 0.0 ? (fa < n - 1 ? static_cast<int64_t>(fa) : n - 1) : 0;
                 cb = fb < n - 1 ? (fb > 0.0 ? static_cast<int64_t>(fb) : 0) : n - 1;
             };
@@ -1328,14 +1327,14 @@ Map::Map(int64_t L_, const double* xy_, const int64_t* s) : L(L_), store(xy_, xy
                         std::max(w, h) / static_cast<double>(L))
              : 1.0;
     if (!(cell > 0.0 && std::isfinite(cell))) cell = 1.0;
-    gx = box[0], gy = box[2];
-    nx = static_cast<int64_t>(w / cell) + 1, ny = static_cast<int64_t>(h / cell) + 1;
+    gx = box[0], gy = box[2], inv_cell = 1.0 / cell;
+    nx = static_cast<int64_t>(w * inv_cell) + 1, ny = static_cast<int64_t>(h * inv_cell) + 1;
     const int64_t C = nx * ny;
     std::vector<int64_t> of(L);
     cell_start.assign(C + 1, 0);
     for (int64_t l = 0; l < L; ++l) {
-        const int64_t cx = std::min(static_cast<int64_t>((xy[2 * l] - gx) / cell), nx - 1);
-        const int64_t cy = std::min(static_cast<int64_t>((xy[2 * l + 1] - gy) / cell), ny - 1);
+        const int64_t cx = std::min(static_cast<int64_t>((xy[2 * l] - gx) * inv_cell), nx - 1);
+        const int64_t cy = std::min(static_cast<int64_t>((xy[2 * l + 1] - gy) * inv_cell), ny - 1);
         of[l] = cy * nx + cx;
         ++cell_start[of[l] + 1];
     }
