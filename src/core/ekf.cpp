@@ -1521,10 +1521,11 @@ void register_ekf(nb::module_& m) {
                 P.shape(n - 1) != 3 || motion.ndim() < 1 || motion.shape(motion.ndim() - 1) != 2)
                 throw nb::value_error("x must be (..., 3), P (..., 3, 3) and motion (..., 2)");
             const size_t B = x.size() / 3;
-            if (P.size() != 9 * B || motion.size() != 2 * B)
-                throw nb::value_error("x, P and motion must have one batch");
+            if (P.size() != 9 * B || (motion.size() != 2 * B && motion.size() != 2))
+                throw nb::value_error("x, P and motion must have one batch (or one motion)");
             const double* mo = motion.data();
-            for (size_t k = 0; k < 2 * B; ++k)
+            const size_t ms = motion.size() == 2 * B ? 2 : 0;  // one step shared: stride 0
+            for (size_t k = 0; k < motion.size(); ++k)
                 if (!std::isfinite(mo[k]))
                     raise_relmap_error("NonFiniteError",
                                        "odometry steps must be finite; (Δs, Δθ) of filter " +
@@ -1535,13 +1536,14 @@ void register_ekf(nb::module_& m) {
             std::copy(x.data(), x.data() + B * 3, xo.data);
             std::copy(P.data(), P.data() + B * 9, Po.data);
             for (size_t b = 0; b < B; ++b)
-                predict_odometry(xo.data + 3 * b, Po.data + 9 * b, mo[2 * b], mo[2 * b + 1],
+                predict_odometry(xo.data + 3 * b, Po.data + 9 * b, mo[ms * b], mo[ms * b + 1],
                                  params.data() + b * ps);
             return nb::make_tuple(xo.array, Po.array);
         },
         nb::arg("x"), nb::arg("P"), nb::arg("motion"), nb::arg("params"),
         "One odometry prediction (midpoint, DistanceNoise) per filter: x (..., 3), P (..., 3, "
-        "3), motion (..., 2) of one batch; non-finite motion raises relmap's NonFiniteError.");
+        "3), motion (..., 2) of one batch or (2,) for all; non-finite motion raises relmap's "
+        "NonFiniteError.");
 
     m.def(
         "ekf_correct_readings",
