@@ -1165,8 +1165,7 @@ void correct_lanes(const Call* calls, const Map& map, const Options& opt) {
         return !out.y_given ? nullptr
                             : (k ? out.S_given + q->i * d * d : out.y_given + q->i * d);
     };
-    // Pair u of every lane side by side while every lane has one (and has not failed), then
-    // the lanes left one by one.
+    // Pair u of every lane that has one (and has not failed), those lanes side by side.
     auto step = [&](auto lanes, const int* which, size_t u) {
         constexpr int V = decltype(lanes)::value;
         double *delta[V], *Pp[V], wgt[V], *yo[V], *So[V];
@@ -1198,11 +1197,14 @@ void correct_lanes(const Call* calls, const Map& map, const Options& opt) {
         int which[W], na = 0;
         for (int l = 0; l < W; ++l)
             if (lane[l].ok && u < work[l].update.size()) which[na++] = l;
-        if (na == W) {
+        if (na == W)
             step(std::integral_constant<int, W>{}, which, u);
-        } else {
-            for (int v = 0; v < na; ++v) step(std::integral_constant<int, 1>{}, which + v, u);
-        }
+        else if (W > 2 && na == 3)
+            step(std::integral_constant<int, (W > 2 ? 3 : 1)>{}, which, u);
+        else if (W > 1 && na == 2)
+            step(std::integral_constant<int, (W > 1 ? 2 : 1)>{}, which, u);
+        else if (na == 1)
+            step(std::integral_constant<int, 1>{}, which, u);
     }
     for (int l = 0; l < W; ++l) report(calls[l], opt, work[l], lane[l].delta, lane[l].Pn,
                                        lane[l].nis, lane[l].logdet, lane[l].ok);
