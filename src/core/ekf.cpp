@@ -64,7 +64,7 @@ struct Scratch<0> {
 // Lower Cholesky factor of the D × D matrix S (row-major) into Lw; false unless S is positive
 // definite with finite entries. D_ > 0 fixes the size at compile time.
 template <int D_>
-bool cholesky(int D, const double* S, double* Lw) {
+RELMAP_INLINE bool cholesky(int D, const double* S, double* Lw) {
     if (D_ > 0) D = D_;
     for (int i = 0; i < D; ++i)
         for (int j = 0; j <= i; ++j) {
@@ -82,7 +82,7 @@ bool cholesky(int D, const double* S, double* Lw) {
 
 // Solves L Lᵀ u = b in place (L from cholesky, inv its diagonal's reciprocals).
 template <int D_>
-void cholesky_solve(int D, const double* Lw, const double* inv, double* b) {
+RELMAP_INLINE void cholesky_solve(int D, const double* Lw, const double* inv, double* b) {
     if (D_ > 0) D = D_;
     for (int i = 0; i < D; ++i) {
         double sum = b[i];
@@ -380,8 +380,10 @@ struct Pair {
 };
 
 // The innovation covariance S = H P Hᵀ + R of a predicted reading (d × d; R diagonal
-// but for Rx off it), its determinant, and whether S is positive definite.
-void innovation_cov(Predicted& out, const double* P, int d) {
+// but for Rx off it), its determinant, and whether S is positive definite. D_ > 0 fixes d.
+template <int D_>
+RELMAP_INLINE void innovation_cov(Predicted& out, const double* P, int d) {
+    if (D_ > 0) d = D_;
     double HP[6];
     for (int a = 0; a < d; ++a)
         for (int j = 0; j < 3; ++j)
@@ -394,6 +396,13 @@ void innovation_cov(Predicted& out, const double* P, int d) {
                 HP[a * 3 + 2] * out.H[b * 3 + 2];
     out.det = d == 2 ? out.S[0] * out.S[3] - out.S[1] * out.S[1] : out.S[0];
     out.ok = out.det > 0.0 && std::isfinite(out.det) && out.S[0] > 0.0;
+}
+
+inline void innovation_cov(Predicted& out, const double* P, int d) {
+    if (d == 2)
+        innovation_cov<2>(out, P, d);
+    else
+        innovation_cov<1>(out, P, d);
 }
 
 void predict_landmark(const SensorPose& sp, const double* P, const double* lm, const double* p,
@@ -645,13 +654,15 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
     const int64_t* const candidates = c.candidates;
     const double* const p = c.p;
     const int d = opt.sensor == RANGE_ONLY ? 1 : 2;
-    w.status.assign(m, 0);
+    // (resized only: status, lo and hi are set below, zc where read, nearest and row_start by
+    // collect)
+    w.status.resize(m);
     w.landmark.assign(m, -1);
-    w.nearest.assign(m, INF);
-    w.zc.assign(m * d, 0.0);
+    w.nearest.resize(m);
+    w.zc.resize(m * d);
     w.pair_d2.assign(m, INF);
-    w.lo.assign(m, 0);
-    w.hi.assign(m, 0);
+    w.lo.resize(m);
+    w.hi.resize(m);
     if (static_cast<int64_t>(w.pred.size()) < map.L) {
         w.pred.resize(map.L);
         w.range.resize(map.L);
@@ -659,7 +670,7 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
     }
     w.done.assign(map.L, 0);  // per landmark: bit 1 its bound is known, bit 2 its prediction
     w.pairs.clear();
-    w.row_start.assign(m + 1, 0);
+    w.row_start.resize(m + 1);
     w.chosen.assign(m, nullptr);
     w.update.clear();
     // raw pointers: the compiler keeps them in registers (a vector's would be reloaded after
@@ -876,10 +887,10 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
                     const double h = std::sqrt(by_d2 ? tau * b_max : tau) * (1.0 + 1e-6);
                     const double r0 = zr - h, r1 = zr + h;
                     double rho = INF;
-                    if (point && r0 > 0.0) {
-                        const double u = 1.0 + mount_norm / r0;
+                    if (point && r0 > 0.0) {  // (rounding here is inside the margins)
+                        const double inv = 1.0 / r0, u = 1.0 + mount_norm * inv;
                         const double b_phi =
-                            (1.0 / (r0 * r0) + u * u) * trace_p + bearing_variance(r1, p, opt);
+                            (inv * inv + u * u) * trace_p + bearing_variance(r1, p, opt);
                         rho = std::sqrt(tau * (trace_gain + range_variance(r1, p, opt) +
                                                r1 * zr * b_phi));
                     }
@@ -964,7 +975,7 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
         if (status[i] != UNKNOWN) continue;
         zc[i * d] = zi[0] - p[BIAS_R];
         if (d == 2) zc[i * d + 1] = zi[1] - p[BIAS_B];
-        hi[i] = map.L;
+        lo[i] = 0, hi[i] = map.L;
         if (opt.signatures) lo[i] = candidates[2 * i], hi[i] = candidates[2 * i + 1];
     }
     collect(opt.method == PER_LANDMARK);
@@ -981,13 +992,17 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
             best.assign(m, nullptr);
             for (const Pair& q : pairs)
                 if (!best[q.i] || q.cost < best[q.i]->cost) best[q.i] = &q;
-            owner.assign(map.L, -1);
-            for (int64_t i = 0; i < m; ++i)
+            owner.resize(map.L, -1);  // (all -1 between calls: reset below)
+            bool clash = false;
+            int64_t i = 0;
+            for (; i < m && !clash; ++i)
                 if (best[i]) {
-                    if (owner[best[i]->l] >= 0) return true;
-                    owner[best[i]->l] = i;
+                    clash = owner[best[i]->l] >= 0;
+                    if (!clash) owner[best[i]->l] = i;
                 }
-            return false;
+            for (int64_t k = 0; k < i; ++k)
+                if (best[k] && owner[best[k]->l] == k) owner[best[k]->l] = -1;
+            return clash;
         };
         bool clash = cheapest();
         if (clash) {
@@ -1179,7 +1194,8 @@ void correct_lanes(const Call* calls, const Map& map, const Options& opt) {
             q[v] = work[l].update[u];
             pr[v] = work[l].upred[u];
             // Student-t readings: the reading's weight (ν + d)/(ν + d²) scales R by its inverse
-            wgt[v] = (s.robust ? (p[NU] + d) / (p[NU] + q[v]->d2) : 1.0) / s.c2;
+            wgt[v] = s.robust ? (p[NU] + d) / (p[NU] + q[v]->d2) : 1.0;
+            if (s.c2 != 1.0) wgt[v] /= s.c2;  // (x / 1 is x: no division without inflation)
             if (s.lambda > 0.0) wgt[v] *= landmark_probability(*q[v], *pr[v], d, p, s.lambda);
             delta[v] = s.delta, Pp[v] = s.Pn;
             yo[v] = s.reweighted ? nullptr : given(l, q[v], 0);
