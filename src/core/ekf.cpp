@@ -64,7 +64,7 @@ struct Scratch<0> {
 // Lower Cholesky factor of the D × D matrix S (row-major) into Lw; false unless S is positive
 // definite with finite entries. D_ > 0 fixes the size at compile time.
 template <int D_>
-bool cholesky(int D, const double* S, double* Lw) {
+RELMAP_INLINE bool cholesky(int D, const double* S, double* Lw) {
     if (D_ > 0) D = D_;
     for (int i = 0; i < D; ++i)
         for (int j = 0; j <= i; ++j) {
@@ -82,7 +82,7 @@ bool cholesky(int D, const double* S, double* Lw) {
 
 // Solves L Lᵀ u = b in place (L from cholesky, inv its diagonal's reciprocals).
 template <int D_>
-void cholesky_solve(int D, const double* Lw, const double* inv, double* b) {
+RELMAP_INLINE void cholesky_solve(int D, const double* Lw, const double* inv, double* b) {
     if (D_ > 0) D = D_;
     for (int i = 0; i < D; ++i) {
         double sum = b[i];
@@ -380,8 +380,10 @@ struct Pair {
 };
 
 // The innovation covariance S = H P Hᵀ + R of a predicted reading (d × d; R diagonal
-// but for Rx off it), its determinant, and whether S is positive definite.
-void innovation_cov(Predicted& out, const double* P, int d) {
+// but for Rx off it), its determinant, and whether S is positive definite. D_ > 0 fixes d.
+template <int D_>
+RELMAP_INLINE void innovation_cov(Predicted& out, const double* P, int d) {
+    if (D_ > 0) d = D_;
     double HP[6];
     for (int a = 0; a < d; ++a)
         for (int j = 0; j < 3; ++j)
@@ -394,6 +396,13 @@ void innovation_cov(Predicted& out, const double* P, int d) {
                 HP[a * 3 + 2] * out.H[b * 3 + 2];
     out.det = d == 2 ? out.S[0] * out.S[3] - out.S[1] * out.S[1] : out.S[0];
     out.ok = out.det > 0.0 && std::isfinite(out.det) && out.S[0] > 0.0;
+}
+
+inline void innovation_cov(Predicted& out, const double* P, int d) {
+    if (d == 2)
+        innovation_cov<2>(out, P, d);
+    else
+        innovation_cov<1>(out, P, d);
 }
 
 void predict_landmark(const SensorPose& sp, const double* P, const double* lm, const double* p,
@@ -608,8 +617,7 @@ struct Work {
     std::vector<char> done, taken, full;
     std::vector<Pair> pairs, mixed;  // mixed: a reading's mixture pair (mix_reading)
     std::vector<Predicted> mixpred;  // and its virtual landmark's prediction
-    std::vector<int64_t> row_start, lo, hi, owner, near, by_range;
-    std::vector<double> qs, ql;  // the map by range (correct_readings' sort_by_range)
+    std::vector<int64_t> row_start, lo, hi, owner, near;
     std::vector<const Pair*> chosen, update, best, order;
     std::vector<const Predicted*> upred;  // the prediction of each pair of update
 };
@@ -646,13 +654,15 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
     const int64_t* const candidates = c.candidates;
     const double* const p = c.p;
     const int d = opt.sensor == RANGE_ONLY ? 1 : 2;
-    w.status.assign(m, 0);
+    // (resized only: status, lo and hi are set below, zc where read, nearest and row_start by
+    // collect)
+    w.status.resize(m);
     w.landmark.assign(m, -1);
-    w.nearest.assign(m, INF);
-    w.zc.assign(m * d, 0.0);
+    w.nearest.resize(m);
+    w.zc.resize(m * d);
     w.pair_d2.assign(m, INF);
-    w.lo.assign(m, 0);
-    w.hi.assign(m, 0);
+    w.lo.resize(m);
+    w.hi.resize(m);
     if (static_cast<int64_t>(w.pred.size()) < map.L) {
         w.pred.resize(map.L);
         w.range.resize(map.L);
@@ -660,7 +670,7 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
     }
     w.done.assign(map.L, 0);  // per landmark: bit 1 its bound is known, bit 2 its prediction
     w.pairs.clear();
-    w.row_start.assign(m + 1, 0);
+    w.row_start.resize(m + 1);
     w.chosen.assign(m, nullptr);
     w.update.clear();
     // raw pointers: the compiler keeps them in registers (a vector's would be reloaded after
@@ -726,56 +736,87 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
         const double v[2] = {zc[i * d] - pr.h[0], d == 2 ? wrap(zc[i * d + 1] - pr.h[1]) : 0.0};
         return by_d2 ? mahalanobis2(pr, v, d) : v[0] * v[0] + v[1] * v[1];
     };
-    // The map's landmarks in increasing range from the sensor (all-landmark candidates): their
-    // squared ranges qs (increasing) and rows by_range. Insertion sort from the order of the
-    // previous call (the same filter a step before in a run, or a filter nearby in a batch), so
-    // a few swaps per call; ties and the starting order change which rows are compared first,
-    // never which rows a range window holds.
-    bool sorted = false, all_finite = true;
-    double b_max = INF;
-    auto sort_by_range = [&]() {
-        if (sorted) return;
-        sorted = true;
-        auto& order = w.by_range;
-        if (static_cast<int64_t>(order.size()) != map.L) {
-            order.resize(map.L);
-            for (int64_t l = 0; l < map.L; ++l) order[l] = l;
+    // The largest bound b (the range variance grows with the range): at the corner of the map's
+    // box farthest from the sensor.
+    const double far_x = std::max(std::fabs(map.box[0] - sp.x), std::fabs(map.box[1] - sp.x));
+    const double far_y = std::max(std::fabs(map.box[2] - sp.y), std::fabs(map.box[3] - sp.y));
+    const double b_max =
+        trace_gain + range_variance(std::sqrt(far_x * far_x + far_y * far_y), p, opt);
+    // The landmarks that may lie in the annulus rlo <= r <= rhi around the sensor and within rho
+    // of the point (px, py) (rho = INF: anywhere), each passed to f: the map's grid cells that
+    // meet both (by the box of their landmarks), then each landmark's own squared distances, with
+    // a margin for rounding: a superset (the caller tests exactly what it needs). The distances
+    // are computed as the bounds compute them, and a landmark's are no less (no more) than its
+    // box's nearest (farthest) ones (rounding is monotone). Non-finite input: every landmark.
+    auto region = [&](double rlo, double rhi, double px, double py, double rho, auto&& f) {
+        const double qlo = rlo > 0.0 ? rlo * rlo * (1.0 - 1e-6) : -INF;
+        const double qhi = rhi * rhi * (1.0 + 1e-6), rho2 = rho * rho * (1.0 + 1e-6);
+        const bool clip = std::isfinite(sp.x) && std::isfinite(sp.y) && std::isfinite(px) &&
+                          std::isfinite(py) && !std::isnan(qlo) && !std::isnan(qhi) &&
+                          !std::isnan(rho2);
+        int64_t x0 = 0, x1 = map.nx - 1, y0 = 0, y1 = map.ny - 1;
+        if (clip) {  // the cells of the box around both discs (the grid's cell of a coordinate)
+            const double es = rhi * (1.0 + 1e-5), ep = rho * (1.0 + 1e-5);
+            const double slack =
+                1e-12 * (std::fabs(sp.x) + std::fabs(sp.y) + std::fabs(px) + std::fabs(py));
+            auto cells = [&](double a, double b, double g, int64_t n, int64_t& ca, int64_t& cb) {
+                const double fa = (a - slack - g) * map.inv_cell, fb = (b + slack - g) * map.inv_cell;
+                ca = fa > 0.0 ? (fa < n - 1 ? static_cast<int64_t>(fa) : n - 1) : 0;
+                cb = fb < n - 1 ? (fb > 0.0 ? static_cast<int64_t>(fb) : 0) : n - 1;
+            };
+            cells(std::max(sp.x - es, px - ep), std::min(sp.x + es, px + ep), map.gx, map.nx, x0,
+                  x1);
+            cells(std::max(sp.y - es, py - ep), std::min(sp.y + es, py + ep), map.gy, map.ny, y0,
+                  y1);
         }
-        w.qs.resize(map.L);
-        w.ql.resize(map.L);
-        double* const ql = w.ql.data();
-        for (int64_t l = 0; l < map.L; ++l) {
-            const double dx = map.xy[2 * l] - sp.x, dy = map.xy[2 * l + 1] - sp.y;
-            ql[l] = dx * dx + dy * dy;
-            all_finite = all_finite && std::isfinite(ql[l]);
-        }
-        int64_t* const o = order.data();
-        double* const qs = w.qs.data();
-        for (int64_t k = 0; k < map.L; ++k) {
-            const int64_t l = o[k];
-            const double q = ql[l];
-            int64_t j = k;
-            for (; j > 0 && qs[j - 1] > q; --j) qs[j] = qs[j - 1], o[j] = o[j - 1];
-            qs[j] = q, o[j] = l;
-        }
-        // the largest bound b (the range variance grows with the range)
-        b_max = trace_gain + range_variance(std::sqrt(qs[map.L - 1]), p, opt);
+        // |a| nearest to 0 and farthest from it over the interval [a0, a1]
+        auto nearest_abs = [](double a0, double a1) { return a0 > 0.0 ? a0 : (a1 < 0.0 ? -a1 : 0.0); };
+        for (int64_t cy = y0; cy <= y1; ++cy)
+            for (int64_t cx = x0; cx <= x1; ++cx) {
+                const int64_t c = cy * map.nx + cx;
+                const int64_t k0 = map.cell_start[c], k1 = map.cell_start[c + 1];
+                if (k0 == k1) continue;
+                if (clip) {
+                    const double* b = map.cell_box.data() + 4 * c;
+                    const double sx0 = b[0] - sp.x, sx1 = b[1] - sp.x, sy0 = b[2] - sp.y,
+                                 sy1 = b[3] - sp.y;
+                    const double ax = nearest_abs(sx0, sx1), ay = nearest_abs(sy0, sy1);
+                    const double fx = std::max(-sx0, sx1), fy = std::max(-sy0, sy1);
+                    if (ax * ax + ay * ay > qhi || fx * fx + fy * fy < qlo) continue;
+                    const double bx = nearest_abs(b[0] - px, b[1] - px),
+                                 by = nearest_abs(b[2] - py, b[3] - py);
+                    if (bx * bx + by * by > rho2) continue;
+                }
+                for (int64_t k = k0; k < k1; ++k) {
+                    const int64_t l = map.cell_landmark[k];
+                    if (clip) {
+                        const double dx = map.xy[2 * l] - sp.x, dy = map.xy[2 * l + 1] - sp.y;
+                        const double q = dx * dx + dy * dy;
+                        if (q > qhi || q < qlo) continue;
+                        const double ex = map.xy[2 * l] - px, ey = map.xy[2 * l + 1] - py;
+                        if (ex * ex + ey * ey > rho2) continue;
+                    }
+                    f(l);
+                }
+            }
     };
     // Each usable reading's candidates (its signature's landmarks, or all) and their pairs, in
-    // increasing landmark row (the reference's order for ties). Pruned (all = false): first the
-    // least value, best first: candidates in increasing bound, exactly, until the next bound
-    // exceeds the least value found (no candidate left can beat it); then the pairs of the
-    // candidates whose bound does not exceed it (JCBB: nor the gate). That keeps each
-    // reading's cheapest pair (what one-to-one pairing takes when no two readings want the
-    // same landmark) and, with the Mahalanobis cost or JCBB, every pair inside the gate.
+    // increasing landmark row (the reference's order for ties). Pruned (all = false): the
+    // candidates whose bound does not exceed the limit τ of the least value (JCBB: nor the
+    // gate), i.e. each reading's cheapest pair (what one-to-one pairing takes when no two
+    // readings want the same landmark) and, with the Mahalanobis cost or JCBB, every pair inside
+    // the gate. With those, τ is the gate's own limit as soon as one candidate lies inside the
+    // gate: that is tried first. Else the least value, best first: from a guess, candidates in
+    // increasing bound, exactly, until the next bound exceeds the least value found (no
+    // candidate left can beat it).
     // all = true: every candidate (Eq. 21, and the Euclidean one-to-one when two readings want
     // the same landmark); full[i]: every candidate of reading i (the readings the gate's pass
     // of one-to-one pairing left).
-    // With every landmark a candidate, the bounds that can pass a limit τ are those of the
-    // landmarks of range within h of the reading's (h² = τ max b, or τ for the Euclidean
-    // cost): a window of the map sorted by range, found by bisection, holds them (a margin
-    // for rounding; the bound is then evaluated exactly), so a reading looks at the
-    // landmarks near its range only.
+    // With every landmark a candidate, those whose bound may pass τ lie within h of the
+    // reading's range (h² = τ max b, or τ for the Euclidean cost) and, range-bearing, within
+    // ρ of where the reading puts its landmark (ρ² = τ times the point bound's largest
+    // denominator over those ranges): the map's grid gives them (region), so a reading looks
+    // at the landmarks near it only.
     auto collect = [&](bool all, const char* full = nullptr) {
         pairs.clear();
         pairs.reserve(static_cast<size_t>(m) * std::max<int64_t>(map.L, 1));
@@ -793,8 +834,8 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
                 for (int64_t k = 0; k < n; ++k) near[nn++] = ci[k];
             } else {
                 const double zr = zc[i * d];
-                // where the reading puts its landmark (range-bearing)
-                double px = 0.0, py = 0.0;
+                // where the reading puts its landmark (range-bearing; range only: the sensor)
+                double px = sp.x, py = sp.y;
                 if (d == 2) {
                     const double a = sp.heading + zc[i * d + 1];
                     px = sp.x + zr * std::cos(a), py = sp.y + zr * std::sin(a);
@@ -832,87 +873,94 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
                     const double t = by_d2 ? std::max(least, opt.gate2) : least;
                     return t * (1.0 + 1e-9) + 1e-300;
                 };
-                // the window of the map sorted by range whose bounds may not exceed tau
+                // The candidates whose bound may not exceed tau, each passed to f: every one
+                // (signatures), or the region of the map of both bounds (all landmarks): ranges
+                // r0..r1 (the range bound) and, range-bearing, within rho of (px, py), the point
+                // bound's denominator at most its value with each term at its largest over
+                // r0..r1 (1/r terms at r0, the others at r1).
                 const bool window = !opt.signatures;
-                int64_t at = 0;  // the reading's place in the map sorted by range
-                auto window_of = [&](double tau, int64_t& a, int64_t& b) {
-                    a = 0, b = map.L;
-                    if (!all_finite) return;
-                    const double h = std::sqrt(by_d2 ? tau * b_max : tau) * (1.0 + 1e-9);
-                    if (!(h < INF)) return;
-                    const double* const qs = w.qs.data();
-                    const double rl = zr - h, rh = zr + h;
-                    const double qlo = rl > 0.0 ? rl * rl * (1.0 - 1e-9) : -INF;
-                    const double qhi = rh * rh * (1.0 + 1e-9);
-                    // outwards from the reading's range (a window holds a few landmarks)
-                    a = b = at;
-                    while (a > 0 && !(qs[a - 1] < qlo)) --a;
-                    while (b < map.L && !(qs[b] > qhi)) ++b;
+                auto within = [&](double tau, auto&& f) {
+                    if (!window) {
+                        for (int64_t k = 0; k < n; ++k) f(ci[k]);
+                        return;
+                    }
+                    const double h = std::sqrt(by_d2 ? tau * b_max : tau) * (1.0 + 1e-6);
+                    const double r0 = zr - h, r1 = zr + h;
+                    double rho = INF;
+                    if (point && r0 > 0.0) {  // (rounding here is inside the margins)
+                        const double inv = 1.0 / r0, u = 1.0 + mount_norm * inv;
+                        const double b_phi =
+                            (inv * inv + u * u) * trace_p + bearing_variance(r1, p, opt);
+                        rho = std::sqrt(tau * (trace_gain + range_variance(r1, p, opt) +
+                                               r1 * zr * b_phi));
+                    }
+                    region(r0, r1, px, py, rho, f);
                 };
-                // The first candidate evaluated: a guess at the cheapest, which only sets how
-                // many candidates the search below evaluates, never what it finds (the least
-                // value over all of them). Range-bearing: the landmark nearest to where the
-                // reading puts it, (px, py) = sensor + r (cos, sin)(heading + φ), so that the
-                // least value (and the search's limit) is small from the start; range only:
-                // the least bound (signatures) or the landmark nearest in range.
-                int64_t first = ci[0];
-                if (!window) {
+                // the candidates whose bound does not exceed tau, in near (a NaN bound keeps one)
+                auto gather = [&](double tau) {
+                    nn = 0;
+                    within(tau, [&](int64_t l) {
+                        if (!(key_of(l) > tau)) near[nn++] = l;
+                    });
+                };
+                bool settled = false;
+                if (by_d2) {  // τ is at least the gate's limit, that if a candidate is inside
+                    const double tau = limit(0.0);
+                    gather(tau);
+                    for (int64_t j = 0; j < nn && !settled; ++j)
+                        settled = value(i, near[j]) <= opt.gate2;
+                }
+                if (!settled) {
+                    // The first candidate evaluated: a guess at the cheapest, which only sets
+                    // how many candidates the search below evaluates, never what it finds (the
+                    // least value over all of them): the landmark nearest to where the reading
+                    // puts it (range-bearing), so that the least value (and the search's limit)
+                    // is small from the start; range only: the least bound (signatures) or a
+                    // landmark near in range (from the grid, one cell around first, wider until
+                    // one is found).
+                    int64_t first = ci[0];
                     double best = INF;
-                    for (int64_t k = 0; k < n; ++k) {
-                        const double e = d == 2 ? dist2(ci[k]) : key_of(ci[k]);
-                        if (e < best) best = e, first = ci[k];
+                    if (!window) {
+                        for (int64_t k = 0; k < n; ++k) {
+                            const double e = d == 2 ? dist2(ci[k]) : key_of(ci[k]);
+                            if (e < best) best = e, first = ci[k];
+                        }
+                    } else {
+                        bool found = false;
+                        for (double delta = map.cell; !found; delta *= 2.0)
+                            region(zr - delta, zr + delta, px, py, d == 2 ? delta : INF,
+                                   [&](int64_t l) {
+                                       const double dx = map.xy[2 * l] - sp.x,
+                                                    dy = map.xy[2 * l + 1] - sp.y;
+                                       const double e = d == 2 ? dist2(l)
+                                                               : std::fabs(dx * dx + dy * dy -
+                                                                           zr * zr);
+                                       if (!found || e < best) best = e, first = l;
+                                       found = true;
+                                   });
                     }
-                } else {
-                    sort_by_range();
-                    const int64_t* const o = w.by_range.data();
-                    const double* const qs = w.qs.data();
-                    // outwards from the reading's range: |landmark - (px, py)| >= |r - z_r|
-                    at = std::lower_bound(qs, qs + map.L, zr * zr) - qs;
-                    int64_t up = at, dn = up - 1;
-                    double best = INF;
-                    first = o[std::min(up, map.L - 1)];
-                    while (all_finite && (dn >= 0 || up < map.L)) {
-                        const double gd = dn >= 0 ? zr - std::sqrt(qs[dn]) : INF;
-                        const double gu = up < map.L ? std::sqrt(qs[up]) - zr : INF;
-                        const bool down = gd < gu;
-                        const double g = down ? gd : gu;
-                        if (g * g > best) break;
-                        const int64_t l = o[down ? dn-- : up++];
-                        const double e = d == 2 ? dist2(l) : g * g;
-                        if (e < best) best = e, first = l;
+                    double least = value(i, first);
+                    gather(limit(least));
+                    const double done_key = -1.0;  // marks a candidate evaluated
+                    key_of(first);
+                    keys[first] = done_key;
+                    for (;;) {  // best first among the rest
+                        int64_t next = -1;
+                        for (int64_t j = 0; j < nn; ++j) {
+                            const double kk = keys[near[j]];
+                            if (kk != done_key && (next < 0 || kk < keys[near[next]])) next = j;
+                        }
+                        if (next < 0 || keys[near[next]] > least * (1.0 + 1e-9)) break;
+                        least = std::min(least, value(i, near[next]));
+                        keys[near[next]] = done_key;
                     }
+                    const double tau = limit(least);
+                    int64_t kept = 0;
+                    for (int64_t j = 0; j < nn; ++j)
+                        if (!(bound_key(near[j]) > tau)) near[kept++] = near[j];
+                    nn = kept;
                 }
-                double least = value(i, first);
-                double tau = limit(least);
-                if (window) {
-                    int64_t a, b;
-                    window_of(tau, a, b);
-                    const int64_t* const o = w.by_range.data();
-                    for (int64_t k = a; k < b; ++k)  // (negated: a NaN bound keeps the candidate)
-                        if (!(key_of(o[k]) > tau)) near[nn++] = o[k];
-                } else {
-                    for (int64_t k = 0; k < n; ++k)
-                        if (!(key_of(ci[k]) > tau)) near[nn++] = ci[k];
-                }
-                const double done_key = -1.0;  // marks a candidate evaluated
-                key_of(first);
-                keys[first] = done_key;
-                for (;;) {  // best first among the rest
-                    int64_t next = -1;
-                    for (int64_t j = 0; j < nn; ++j) {
-                        const double kk = keys[near[j]];
-                        if (kk != done_key && (next < 0 || kk < keys[near[next]])) next = j;
-                    }
-                    if (next < 0 || keys[near[next]] > least * (1.0 + 1e-9)) break;
-                    least = std::min(least, value(i, near[next]));
-                    keys[near[next]] = done_key;
-                }
-                tau = limit(least);
-                int64_t kept = 0;
-                for (int64_t j = 0; j < nn; ++j)
-                    if (!(bound_key(near[j]) > tau)) near[kept++] = near[j];
-                nn = kept;
-                std::sort(near, near + nn);  // increasing row (a window is by range)
+                std::sort(near, near + nn);  // increasing row (the grid's cells are by place)
             }
             for (int64_t j = 0; j < nn; ++j) add_pair(i, near[j]);
             if (static_cast<int64_t>(pairs.size()) == row_start[i]) status[i] = DEGENERATE;
@@ -927,7 +975,7 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
         if (status[i] != UNKNOWN) continue;
         zc[i * d] = zi[0] - p[BIAS_R];
         if (d == 2) zc[i * d + 1] = zi[1] - p[BIAS_B];
-        hi[i] = map.L;
+        lo[i] = 0, hi[i] = map.L;
         if (opt.signatures) lo[i] = candidates[2 * i], hi[i] = candidates[2 * i + 1];
     }
     collect(opt.method == PER_LANDMARK);
@@ -944,13 +992,17 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
             best.assign(m, nullptr);
             for (const Pair& q : pairs)
                 if (!best[q.i] || q.cost < best[q.i]->cost) best[q.i] = &q;
-            owner.assign(map.L, -1);
-            for (int64_t i = 0; i < m; ++i)
+            owner.resize(map.L, -1);  // (all -1 between calls: reset below)
+            bool clash = false;
+            int64_t i = 0;
+            for (; i < m && !clash; ++i)
                 if (best[i]) {
-                    if (owner[best[i]->l] >= 0) return true;
-                    owner[best[i]->l] = i;
+                    clash = owner[best[i]->l] >= 0;
+                    if (!clash) owner[best[i]->l] = i;
                 }
-            return false;
+            for (int64_t k = 0; k < i; ++k)
+                if (best[k] && owner[best[k]->l] == k) owner[best[k]->l] = -1;
+            return clash;
         };
         bool clash = cheapest();
         if (clash) {
@@ -1128,8 +1180,7 @@ void correct_lanes(const Call* calls, const Map& map, const Options& opt) {
         return !out.y_given ? nullptr
                             : (k ? out.S_given + q->i * d * d : out.y_given + q->i * d);
     };
-    // Pair u of every lane side by side while every lane has one (and has not failed), then
-    // the lanes left one by one.
+    // Pair u of every lane that has one (and has not failed), those lanes side by side.
     auto step = [&](auto lanes, const int* which, size_t u) {
         constexpr int V = decltype(lanes)::value;
         double *delta[V], *Pp[V], wgt[V], *yo[V], *So[V];
@@ -1143,7 +1194,8 @@ void correct_lanes(const Call* calls, const Map& map, const Options& opt) {
             q[v] = work[l].update[u];
             pr[v] = work[l].upred[u];
             // Student-t readings: the reading's weight (ν + d)/(ν + d²) scales R by its inverse
-            wgt[v] = (s.robust ? (p[NU] + d) / (p[NU] + q[v]->d2) : 1.0) / s.c2;
+            wgt[v] = s.robust ? (p[NU] + d) / (p[NU] + q[v]->d2) : 1.0;
+            if (s.c2 != 1.0) wgt[v] /= s.c2;  // (x / 1 is x: no division without inflation)
             if (s.lambda > 0.0) wgt[v] *= landmark_probability(*q[v], *pr[v], d, p, s.lambda);
             delta[v] = s.delta, Pp[v] = s.Pn;
             yo[v] = s.reweighted ? nullptr : given(l, q[v], 0);
@@ -1161,11 +1213,14 @@ void correct_lanes(const Call* calls, const Map& map, const Options& opt) {
         int which[W], na = 0;
         for (int l = 0; l < W; ++l)
             if (lane[l].ok && u < work[l].update.size()) which[na++] = l;
-        if (na == W) {
+        if (na == W)
             step(std::integral_constant<int, W>{}, which, u);
-        } else {
-            for (int v = 0; v < na; ++v) step(std::integral_constant<int, 1>{}, which + v, u);
-        }
+        else if (W > 2 && na == 3)
+            step(std::integral_constant<int, (W > 2 ? 3 : 1)>{}, which, u);
+        else if (W > 1 && na == 2)
+            step(std::integral_constant<int, (W > 1 ? 2 : 1)>{}, which, u);
+        else if (na == 1)
+            step(std::integral_constant<int, 1>{}, which, u);
     }
     for (int l = 0; l < W; ++l) report(calls[l], opt, work[l], lane[l].delta, lane[l].Pn,
                                        lane[l].nis, lane[l].logdet, lane[l].ok);
@@ -1277,6 +1332,43 @@ Map::Map(int64_t L_, const double* xy_, const int64_t* s) : L(L_), store(xy_, xy
                          [&](int64_t a, int64_t b) { return s[a] < s[b]; });
     sig_sorted.resize(L);
     for (int64_t k = 0; k < L; ++k) sig_sorted[k] = s[sig_landmark[k]];
+    // the grid: cells of side sqrt(area / L), at least span / L (a thin map: at most about 3L
+    // cells); all landmarks at one place: one cell
+    for (int64_t l = 0; l < L; ++l) {
+        const double x = xy[2 * l], y = xy[2 * l + 1];
+        if (!l) box[0] = box[1] = x, box[2] = box[3] = y;
+        box[0] = std::min(box[0], x), box[1] = std::max(box[1], x);
+        box[2] = std::min(box[2], y), box[3] = std::max(box[3], y);
+    }
+    const double w = box[1] - box[0], h = box[3] - box[2];
+    cell = L ? std::max(std::sqrt(w * h / static_cast<double>(L)),
+                        std::max(w, h) / static_cast<double>(L))
+             : 1.0;
+    if (!(cell > 0.0 && std::isfinite(cell))) cell = 1.0;
+    gx = box[0], gy = box[2], inv_cell = 1.0 / cell;
+    nx = static_cast<int64_t>(w * inv_cell) + 1, ny = static_cast<int64_t>(h * inv_cell) + 1;
+    const int64_t C = nx * ny;
+    std::vector<int64_t> of(L);
+    cell_start.assign(C + 1, 0);
+    for (int64_t l = 0; l < L; ++l) {
+        const int64_t cx = std::min(static_cast<int64_t>((xy[2 * l] - gx) * inv_cell), nx - 1);
+        const int64_t cy = std::min(static_cast<int64_t>((xy[2 * l + 1] - gy) * inv_cell), ny - 1);
+        of[l] = cy * nx + cx;
+        ++cell_start[of[l] + 1];
+    }
+    for (int64_t c = 0; c < C; ++c) cell_start[c + 1] += cell_start[c];
+    cell_landmark.resize(L);
+    cell_box.assign(4 * C, 0.0);
+    std::vector<int64_t> fill(cell_start.begin(), cell_start.end() - 1);
+    for (int64_t l = 0; l < L; ++l) {
+        const int64_t c = of[l];
+        const double x = xy[2 * l], y = xy[2 * l + 1];
+        double* b = cell_box.data() + 4 * c;
+        if (fill[c] == cell_start[c]) b[0] = b[1] = x, b[2] = b[3] = y;
+        b[0] = std::min(b[0], x), b[1] = std::max(b[1], x);
+        b[2] = std::min(b[2], y), b[3] = std::max(b[3], y);
+        cell_landmark[fill[c]++] = l;
+    }
     // the table: at least twice as many slots as signatures (short probes)
     size_t size = 2;
     while (size < 2 * static_cast<size_t>(L)) size *= 2, --shift;
@@ -1447,10 +1539,11 @@ void register_ekf(nb::module_& m) {
                 P.shape(n - 1) != 3 || motion.ndim() < 1 || motion.shape(motion.ndim() - 1) != 2)
                 throw nb::value_error("x must be (..., 3), P (..., 3, 3) and motion (..., 2)");
             const size_t B = x.size() / 3;
-            if (P.size() != 9 * B || motion.size() != 2 * B)
-                throw nb::value_error("x, P and motion must have one batch");
+            if (P.size() != 9 * B || (motion.size() != 2 * B && motion.size() != 2))
+                throw nb::value_error("x, P and motion must have one batch (or one motion)");
             const double* mo = motion.data();
-            for (size_t k = 0; k < 2 * B; ++k)
+            const size_t ms = motion.size() == 2 * B ? 2 : 0;  // one step shared: stride 0
+            for (size_t k = 0; k < motion.size(); ++k)
                 if (!std::isfinite(mo[k]))
                     raise_relmap_error("NonFiniteError",
                                        "odometry steps must be finite; (Δs, Δθ) of filter " +
@@ -1461,13 +1554,14 @@ void register_ekf(nb::module_& m) {
             std::copy(x.data(), x.data() + B * 3, xo.data);
             std::copy(P.data(), P.data() + B * 9, Po.data);
             for (size_t b = 0; b < B; ++b)
-                predict_odometry(xo.data + 3 * b, Po.data + 9 * b, mo[2 * b], mo[2 * b + 1],
+                predict_odometry(xo.data + 3 * b, Po.data + 9 * b, mo[ms * b], mo[ms * b + 1],
                                  params.data() + b * ps);
             return nb::make_tuple(xo.array, Po.array);
         },
         nb::arg("x"), nb::arg("P"), nb::arg("motion"), nb::arg("params"),
         "One odometry prediction (midpoint, DistanceNoise) per filter: x (..., 3), P (..., 3, "
-        "3), motion (..., 2) of one batch; non-finite motion raises relmap's NonFiniteError.");
+        "3), motion (..., 2) of one batch or (2,) for all; non-finite motion raises relmap's "
+        "NonFiniteError.");
 
     m.def(
         "ekf_correct_readings",

@@ -328,7 +328,8 @@ def predict(
     if drive is not None:
         m = drive.motion(m)
     if k is not None:  # the core's built-in odometry model (k: one parameter row, shared)
-        if x.shape[:-1] == m.shape[:-1]:  # one batch: no broadcasting
+        # one batch, or one step for every filter (the core shares it): no broadcasting
+        if x.shape[:-1] == m.shape[:-1] or (m.ndim == 1 and P.shape[:-2] == x.shape[:-1]):
             xo, Po = _core.ekf_predict_odometry(x, P, m, k)
             return AT._trusted(xo, Po)
         batch = np.broadcast_shapes(x.shape[:-1], m.shape[:-1])
