@@ -167,30 +167,35 @@ class Bias:
                 f"{', considered' if self.consider else ''})")
 
 
-def run_bias(log, lm, p, start, bias: Bias, comp, *, d=2, keep_all=True, gate2=None):
-    """The augmented-state EKF over ``log`` (signatures association, χ² gate, one stacked
-    Joseph update per time stamp, one reading per landmark and time). Returns dict with
-    loglik inputs (y, S, status per reading) and, with ``keep_all``, mean/cov at every time."""
-    base, D, Q = comp
-    L = len(lm)
-    # the bias states: ir[l] range bias of landmark l, ib[l] its bearing bias
+def layout(bias: Bias, L, d):
+    """The bias states of the augmented state (pose first): ``ir[l]``, ``ib[l]`` the state
+    index of landmark l's range and bearing bias, the state's size n, and per bias state its
+    stationary variance σ_c² and τ (n - 3,)."""
     if bias.per == "landmark":
         ir, ib = 3 + d * np.arange(L), 3 + d * np.arange(L) + 1
     elif bias.per == "robot":
         ir, ib = np.full(L, 3), np.full(L, 4)
     else:  # "mixed": range per landmark, bearing per robot
         ir, ib = 3 + np.arange(L), np.full(L, 3 + L)
-    nb = int(max(ir.max(), ib.max() if d == 2 else 0)) - 2
-    n = 3 + nb
-    x = np.zeros(n)
-    x[:3] = start.mean
-    P = np.zeros((n, n))
-    P[:3, :3] = start.cov
+    n = 3 + int(max(ir.max(), ib.max() if d == 2 else 0)) - 2
     sc2, tau = np.zeros(n), np.ones(n)
     sc2[ir], tau[ir] = bias.sc[0] ** 2, bias.tau[0]
     if d == 2:
         sc2[ib], tau[ib] = bias.sc[1] ** 2, bias.tau[1]
-    sc2, tau = sc2[3:], tau[3:]
+    return ir, ib, n, sc2[3:], tau[3:]
+
+
+def run_bias(log, lm, p, start, bias: Bias, comp, *, d=2, keep_all=True, gate2=None):
+    """The augmented-state EKF over ``log`` (signatures association, χ² gate, one stacked
+    Joseph update per time stamp, one reading per landmark and time). Returns dict with
+    loglik inputs (y, S, status per reading) and, with ``keep_all``, mean/cov at every time."""
+    base, D, Q = comp
+    L = len(lm)
+    ir, ib, n, sc2, tau = layout(bias, L, d)
+    x = np.zeros(n)
+    x[:3] = start.mean
+    P = np.zeros((n, n))
+    P[:3, :3] = start.cov
     P[3:, 3:] = np.diag(sc2)
     Rw = np.diag(bias.sw**2)
     gate2 = gate2 or (CHI2_2_99 if d == 2 else CHI2_1_99)
@@ -300,24 +305,13 @@ def run_factor(log, lm, p, start, bias: Bias, comp, *, d=2):
     covariance and the considered covariance at every filter time."""
     base, D, Q = comp
     L = len(lm)
-    if bias.per == "landmark":
-        ir, ib = 3 + d * np.arange(L), 3 + d * np.arange(L) + 1
-    elif bias.per == "robot":
-        ir, ib = np.full(L, 3), np.full(L, 4)
-    else:
-        ir, ib = 3 + np.arange(L), np.full(L, 3 + L)
-    n = 3 + int(max(ir.max(), ib.max() if d == 2 else 0)) - 2
+    ir, ib, n, sc2, tau = layout(bias, L, d)
     c2 = float(p.inflation) ** 2
     var = np.array([float(p.sigma_r) ** 2, float(p.sigma_b) ** 2])[:d]
     x = np.asarray(start.mean, float).copy()
     Pc = np.asarray(start.cov, float).copy()
     Pa = np.zeros((n, n))
     Pa[:3, :3] = Pc
-    sc2, tau = np.zeros(n), np.ones(n)
-    sc2[ir], tau[ir] = bias.sc[0] ** 2, bias.tau[0]
-    if d == 2:
-        sc2[ib], tau[ib] = bias.sc[1] ** 2, bias.tau[1]
-    sc2, tau = sc2[3:], tau[3:]
     Pa[3:, 3:] = np.diag(sc2)
     gate2 = CHI2_2_99 if d == 2 else CHI2_1_99
     t = log.t
@@ -395,9 +389,12 @@ def run_factor(log, lm, p, start, bias: Bias, comp, *, d=2):
 
 
 def loglik(out, nu, d=2):
-    tr = ekf.Trace(None, None, None, out["y"] if d == 2 else out["y"][:, 0],
-                   out["S"] if d == 2 else out["S"][:, 0, 0], None, out["status"], None,
-                   None, None, None, None, None, None)  # fmt: skip
+    """The autocalibration's likelihood of the bias filter's innovations, each at the prior of
+    its time stamp (this filter does not condition a reading on those before it)."""
+    y = out["y"] if d == 2 else out["y"][:, 0]
+    S = out["S"] if d == 2 else out["S"][:, 0, 0]
+    tr = ekf.Trace(None, None, None, y, S, None, out["status"], None,
+                   None, None, None, None, None, None, y, S)  # fmt: skip
     return float(autocalibration.loglik(tr, nu))
 
 
