@@ -185,6 +185,27 @@ def layout(bias: Bias, L, d):
     return ir, ib, n, sc2[3:], tau[3:]
 
 
+def pose_reading(x, landmark, z, d):
+    """A reading's innovation ``z - h(x)`` (d,) at the pose ``x`` (sensor at the robot, the
+    bearing wrapped) and its Jacobian in the pose (d, 3) (lecture Eq. 24's H)."""
+    dx, dy = landmark[0] - x[0], landmark[1] - x[1]
+    q = dx * dx + dy * dy
+    r = math.sqrt(q)
+    H = np.array([(-dx / r, -dy / r, 0.0), (dy / q, -dx / q, -1.0)])[:d]
+    y = np.array([z[0] - r, wrap(z[1] - (math.atan2(dy, dx) - x[2])) if d == 2 else 0.0])
+    return y[:d], H
+
+
+def augmented(Hx, n, ir, ib, lk, d):
+    """``H`` of the augmented state (d, n): the pose's and 1 at landmark lk's bias states."""
+    H = np.zeros((d, n))
+    H[:, :3] = Hx
+    H[0, ir[lk]] = 1.0
+    if d == 2:
+        H[1, ib[lk]] = 1.0
+    return H
+
+
 def run_bias(log, lm, p, start, bias: Bias, comp, *, d=2, keep_all=True, gate2=None):
     """The augmented-state EKF over ``log`` (signatures association, χ² gate, one stacked
     Joseph update per time stamp, one reading per landmark and time). Returns dict with
@@ -233,18 +254,11 @@ def run_bias(log, lm, p, start, bias: Bias, comp, *, d=2, keep_all=True, gate2=N
             if l < 0 or l >= L:
                 status[i] = int(ekf.Status.UNKNOWN)
                 continue
-            dx, dy = lm[l, 0] - x[0], lm[l, 1] - x[1]
-            q = dx * dx + dy * dy
-            r = math.sqrt(q)
-            H = np.zeros((d, n))
-            H[0, :3] = (-dx / r, -dy / r, 0.0)
-            yv = np.empty(d)
-            H[0, ir[l]] = 1.0
-            yv[0] = z[i, 0] - r - x[ir[l]]
+            yv, Hx = pose_reading(x, lm[l], z[i], d)
+            H = augmented(Hx, n, ir, ib, l, d)
+            yv[0] -= x[ir[l]]
             if d == 2:
-                H[1, :3] = (dy / q, -dx / q, -1.0)
-                H[1, ib[l]] = 1.0
-                yv[1] = wrap(z[i, 1] - (math.atan2(dy, dx) - x[2]) - x[ib[l]])
+                yv[1] = wrap(yv[1] - x[ib[l]])
             HP = H @ P
             S = HP @ H.T + Rw
             d2 = float(yv @ np.linalg.solve(S, yv))
@@ -337,24 +351,11 @@ def run_factor(log, lm, p, start, bias: Bias, comp, *, d=2):
             lk = int(sig[i])
             if not 0 <= lk < L:
                 continue
-            dx, dy = lm[lk, 0] - x[0], lm[lk, 1] - x[1]
-            q = dx * dx + dy * dy
-            r = math.sqrt(q)
-            Hx = np.zeros((d, 3))
-            Hx[0] = (-dx / r, -dy / r, 0.0)
-            yv = np.array([z[i, 0] - r, 0.0])[:d]
-            if d == 2:
-                Hx[1] = (dy / q, -dx / q, -1.0)
-                yv[1] = wrap(z[i, 1] - (math.atan2(dy, dx) - x[2]))
+            yv, Hx = pose_reading(x, lm[lk], z[i], d)
             d2 = float(yv @ np.linalg.solve(Hx @ Pc @ Hx.T + np.diag(var), yv))
             if d2 > gate2 or (lk in best and best[lk][0] <= d2):
                 continue
-            Ha = np.zeros((d, n))
-            Ha[:, :3] = Hx
-            Ha[0, ir[lk]] = 1.0
-            if d == 2:
-                Ha[1, ib[lk]] = 1.0
-            best[lk] = (d2, Hx, Ha, yv)
+            best[lk] = (d2, Hx, augmented(Hx, n, ir, ib, lk, d), yv)
         if best:
             Hx = np.concatenate([v[1] for v in best.values()])
             Ha = np.concatenate([v[2] for v in best.values()])

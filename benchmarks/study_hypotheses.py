@@ -50,14 +50,14 @@ import numpy as np
 from relmap import autocalibration, ekf, gaussian, localize
 from relmap.at import AT
 from relmap.io.datasets import read_mrclam
+from relmap.lie import se2
+from relmap.sensors import RangeBearingSensor
+from relmap.sensors.polar import polar_to_cartesian
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("RELMAP_DATA", ROOT.parent / "shared" / "data"))
 LANDMARK, OBJECT, NEW = 0, 1, 2  # how a hypothesis explained a reading
-
-
-def wrap(a):
-    return (a + np.pi) % (2 * np.pi) - np.pi
+SENSOR = RangeBearingSensor(1.0, 1.0)  # its predict: h and its Jacobians (MRCLAM: no mount)
 
 
 class Hypothesis(NamedTuple):
@@ -104,14 +104,14 @@ class Study:
         w /= w.sum()
         ref = X[np.argmax(w)]
         d = X - ref
-        d[..., 2] = wrap(d[..., 2])
+        d[..., 2] = se2.wrap_angle(d[..., 2])
         mu = ref + np.einsum("h,hti->ti", w, d)
         e = X - mu
-        e[..., 2] = wrap(e[..., 2])
+        e[..., 2] = se2.wrap_angle(e[..., 2])
         self.cov[k0 : k1 + 1] = np.einsum("h,htij->tij", w, C) + np.einsum(
             "h,hti,htj->tij", w, e, e
         )
-        mu[..., 2] = wrap(mu[..., 2])
+        mu[..., 2] = se2.wrap_angle(mu[..., 2])
         self.mean[k0 : k1 + 1] = mu
 
     def _predict(self, k0, k1, hyps):
@@ -129,22 +129,19 @@ class Study:
         return float(autocalibration.logpdf(d2, np.log(np.linalg.det(S)), 2, self.nu)), d2
 
     def _point(self, x, z):
-        c = x[2] + z[1]
-        J = np.array([[np.cos(c), -z[0] * np.sin(c)], [np.sin(c), z[0] * np.cos(c)]])
-        return x[:2] + z[0] * np.array([np.cos(c), np.sin(c)]), J @ self.R @ J.T
+        """Where reading ``z`` puts its object from pose ``x`` (the pose taken as exact), and
+        the covariance of the reading's noise there (Appendix B)."""
+        C = np.zeros((3, 3))
+        C[:2, :2] = self.R
+        p = polar_to_cartesian([z[0], x[2] + z[1], 0.0], C)
+        return x[:2] + p.mean[:2], p.cov[:2, :2]
 
     def _object_density(self, x, obj, z, now):
         q, Cq, Q, t = obj
-        d = q - x[:2]
-        r2 = d @ d
-        Hx = np.array([[-d[0], -d[1], 0.0] / np.sqrt(r2), [d[1] / r2, -d[0] / r2, -1.0]])
-        S = (
-            Hx @ Q @ Hx.T
-            + Hx[:, :2] @ (Cq + self.walk * (now - t) * np.eye(2)) @ Hx[:, :2].T
-            + self.R
-        )
-        y = z - np.array([np.sqrt(r2), np.arctan2(d[1], d[0]) - x[2]])
-        y[1] = wrap(y[1])
+        zh, Hx, Hq = SENSOR.predict(x, q, jacobians=True)
+        S = Hx @ Q @ Hx.T + Hq @ (Cq + self.walk * (now - t) * np.eye(2)) @ Hq.T + self.R
+        y = z - zh
+        y[1] = se2.wrap_angle(y[1])
         return self._density(y, S)
 
     def _prune(self, children):
