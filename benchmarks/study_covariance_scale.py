@@ -1,0 +1,151 @@
+"""Which statistic could set the autocalibrated filter's covariance scale without ground truth?
+Two diagnostics of ``relmap localize`` on MRCLAM (issue 14's signatures bands; measured:
+docs/consistency.md).
+
+1. ``odometry``: the autocalibrated filter (signatures) with the odometry's ``k_s`` (or all
+   three k) multiplied by each of ``--scales``, everything else kept: RMSE, coverage_90 and
+   ANEES against the ground truth. Does the odometry noise the likelihood fits set the
+   covariance's consistency, and at what cost in accuracy?
+2. ``forward-backward``: a truth-free consistency check. The same filter run backward in time
+   over the same log (odometry steps reversed, ``(-Δs, -Δθ)``, readings in reverse order;
+   started from the forward filter's last pose with 4× its covariance) is an estimate of the
+   pose from the future readings only. Where the two filters' errors are independent, the
+   difference ``d`` of their positions at a time has covariance ``P_f + P_b`` and
+   ``α̂ = mean dᵀ(P_f + P_b)⁻¹d / 2`` is the factor by which both overstate (α̂ < 1) or
+   understate their covariance. With ``--gaps`` G > 0 the forward filter is taken at t - G and
+   the backward at t + G, each predicted to t by odometry alone (so that readings of the
+   same few seconds do not enter both). Times within 45 s of the start and 110 s of the end
+   are left out (the backward filter's start is the forward's end). Printed: α̂, the mean
+   squared position and heading differences against the mean trace of ``P_f + P_b``, the
+   correlation of the two filters' errors (truth), and the forward filter's covariance scaled
+   by α̂, scored against the truth.
+
+Ground truth is read only to score. Run: ``python benchmarks/study_covariance_scale.py
+odometry [--robots 1 2 3 4 5] [--scales 1 0.5 0.25 0.1] [--all-k]`` or ``python
+benchmarks/study_covariance_scale.py forward-backward [--gaps 0 5 10 20]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np
+
+from relmap import ekf
+from relmap.at import AT
+from relmap.io.datasets import read_mrclam
+from relmap.lie import se2
+from relmap.localize import Localization, localize_mrclam, score
+from relmap.robot import DistanceNoise
+from study_bias import recording
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = Path(os.environ.get("RELMAP_DATA", ROOT.parent / "shared" / "data"))
+
+
+def fmt(s) -> str:
+    return f"{s.rmse_position:.3f}/{s.coverage_90:.2f}/{s.anees:.2f}"
+
+
+def odometry(data, robots: list[int], scales: list[float], all_k: bool) -> None:
+    for robot in robots:
+        auto = localize_mrclam(data, robot)
+        cal = auto.calibration
+        p = cal.parameters
+        print(f"robot {robot}: k_s {float(p.k_s):.4g}, k_theta {float(p.k_theta):.4g}, "
+              f"k_theta_s {float(p.k_theta_s):.4g}, σ factor {float(p.inflation):.2f}; "
+              f"calibrated {fmt(auto.score)}", flush=True)  # fmt: skip
+        row = []
+        for b in scales:
+            names = ("k_s", "k_theta", "k_theta_s") if all_k else ("k_s",)
+            q = p._replace(**{n: float(getattr(p, n)) * b for n in names})
+            run = localize_mrclam(data, robot, calibration=cal._replace(parameters=q))
+            row.append(f"× {b:g}: {fmt(run.score)} (α̂ {forward_backward(data, run)[0]:.2f})")
+        print("  " + ", ".join(row), flush=True)
+
+
+def backward(data, robot: int, run: Localization) -> tuple[ekf.Log, ekf.Trace]:
+    """The filter's log and the same filter run backward over it (module docstring)."""
+    log = recording(data, robot).log(*run.calibration.clock)
+    T = len(log.t)
+    reverse = ekf.Log(-log.t[::-1], -log.motion[::-1], (T - 1 - log.reading_index)[::-1],
+                      log.z[::-1], log.signature[::-1])  # fmt: skip
+    start = AT(run.estimate.mean[-1], 4.0 * run.estimate.cov[-1])
+    trace = ekf.run(reverse, ekf.LandmarkMap(data.landmark_xy), run.calibration.parameters,
+                    start=start, association="signatures")  # fmt: skip
+    return log, trace
+
+
+def predicted(x, P, steps: np.ndarray, noise: DistanceNoise) -> AT:
+    """States (B,) each predicted through its own odometry steps (B, J, 2), zero-padded."""
+    state = AT(x, P)
+    for j in range(steps.shape[1]):
+        state = ekf.predict(state, steps[:, j], noise)
+    return state
+
+
+def forward_backward(data, run: Localization, gap: float = 0.0, cache=None):
+    """``(α̂, mean |d|², mean tr(P_f + P_b) of the position, mean heading d², its variance,
+    correlation of the two errors)`` at one time per second (module docstring)."""
+    robot = run.robot
+    log, trace = cache if cache is not None else backward(data, robot, run)
+    t, mf = log.t, log.motion
+    xf, Pf = run.estimate.mean, run.estimate.cov
+    xb, Pb = trace.mean[::-1], trace.cov[::-1]
+    at = np.searchsorted(t, np.arange(t[0] + 45.0, t[-1] - 110.0, 1.0))
+    a = np.searchsorted(t, t[at] - gap, side="right") - 1
+    b = np.searchsorted(t, t[at] + gap, side="left")
+    J = max(int((at - a).max()), int((b - at).max()), 1)
+    fwd, bwd = np.zeros((len(at), J, 2)), np.zeros((len(at), J, 2))
+    for i, (s, aa, bb) in enumerate(zip(at, a, b, strict=True)):
+        fwd[i, : s - aa] = mf[aa:s]
+        bwd[i, : bb - s] = -mf[s:bb][::-1]
+    p = run.calibration.parameters
+    noise = DistanceNoise(float(p.k_s), float(p.k_theta), float(p.k_theta_s))
+    one = predicted(xf[a], Pf[a], fwd, noise) if gap else AT(xf[at], Pf[at])
+    two = predicted(xb[b], Pb[b], bwd, noise) if gap else AT(xb[at], Pb[at])
+    d = one.mean[:, :2] - two.mean[:, :2]
+    C = (one.cov + two.cov)[:, :2, :2]
+    alpha = float(np.mean(np.einsum("ni,ni->n", d, np.linalg.solve(C, d[..., None])[..., 0])) / 2)
+    heading = se2.wrap_angle(one.mean[:, 2] - two.mean[:, 2])
+    ef, eb = (x[at, :2] - run.truth[at, :2] for x in (xf, xb))
+    corr = float((ef * eb).sum(1).mean() / np.sqrt((ef**2).sum(1).mean() * (eb**2).sum(1).mean()))
+    return (alpha, float((d**2).sum(1).mean()), float(np.trace(C, axis1=1, axis2=2).mean()),
+            float((heading**2).mean()), float((one.cov + two.cov)[:, 2, 2].mean()), corr)  # fmt: skip
+
+
+def forward_backward_table(data, robots: list[int], gaps: list[float]) -> None:
+    for robot in robots:
+        run = localize_mrclam(data, robot)
+        cache = backward(data, robot, run)
+        back = score(AT(cache[1].mean[::-1], cache[1].cov[::-1]), run.truth)
+        print(f"robot {robot}: forward {fmt(run.score)}, backward {fmt(back)}", flush=True)
+        for g in gaps:
+            a, dd, tc, dh, ch, corr = forward_backward(data, run, g, cache)
+            scaled = score(AT(run.estimate.mean, a * run.estimate.cov), run.truth)
+            print(f"  gap {g:g} s: α̂ {a:.2f}; |d|² {dd:.4f} m² against tr {tc:.4f}; heading "
+                  f"{dh:.5f} against {ch:.5f} rad²; error correlation {corr:.2f}; forward "
+                  f"covariance × α̂: {scaled.coverage_90:.2f}/{scaled.anees:.2f}", flush=True)  # fmt: skip
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("mode", choices=("odometry", "forward-backward"))
+    ap.add_argument("--robots", type=int, nargs="+", default=[1, 2, 3, 4, 5])
+    ap.add_argument("--scales", type=float, nargs="+", default=[1.0, 0.5, 0.25, 0.1])
+    ap.add_argument("--all-k", action="store_true", help="scale all three k, not only k_s")
+    ap.add_argument("--gaps", type=float, nargs="+", default=[0.0, 5.0, 10.0, 20.0])
+    args = ap.parse_args()
+    data = read_mrclam(DATA / "landmarks" / "mrclam6")
+    if args.mode == "odometry":
+        odometry(data, args.robots, args.scales, args.all_k)
+    else:
+        forward_backward_table(data, args.robots, args.gaps)
+
+
+if __name__ == "__main__":
+    main()
