@@ -34,6 +34,7 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
+from study_bias import recording
 
 from relmap import ekf
 from relmap.at import AT
@@ -41,7 +42,6 @@ from relmap.io.datasets import read_mrclam
 from relmap.lie import se2
 from relmap.localize import Localization, localize_mrclam, score
 from relmap.robot import DistanceNoise
-from study_bias import recording
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("RELMAP_DATA", ROOT.parent / "shared" / "data"))
