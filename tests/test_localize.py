@@ -507,6 +507,38 @@ def test_euclidean_association_warns_when_it_goes_wrong(mrclam, signature_runs):
     assert not [w for w in signature_runs[1].warnings if "dead reckoning" in w]
 
 
+def test_the_run_says_when_its_covariance_is_cautious_or_overconfident(signature_runs, plaza_run):
+    """Issue 14's bands (coverage_90 0.85-0.95, ANEES 0.7-1.5) name the side a covariance
+    misses on: robot 1 is inside them (0.93, 1.11), robot 3's ellipses are too large (0.99,
+    0.34), Plaza's ANEES too high (0.88, 2.15)."""
+
+    def notes(run):
+        return [w for w in run.warnings if "EKF's covariance" in w]
+
+    assert not notes(signature_runs[1])
+    assert len(notes(signature_runs[3])) == 1 and "cautious" in notes(signature_runs[3])[0]
+    assert len(notes(plaza_run)) == 1 and "overconfident" in notes(plaza_run)[0]
+
+
+@pytest.mark.parametrize(
+    ("coverage", "anees", "side"),
+    [
+        (0.90, 1.0, None),
+        (0.85, 0.7, None),  # the bands' ends are inside
+        (0.95, 1.5, None),
+        (0.99, 1.0, "cautious"),
+        (0.90, 0.5, "cautious"),
+        (0.70, 1.0, "overconfident"),
+        (0.90, 2.0, "overconfident"),
+        (0.99, 2.0, "inconsistent"),  # the coverage says too large, the ANEES too small
+    ],
+)
+def test_calibration_side(coverage, anees, side):
+    from relmap.localize import Score, _calibration_side
+
+    assert _calibration_side(Score(0.1, 0.01, coverage, anees, 0)) == side
+
+
 def test_calibrate_from_run(mrclam_dir, mrclam, signature_runs, capsys):
     """--calibrate from-run N: the noise of robot N's run against its ground truth."""
     from relmap.localize import calibrate_mrclam, localize, localize_mrclam, noise_from_run

@@ -108,7 +108,10 @@ model is right (:attr:`Localization.anis`).
 
 **Warnings** (:attr:`Localization.warnings`, printed by the command): when the EKF ends worse
 than dead reckoning, or its ANEES is far from 1 (below 1/3 or above 3) — e.g. Euclidean
-association (Eq. 22), which mixes metres and radians.
+association (Eq. 22), which mixes metres and radians. Short of that, when its covariance is
+outside the bands of a consistent filter (:data:`CONSISTENT_COVERAGE`,
+:data:`CONSISTENT_ANEES`: issue 14's): cautious (ellipses larger than the errors, as on MRCLAM
+robots 2-5 with signatures) or overconfident (as on Plaza).
 """
 
 from __future__ import annotations
@@ -164,6 +167,10 @@ ODOMETRY_WINDOW = 10.0
 MAD_TO_SIGMA = 1.4826
 #: ANEES outside [1/3, 3] is "far from 1" (a warning).
 ANEES_FAR = 3.0
+#: The bands of a consistent filter's ``coverage_90`` and ANEES; a score outside either, but
+#: not far from 1, is called cautious or overconfident (a warning).
+CONSISTENT_COVERAGE = (0.85, 0.95)
+CONSISTENT_ANEES = (0.7, 1.5)
 
 Progress = Callable[[int, int], None]
 
@@ -267,6 +274,13 @@ class Localization(NamedTuple):
                 f"the EKF ({self.associate}) is inconsistent: ANEES {s.anees:.3g} (1 if "
                 "consistent); its ellipses do not describe its errors"
             )
+        elif (side := _calibration_side(s)) is not None:
+            (c0, c1), (a0, a1) = CONSISTENT_COVERAGE, CONSISTENT_ANEES
+            out.append(
+                f"the EKF's covariance ({self.associate}) is {side}: the true position is "
+                f"inside its 90% ellipse {s.coverage_90:.1%} of the time, ANEES {s.anees:.2f} "
+                f"(consistent: {c0:.0%}-{c1:.0%}, {a0:g}-{a1:g})"
+            )
         return out
 
     def summary(self) -> dict[str, object]:
@@ -314,6 +328,17 @@ def _calibration_summary(cal: Calibration | autocalibration.Calibrated) -> dict[
         "bearing_bias": cal.bearing_bias,
         "range_scale": cal.range_scale,
     }
+
+
+def _calibration_side(s: Score) -> str | None:
+    """``"cautious"`` (ellipses larger than the errors), ``"overconfident"``, ``"inconsistent"``
+    (the coverage and ANEES disagree) or None (both inside the bands of a consistent filter)."""
+    (c0, c1), (a0, a1) = CONSISTENT_COVERAGE, CONSISTENT_ANEES
+    wide = s.coverage_90 > c1 or s.anees < a0
+    narrow = s.coverage_90 < c0 or s.anees > a1
+    if wide and narrow:
+        return "inconsistent"
+    return "cautious" if wide else "overconfident" if narrow else None
 
 
 def _finite_or_none(v: float) -> float | None:
