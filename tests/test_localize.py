@@ -533,10 +533,10 @@ def test_the_run_says_when_its_covariance_is_cautious_or_overconfident(signature
         (0.99, 2.0, "inconsistent"),  # the coverage says too large, the ANEES too small
     ],
 )
-def test_calibration_side(coverage, anees, side):
-    from relmap.localize import Score, _calibration_side
+def test_covariance_side(coverage, anees, side):
+    from relmap.localize import Score, _covariance_side
 
-    assert _calibration_side(Score(0.1, 0.01, coverage, anees, 0)) == side
+    assert _covariance_side(Score(0.1, 0.01, coverage, anees, 0)) == side
 
 
 def test_calibrate_from_run(mrclam_dir, mrclam, signature_runs, capsys):

@@ -274,7 +274,7 @@ class Localization(NamedTuple):
                 f"the EKF ({self.associate}) is inconsistent: ANEES {s.anees:.3g} (1 if "
                 "consistent); its ellipses do not describe its errors"
             )
-        elif (side := _calibration_side(s)) is not None:
+        elif (side := _covariance_side(s)) is not None:
             (c0, c1), (a0, a1) = CONSISTENT_COVERAGE, CONSISTENT_ANEES
             out.append(
                 f"the EKF's covariance ({self.associate}) is {side}: the true position is "
@@ -330,7 +330,7 @@ def _calibration_summary(cal: Calibration | autocalibration.Calibrated) -> dict[
     }
 
 
-def _calibration_side(s: Score) -> str | None:
+def _covariance_side(s: Score) -> str | None:
     """``"cautious"`` (ellipses larger than the errors), ``"overconfident"``, ``"inconsistent"``
     (the coverage and ANEES disagree) or None (both inside the bands of a consistent filter)."""
     (c0, c1), (a0, a1) = CONSISTENT_COVERAGE, CONSISTENT_ANEES
