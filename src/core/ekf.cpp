@@ -46,6 +46,19 @@ inline double log_density(double d2, double logdet, int D, double nu) {
            0.5 * logdet - 0.5 * (nu + D) * std::log1p(d2 / nu);
 }
 
+// log det S of a stacked update, from the diagonals of its blocks' Cholesky factors
+// (log det S = 2 log Π Lᵢᵢ): their product, with one log at the end rather than one per block
+// (a time stamp's readings are blocks of one update); the product is taken in pieces that can
+// neither overflow nor underflow.
+struct LogDet {
+    double log = 0.0, prod = 1.0;
+    void times(double l) {
+        prod *= l;
+        if (!(prod > 1e-150 && prod < 1e150)) log += std::log(prod), prod = 1.0;
+    }
+    double value() const { return 2.0 * (log + std::log(prod)); }
+};
+
 // Scratch of SIZE doubles: on the stack when the size is known at compile time (SIZE > 0),
 // else a vector of the runtime size.
 template <int SIZE>
@@ -61,10 +74,11 @@ struct Scratch<0> {
     double* data() { return a.data(); }
 };
 
-// Lower Cholesky factor of the D × D matrix S (row-major) into Lw; false unless S is positive
-// definite with finite entries. D_ > 0 fixes the size at compile time.
+// Lower Cholesky factor of the D × D matrix S (row-major) into Lw and its diagonal's
+// reciprocals into inv (one division per row, the rest multiplications); false unless S is
+// positive definite with finite entries. D_ > 0 fixes the size at compile time.
 template <int D_>
-RELMAP_INLINE bool cholesky(int D, const double* S, double* Lw) {
+RELMAP_INLINE bool cholesky(int D, const double* S, double* Lw, double* inv) {
     if (D_ > 0) D = D_;
     for (int i = 0; i < D; ++i)
         for (int j = 0; j <= i; ++j) {
@@ -73,8 +87,9 @@ RELMAP_INLINE bool cholesky(int D, const double* S, double* Lw) {
             if (i == j) {
                 if (!(sum > 0.0) || !std::isfinite(sum)) return false;
                 Lw[i * D + i] = std::sqrt(sum);
+                inv[i] = 1.0 / Lw[i * D + i];
             } else {
-                Lw[i * D + j] = sum / Lw[j * D + j];
+                Lw[i * D + j] = sum * inv[j];
             }
         }
     return true;
@@ -128,8 +143,9 @@ RELMAP_INLINE void predict_cov(int n, const double* F, const double* P, const do
 //   y' = y - H δ                  (what the blocks before did not explain: linear in δ)
 //   S = H P Hᵀ + R,  K = P Hᵀ S⁻¹,  δ ← δ + K y',
 //   P ← (I - KH) P (I - KH)ᵀ + K R Kᵀ   (Joseph form, see below)
-// and adds y'ᵀ S⁻¹ y' to nis and log det S to logdet. Blocks whose noises are independent (R
-// block diagonal) processed one after the other give exactly the stacked update of them all:
+// and adds y'ᵀ S⁻¹ y' to nis and log det S to logdet (a LogDet: one log per stacked update).
+// Blocks whose noises are independent (R block diagonal) processed one after the other give
+// exactly the stacked update of them all:
 // the stacked S factors into the blocks' S (its block Cholesky / Schur complements), so the
 // sums of nis and log det are the stacked yᵀS⁻¹y and log det S, and δ, P the stacked ones;
 // a 2k × 2k solve becomes k 2 × 2 ones. False (δ, P partly updated: the caller keeps copies)
@@ -146,7 +162,7 @@ RELMAP_INLINE void predict_cov(int n, const double* F, const double* P, const do
 template <int N_, int D_, int W>
 void kalman_lanes(int n, int D, double* const* delta, double* const* P, const double* const* y,
                   const double* const* H, const double* const* R, double* const* S_out,
-                  double* nis, double* logdet, bool* ok) {
+                  double* nis, LogDet* logdet, bool* ok) {
     static_assert(W >= 1 && (N_ > 0 || W == 1), "lanes need sizes known at compile time");
     if (N_ > 0) n = N_;
     if (D_ > 0) D = D_;
@@ -178,19 +194,18 @@ void kalman_lanes(int n, int D, double* const* delta, double* const* P, const do
     bool any = false;
     for (int l = 0; l < W; ++l) {
         if (S_out[l]) std::copy(S + l * dd, S + (l + 1) * dd, S_out[l]);
-        ok[l] = cholesky<D_>(D, S + l * dd, Lw + l * dd);
+        ok[l] = cholesky<D_>(D, S + l * dd, Lw + l * dd, inv + l * D);
         if (!ok[l])
-            for (int a = 0; a < D; ++a)
+            for (int a = 0; a < D; ++a) {
                 for (int b = 0; b <= a; ++b) Lw[l * dd + a * D + b] = a == b ? 1.0 : 0.0;
+                inv[l * D + a] = 1.0;
+            }
         any = any || ok[l];
     }
     if (!any) return;
-    for (int l = 0; l < W; ++l)
-        for (int a = 0; a < D; ++a) inv[l * D + a] = 1.0 / Lw[l * dd + a * D + a];
-    // y'ᵀ S⁻¹ y' = |L⁻¹ y'|², log det S = 2 log Π Lᵢᵢ (one log; the product is taken in
-    // pieces that can neither overflow nor underflow)
-    double q[W], ld[W], prod[W];
-    for (int l = 0; l < W; ++l) q[l] = 0.0, ld[l] = 0.0, prod[l] = 1.0;
+    // y'ᵀ S⁻¹ y' = |L⁻¹ y'|², log det S = 2 log Π Lᵢᵢ
+    double q[W];
+    for (int l = 0; l < W; ++l) q[l] = 0.0;
     for (int a = 0; a < D; ++a)
         for (int l = 0; l < W; ++l) {
             const double* Ll = Lw + l * dd;
@@ -200,13 +215,9 @@ void kalman_lanes(int n, int D, double* const* delta, double* const* P, const do
             for (int k = 0; k < a; ++k) s -= Ll[a * D + k] * ul[k];
             ul[a] = s * inv[l * D + a];
             q[l] += ul[a] * ul[a];
-            prod[l] *= Ll[a * D + a];
-            if (!(prod[l] > 1e-150 && prod[l] < 1e150)) ld[l] += std::log(prod[l]), prod[l] = 1.0;
+            logdet[l].times(Ll[a * D + a]);
         }
-    for (int l = 0; l < W; ++l) {
-        nis[l] += q[l];
-        logdet[l] += 2.0 * (ld[l] + std::log(prod[l]));
-    }
+    for (int l = 0; l < W; ++l) nis[l] += q[l];
     for (int a = D - 1; a >= 0; --a)  // u = S⁻¹ y' (Lᵀ u = L⁻¹ y')
         for (int l = 0; l < W; ++l) {
             double* ul = u + l * D;
@@ -262,7 +273,7 @@ void kalman_lanes(int n, int D, double* const* delta, double* const* P, const do
 // positive definite.
 template <int N_, int D_>
 bool kalman_block(int n, int D, double* delta, double* P, const double* y, const double* H,
-                  const double* R, double* S_out, double& nis, double& logdet) {
+                  const double* R, double* S_out, double& nis, LogDet& logdet) {
     bool ok;
     kalman_lanes<N_, D_, 1>(n, D, &delta, &P, &y, &H, &R, &S_out, &nis, &logdet, &ok);
     return ok;
@@ -282,7 +293,8 @@ bool kalman_update(int n, int D, double* x, double* P, const double* y, const do
     thread_local std::vector<double> delta, Pw;
     delta.assign(n, 0.0);
     Pw.assign(P, P + static_cast<size_t>(n) * n);
-    double q = 0.0, ld = 0.0;
+    double q = 0.0;
+    LogDet ld;
     if (!kalman_block<0, 0>(n, D, delta.data(), Pw.data(), y, H, R, S, q, ld)) return false;
     bool finite = true;
     for (double v : Pw) finite = finite && std::isfinite(v);
@@ -291,7 +303,7 @@ bool kalman_update(int n, int D, double* x, double* P, const double* y, const do
     for (int i = 0; i < n; ++i) x[i] += delta[i];
     std::copy(Pw.begin(), Pw.end(), P);
     *nis = q;
-    *logdet = ld;
+    *logdet = ld.value();
     return true;
 }
 
@@ -368,7 +380,7 @@ inline double bearing_variance(double r, const double* p, const Options& opt) {
 // R's diagonal (d); ok false for 0/0 (the landmark at the sensor, or S not positive definite).
 // Rx: R's off-diagonal entry (0 for a landmark's reading; a mixture's spread, see mix_reading).
 struct Predicted {
-    double h[2], H[6], S[4], R[2], det;
+    double h[2], H[6], S[4], R[2], det, inv_det;  // inv_det = 1 / det
     bool ok;
     double Rx = 0.0;
 };
@@ -380,7 +392,9 @@ struct Pair {
 };
 
 // The innovation covariance S = H P Hᵀ + R of a predicted reading (d × d; R diagonal
-// but for Rx off it), its determinant, and whether S is positive definite. D_ > 0 fixes d.
+// but for Rx off it), its determinant and the determinant's reciprocal (for the readings' d²:
+// one division per prediction, not per pair), and whether S is positive definite. D_ > 0
+// fixes d.
 template <int D_>
 RELMAP_INLINE void innovation_cov(Predicted& out, const double* P, int d) {
     if (D_ > 0) d = D_;
@@ -395,6 +409,7 @@ RELMAP_INLINE void innovation_cov(Predicted& out, const double* P, int d) {
                 HP[a * 3] * out.H[b * 3] + HP[a * 3 + 1] * out.H[b * 3 + 1] +
                 HP[a * 3 + 2] * out.H[b * 3 + 2];
     out.det = d == 2 ? out.S[0] * out.S[3] - out.S[1] * out.S[1] : out.S[0];
+    out.inv_det = 1.0 / out.det;
     out.ok = out.det > 0.0 && std::isfinite(out.det) && out.S[0] > 0.0;
 }
 
@@ -414,16 +429,19 @@ void predict_landmark(const SensorPose& sp, const double* P, const double* lm, c
     double scale = 1.0;
     if (opt.noise_model == PROPORTIONAL) scale = r;
     if (opt.noise_model == QUADRATIC) scale = q;
+    // one division: 1/r, and 1/r² as its square (a division's latency is that of many
+    // multiplications, and this is on every reading's path)
+    const double ir = 1.0 / r, iq = ir * ir;
     out.h[0] = r;
-    out.H[0] = -dx / r;
-    out.H[1] = -dy / r;
-    out.H[2] = (dx * oy - dy * ox) / r;  // through the mount: ∂sensor/∂θ = (-oy, ox)
+    out.H[0] = -dx * ir;
+    out.H[1] = -dy * ir;
+    out.H[2] = (dx * oy - dy * ox) * ir;  // through the mount: ∂sensor/∂θ = (-oy, ox)
     out.R[0] = range_variance(r, p, opt);
     if (d == 2) {
         out.h[1] = wrap(wrap(std::atan2(dy, dx) - sp.heading));
-        out.H[3] = dy / q;
-        out.H[4] = -dx / q;
-        out.H[5] = -(dy * oy + dx * ox) / q - 1.0;
+        out.H[3] = dy * iq;
+        out.H[4] = -dx * iq;
+        out.H[5] = -(dy * oy + dx * ox) * iq - 1.0;
         out.R[1] = (p[SIGMA_B] * scale) * (p[SIGMA_B] * scale);
     }
     out.Rx = 0.0;
@@ -431,8 +449,9 @@ void predict_landmark(const SensorPose& sp, const double* P, const double* lm, c
 }
 
 inline double mahalanobis2(const Predicted& pr, const double* v, int d) {
-    if (d == 1) return v[0] * v[0] / pr.S[0];
-    return (v[0] * v[0] * pr.S[3] - 2.0 * v[0] * v[1] * pr.S[1] + v[1] * v[1] * pr.S[0]) / pr.det;
+    if (d == 1) return v[0] * v[0] * pr.inv_det;
+    return (v[0] * v[0] * pr.S[3] - 2.0 * v[0] * v[1] * pr.S[1] + v[1] * v[1] * pr.S[0]) *
+           pr.inv_det;
 }
 
 // A pair's innovation v (d) given the correction δ (3) of the pairs before it: v - H δ.
@@ -448,7 +467,7 @@ inline void innovation_given(int d, const double* v, const double* H, const doub
 // W lanes: one pair of each of W filters (kalman_lanes); pair_block: one filter's.
 template <int W>
 void pair_lanes(int d, double* const* delta, double* const* P, const Pair* const* q,
-                const Predicted* const* pr, const double* w, double* nis, double* logdet,
+                const Predicted* const* pr, const double* w, double* nis, LogDet* logdet,
                 double* const* y_out, double* const* S_out, bool* ok) {
     double R[W][4];
     const double *Rp[W], *y[W], *H[W];
@@ -469,7 +488,7 @@ void pair_lanes(int d, double* const* delta, double* const* P, const Pair* const
 }
 
 inline bool pair_block(int d, double* delta, double* P, const Pair& q, const Predicted& pr,
-                       double w, double& nis, double& logdet, double* y_out = nullptr,
+                       double w, double& nis, LogDet& logdet, double* y_out = nullptr,
                        double* S_out = nullptr) {
     const Pair* qq = &q;
     const Predicted* pp = &pr;
@@ -547,7 +566,8 @@ inline double landmark_probability(const Pair& q, const Predicted& pr, int d, co
 // The joint d² of a set of pairs: the stacked innovation against its stacked S, pair by pair.
 double joint_d2(const std::vector<const Pair*>& pairs, const Predicted* pred,
                 const double* P, int d) {
-    double delta[3] = {0.0, 0.0, 0.0}, Pw[9], q = 0.0, ld = 0.0;
+    double delta[3] = {0.0, 0.0, 0.0}, Pw[9], q = 0.0;
+    LogDet ld;
     std::copy(P, P + 9, Pw);
     for (const Pair* p : pairs)
         if (!pair_block(d, delta, Pw, *p, pred[p->l], 1.0, q, ld)) return INF;
@@ -855,8 +875,8 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
                     const double r = range[l], g = zr - r;
                     double k = by_d2 ? g * g * inv_bound[l] : g * g;
                     if (point) {
-                        const double u = 1.0 + mount_norm / r;
-                        const double b_phi = (1.0 / (r * r) + u * u) * trace_p +
+                        const double ir = 1.0 / r, u = 1.0 + mount_norm * ir;
+                        const double b_phi = (ir * ir + u * u) * trace_p +
                                              bearing_variance(r, p, opt);
                         const double kp = dist2(l) / (trace_gain + range_variance(r, p, opt) +
                                                       r * zr * b_phi);
@@ -1141,7 +1161,7 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
 }
 
 void report(const Call& c, const Options& opt, Work& w, const double* delta, const double* Pn,
-            double nis, double logdet, bool ok);
+            double nis, LogDet logdet, bool ok);
 
 // The correction of W filters (each its own call and scratch), their association first, then
 // their updates side by side (kalman_lanes), then what each reports. (The filters of a batch
@@ -1157,7 +1177,8 @@ void correct_lanes(const Call* calls, const Map& map, const Options& opt) {
     // update, done pair by pair (kalman_block: each pair's noise is its own, so R is block
     // diagonal and the 2 × 2 blocks in turn are the stacked 2k × 2k update).
     struct Lane {
-        double delta[3] = {0.0, 0.0, 0.0}, Pn[9], nis = 0.0, logdet = 0.0, c2, lambda;
+        double delta[3] = {0.0, 0.0, 0.0}, Pn[9], nis = 0.0, c2, lambda;
+        LogDet logdet;
         bool ok = true, robust, reweighted;
     };
     Lane lane[W];
@@ -1201,7 +1222,8 @@ void correct_lanes(const Call* calls, const Map& map, const Options& opt) {
             yo[v] = s.reweighted ? nullptr : given(l, q[v], 0);
             So[v] = s.reweighted ? nullptr : given(l, q[v], 1);
         }
-        double nis[V], logdet[V];
+        double nis[V];
+        LogDet logdet[V];
         for (int v = 0; v < V; ++v) nis[v] = lane[which[v]].nis, logdet[v] = lane[which[v]].logdet;
         pair_lanes<V>(d, delta, Pp, q, pr, wgt, nis, logdet, yo, So, okl);
         for (int v = 0; v < V; ++v) {
@@ -1230,7 +1252,7 @@ void correct_lanes(const Call* calls, const Map& map, const Options& opt) {
 // the likelihood's sequence for a reweighted update, the filter's new state and totals, and
 // what it reports per reading.
 void report(const Call& c, const Options& opt, Work& w, const double* delta, const double* Pn,
-            double nis, double logdet, bool ok) {
+            double nis, LogDet logdet, bool ok) {
     double* const x = c.x;
     double* const P = c.P;
     const int64_t m = c.m;
@@ -1261,7 +1283,8 @@ void report(const Call& c, const Options& opt, Work& w, const double* delta, con
         const bool reweighted =
             robust || p[INFLATION] * p[INFLATION] != 1.0 || p[CLUTTER] > 0.0;
         if (reweighted && ok) {  // the likelihood is that of S with R itself, not reweighted
-            nis = logdet = 0.0;
+            nis = 0.0;
+            logdet = LogDet();
             for (size_t u = 0; u < update.size(); ++u)
                 ok = ok && pair_block(d, dL, PL, *update[u], *upred[u], 1.0, nis, logdet,
                                       given(update[u], 0), given(update[u], 1));
@@ -1277,7 +1300,7 @@ void report(const Call& c, const Options& opt, Work& w, const double* delta, con
             x[2] = wrap(x[2] + delta[2]);
             std::copy(Pn, Pn + 9, P);
             // robust: the multivariate Student-t of dimension D, scale S, ν dof
-            totals.loglik += log_density(nis, logdet, D, robust ? p[NU] : INF);
+            totals.loglik += log_density(nis, logdet.value(), D, robust ? p[NU] : INF);
             totals.nis += nis;
             totals.dof += D;
             totals.updates += 1;
@@ -1582,12 +1605,18 @@ void register_ekf(nb::module_& m) {
                 throw nb::value_error("present and signature must be (..., m)");
             const uint8_t* const pr = reinterpret_cast<const uint8_t*>(present.data());
             const size_t ps = check_params(params, B);
-            // two packed outputs (one NumPy array each costs more than the arithmetic here):
-            // floats per filter x (3), P (9), y (m d), S (m d d), d² (m), loglik, nis;
-            // integers per filter status (m), landmark (m), dof
-            const size_t F = 12 + mm * (d + d * d + 1) + 2, I = 2 * mm + 1;
-            auto fo = new_result_like(x, n - 1, {F});
-            auto io = new_result_like<int64_t>(x, n - 1, {I});
+            // two packed outputs (one NumPy array each costs more than the arithmetic here),
+            // each of sections (the filters' values of one quantity after another, so that
+            // each is a contiguous array, e.g. the state that the next prediction reads):
+            // floats x (B, 3), P (B, 9), y (B, m d), S (B, m d d), d² (B, m), loglik (B),
+            // nis (B); integers status (B, m), landmark (B, m)
+            auto fo = new_result_like(x, 0, {B * (14 + mm * (d + d * d + 1))});
+            auto io = new_result_like<int64_t>(x, 0, {2 * B * mm});
+            double *const xo = fo.data, *const Po = xo + 3 * B, *const yo = Po + 9 * B;
+            double *const So = yo + B * mm * d, *const d2o = So + B * mm * d * d;
+            double *const llo = d2o + B * mm, *const niso = llo + B;
+            std::copy(x.data(), x.data() + 3 * B, xo);
+            std::copy(P.data(), P.data() + 9 * B, Po);
             std::vector<int8_t> st(LANES * mm);
             std::vector<int32_t> lmo(LANES * mm);
             std::vector<int64_t> cands(2 * LANES * mm);
@@ -1597,29 +1626,24 @@ void register_ekf(nb::module_& m) {
                 Totals totals[LANES];
                 for (int l = 0; l < W; ++l) {
                     const size_t b = b0 + l;
-                    double* f = fo.data + b * F;
-                    std::copy(x.data() + 3 * b, x.data() + 3 * b + 3, f);
-                    std::copy(P.data() + 9 * b, P.data() + 9 * b + 9, f + 3);
                     int64_t* cl = cands.data() + 2 * mm * l;
                     if (opt.signatures)
                         signature_candidates(map, static_cast<int64_t>(mm),
                                              signature.data() + b * mm, cl);
-                    calls[l] = {f, f + 3, static_cast<int64_t>(mm), z.data() + b * mm * d,
-                                pr + b * mm, cl, params.data() + b * ps,
-                                ReadingOut{f + 12, f + 12 + mm * d, f + 12 + mm * (d + d * d),
+                    calls[l] = {xo + 3 * b, Po + 9 * b, static_cast<int64_t>(mm),
+                                z.data() + b * mm * d, pr + b * mm, cl, params.data() + b * ps,
+                                ReadingOut{yo + b * mm * d, So + b * mm * d * d, d2o + b * mm,
                                            st.data() + mm * l, lmo.data() + mm * l},
                                 &totals[l]};
                 }
                 correct_filters(W, calls, map, opt);
                 for (int l = 0; l < W; ++l) {
                     const size_t b = b0 + l;
-                    double* f = fo.data + b * F;
-                    int64_t* iv = io.data + b * I;
-                    f[F - 2] = totals[l].loglik;
-                    f[F - 1] = totals[l].nis;
+                    llo[b] = totals[l].loglik;
+                    niso[b] = totals[l].nis;
                     for (size_t i = 0; i < mm; ++i)
-                        iv[i] = st[mm * l + i], iv[mm + i] = lmo[mm * l + i];
-                    iv[2 * mm] = totals[l].dof;
+                        io.data[b * mm + i] = st[mm * l + i],
+                        io.data[(B + b) * mm + i] = lmo[mm * l + i];
                 }
             }
             return nb::make_tuple(fo.array, io.array);
@@ -1630,7 +1654,7 @@ void register_ekf(nb::module_& m) {
         nb::arg("gate2"), nb::arg("joint_gate2"), nb::arg("jcbb_nodes"),
         "Association, gating and one stacked correction per filter of the readings of one time "
         "stamp (each filter its own readings): x (..., 3), P (..., 3, 3), z (..., m, d), "
-        "present and signature (..., m) of one batch; packed outputs (..., F) and (..., I).");
+        "present and signature (..., m) of one batch; two packed outputs of sections (see above).");
 
     m.def(
         "ekf_run",
