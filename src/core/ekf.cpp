@@ -628,11 +628,19 @@ std::vector<const Pair*> jcbb(const std::vector<std::vector<const Pair*>>& optio
 
 namespace {
 
+// The part of the map where a reading's candidates whose bounds may not exceed a limit lie
+// (associate's window_of): ranges r0..r1 from the sensor and, range-bearing, within rho of the
+// point where the reading puts its landmark.
+struct Window {
+    double r0, r1, rho;
+};
+
 // The scratch of correct_readings.
 struct Work {
     std::vector<int8_t> status;
     std::vector<int32_t> landmark;
-    std::vector<double> nearest, zc, pair_d2, range, inv_bound, keys;
+    std::vector<double> nearest, zc, pair_d2, range, inv_bound, keys, point;
+    std::vector<Window> gate_window;
     std::vector<Predicted> pred;
     std::vector<char> done, taken, full;
     std::vector<Pair> pairs, mixed;  // mixed: a reading's mixture pair (mix_reading)
@@ -680,6 +688,8 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
     w.landmark.assign(m, -1);
     w.nearest.resize(m);
     w.zc.resize(m * d);
+    w.point.resize(2 * m);
+    w.gate_window.resize(m);
     w.pair_d2.assign(m, INF);
     w.lo.resize(m);
     w.hi.resize(m);
@@ -762,6 +772,29 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
     const double far_y = std::max(std::fabs(map.box[2] - sp.y), std::fabs(map.box[3] - sp.y));
     const double b_max =
         trace_gain + range_variance(std::sqrt(far_x * far_x + far_y * far_y), p, opt);
+    // The limit of the candidates' bounds for a least value (JCBB and the Mahalanobis cost: at
+    // least the gate's), with a margin for rounding: the bound is a bound of the exact values.
+    auto limit = [&](double least) {
+        const double t = by_d2 ? std::max(least, opt.gate2) : least;
+        return t * (1.0 + 1e-9) + 1e-300;
+    };
+    // The window of reading i for the limit tau (every landmark a candidate): ranges r0..r1 (the
+    // range bound: h² = τ max b, or τ for the Euclidean cost) and, range-bearing with the point
+    // bound (see collect), within rho of where the reading puts its landmark, the point bound's
+    // denominator at most its value with each term at its largest over r0..r1 (1/r terms at r0,
+    // the others at r1). (Rounding here is inside the margins.)
+    auto window_of = [&](int64_t i, double tau) {
+        const double zr = zc[i * d];
+        const double h = std::sqrt(by_d2 ? tau * b_max : tau) * (1.0 + 1e-6);
+        Window wd{zr - h, zr + h, INF};
+        if (d == 2 && by_d2 && zr > 0.0 && wd.r0 > 0.0) {
+            const double inv = 1.0 / wd.r0, u = 1.0 + mount_norm * inv;
+            const double b_phi = (inv * inv + u * u) * trace_p + bearing_variance(wd.r1, p, opt);
+            wd.rho = std::sqrt(tau * (trace_gain + range_variance(wd.r1, p, opt) +
+                                      wd.r1 * zr * b_phi));
+        }
+        return wd;
+    };
     // The landmarks that may lie in the annulus rlo <= r <= rhi around the sensor and within rho
     // of the point (px, py) (rho = INF: anywhere), each passed to f: the map's grid cells that
     // meet both (by the box of their landmarks), then each landmark's own squared distances, with
@@ -854,12 +887,7 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
                 for (int64_t k = 0; k < n; ++k) near[nn++] = ci[k];
             } else {
                 const double zr = zc[i * d];
-                // where the reading puts its landmark (range-bearing; range only: the sensor)
-                double px = sp.x, py = sp.y;
-                if (d == 2) {
-                    const double a = sp.heading + zc[i * d + 1];
-                    px = sp.x + zr * std::cos(a), py = sp.y + zr * std::sin(a);
-                }
+                const double px = w.point[2 * i], py = w.point[2 * i + 1];
                 auto dist2 = [&](int64_t l) {
                     const double ex = map.xy[2 * l] - px, ey = map.xy[2 * l + 1] - py;
                     return ex * ex + ey * ey;
@@ -888,45 +916,23 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
                     bound_of(l);
                     return keys[l] = bound_key(l);
                 };
-                // a margin for rounding: the bound is a bound of the exact values
-                auto limit = [&](double least) {
-                    const double t = by_d2 ? std::max(least, opt.gate2) : least;
-                    return t * (1.0 + 1e-9) + 1e-300;
-                };
-                // The candidates whose bound may not exceed tau, each passed to f: every one
-                // (signatures), or the region of the map of both bounds (all landmarks): ranges
-                // r0..r1 (the range bound) and, range-bearing, within rho of (px, py), the point
-                // bound's denominator at most its value with each term at its largest over
-                // r0..r1 (1/r terms at r0, the others at r1).
+                // The candidates whose bound does not exceed tau, in near (a NaN bound keeps
+                // one), from every candidate (signatures) or the reading's window wd in the map
+                // (all landmarks).
                 const bool window = !opt.signatures;
-                auto within = [&](double tau, auto&& f) {
-                    if (!window) {
-                        for (int64_t k = 0; k < n; ++k) f(ci[k]);
-                        return;
-                    }
-                    const double h = std::sqrt(by_d2 ? tau * b_max : tau) * (1.0 + 1e-6);
-                    const double r0 = zr - h, r1 = zr + h;
-                    double rho = INF;
-                    if (point && r0 > 0.0) {  // (rounding here is inside the margins)
-                        const double inv = 1.0 / r0, u = 1.0 + mount_norm * inv;
-                        const double b_phi =
-                            (inv * inv + u * u) * trace_p + bearing_variance(r1, p, opt);
-                        rho = std::sqrt(tau * (trace_gain + range_variance(r1, p, opt) +
-                                               r1 * zr * b_phi));
-                    }
-                    region(r0, r1, px, py, rho, f);
-                };
-                // the candidates whose bound does not exceed tau, in near (a NaN bound keeps one)
-                auto gather = [&](double tau) {
+                auto gather = [&](double tau, const Window& wd) {
                     nn = 0;
-                    within(tau, [&](int64_t l) {
+                    auto keep = [&](int64_t l) {
                         if (!(key_of(l) > tau)) near[nn++] = l;
-                    });
+                    };
+                    if (window)
+                        region(wd.r0, wd.r1, px, py, wd.rho, keep);
+                    else
+                        for (int64_t k = 0; k < n; ++k) keep(ci[k]);
                 };
                 bool settled = false;
                 if (by_d2) {  // τ is at least the gate's limit, that if a candidate is inside
-                    const double tau = limit(0.0);
-                    gather(tau);
+                    gather(limit(0.0), w.gate_window[i]);
                     for (int64_t j = 0; j < nn && !settled; ++j)
                         settled = value(i, near[j]) <= opt.gate2;
                 }
@@ -960,7 +966,7 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
                                    });
                     }
                     double least = value(i, first);
-                    gather(limit(least));
+                    gather(limit(least), window_of(i, limit(least)));
                     const double done_key = -1.0;  // marks a candidate evaluated
                     key_of(first);
                     keys[first] = done_key;
@@ -997,6 +1003,18 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
         if (d == 2) zc[i * d + 1] = zi[1] - p[BIAS_B];
         lo[i] = 0, hi[i] = map.L;
         if (opt.signatures) lo[i] = candidates[2 * i], hi[i] = candidates[2 * i + 1];
+        // A reading of several candidates: where it puts its landmark (range-bearing; range
+        // only: the sensor), and its window for the gate's limit, the first that collect looks
+        // in: computed here, for all readings before any search, so that their trigonometry,
+        // divisions and square roots (independent of each other) overlap.
+        if (hi[i] - lo[i] < 2) continue;
+        double* const pt = w.point.data() + 2 * i;
+        pt[0] = sp.x, pt[1] = sp.y;
+        if (d == 2) {
+            const double a = sp.heading + zc[i * d + 1];
+            pt[0] += zc[i * d] * std::cos(a), pt[1] += zc[i * d] * std::sin(a);
+        }
+        if (by_d2 && !opt.signatures) w.gate_window[i] = window_of(i, limit(0.0));
     }
     collect(opt.method == PER_LANDMARK);
     // chosen: each reading's pair (used or gated); update: the pairs of the stacked update
