@@ -74,43 +74,6 @@ struct Scratch<0> {
     double* data() { return a.data(); }
 };
 
-// Lower Cholesky factor of the D × D matrix S (row-major) into Lw and its diagonal's
-// reciprocals into inv (one division per row, the rest multiplications); false unless S is
-// positive definite with finite entries. D_ > 0 fixes the size at compile time.
-template <int D_>
-RELMAP_INLINE bool cholesky(int D, const double* S, double* Lw, double* inv) {
-    if (D_ > 0) D = D_;
-    for (int i = 0; i < D; ++i)
-        for (int j = 0; j <= i; ++j) {
-            double sum = S[i * D + j];
-            for (int k = 0; k < j; ++k) sum -= Lw[i * D + k] * Lw[j * D + k];
-            if (i == j) {
-                if (!(sum > 0.0) || !std::isfinite(sum)) return false;
-                Lw[i * D + i] = std::sqrt(sum);
-                inv[i] = 1.0 / Lw[i * D + i];
-            } else {
-                Lw[i * D + j] = sum * inv[j];
-            }
-        }
-    return true;
-}
-
-// Solves L Lᵀ u = b in place (L from cholesky, inv its diagonal's reciprocals).
-template <int D_>
-RELMAP_INLINE void cholesky_solve(int D, const double* Lw, const double* inv, double* b) {
-    if (D_ > 0) D = D_;
-    for (int i = 0; i < D; ++i) {
-        double sum = b[i];
-        for (int k = 0; k < i; ++k) sum -= Lw[i * D + k] * b[k];
-        b[i] = sum * inv[i];
-    }
-    for (int i = D - 1; i >= 0; --i) {
-        double sum = b[i];
-        for (int k = i + 1; k < D; ++k) sum -= Lw[k * D + i] * b[k];
-        b[i] = sum * inv[i];
-    }
-}
-
 // P⁻ = F P Fᵀ + Q (n × n, row-major), symmetrized; out may alias P. N_ > 0 fixes n. Inlined:
 // a pose filter's F and Q then stay in registers (an out-of-line call had the odometry step
 // store them, zeroing F with a slow string store, every step).
@@ -156,9 +119,12 @@ RELMAP_INLINE void predict_cov(int n, const double* F, const double* P, const do
 // ok[l] whether its S is positive definite), each lane's arithmetic exactly that of the lane
 // alone. One block's steps depend on each other (P → S → its factor → K → P), so one filter's
 // blocks in turn leave the processor waiting; several filters' chains interleaved keep it busy
-// (the batch runners take their filters LANES at a time). With W = 1 it is kalman_block below;
-// the sizes known at run time (N_ = 0) have one lane. A lane whose S is not positive definite
-// goes on with a harmless factor (the identity) and its results are to be dropped.
+// (the batch runners take their filters LANES at a time). The lanes' inputs are gathered into
+// arrays with the lane innermost (entry e of lane l at e W + l), so that each step's loop over
+// the lanes is one over contiguous values, which the compiler vectorizes. With W = 1 it is
+// kalman_block below; the sizes known at run time (N_ = 0) have one lane. A lane whose S is not
+// positive definite goes on with a harmless factor (the identity) and its results are to be
+// dropped.
 template <int N_, int D_, int W>
 void kalman_lanes(int n, int D, double* const* delta, double* const* P, const double* const* y,
                   const double* const* H, const double* const* R, double* const* S_out,
@@ -166,39 +132,67 @@ void kalman_lanes(int n, int D, double* const* delta, double* const* P, const do
     static_assert(W >= 1 && (N_ > 0 || W == 1), "lanes need sizes known at compile time");
     if (N_ > 0) n = N_;
     if (D_ > 0) D = D_;
-    constexpr int ND = N_ * D_ * W, DD = D_ * D_ * W, NN = N_ * N_ * W, DW = D_ * W;
-    // lane l's matrices at l × their size
+    constexpr int NW = N_ * W, ND = N_ * D_ * W, DD = D_ * D_ * W, NN = N_ * N_ * W, DW = D_ * W;
     const size_t nD = static_cast<size_t>(n) * D, dd = static_cast<size_t>(D) * D,
                  nn = static_cast<size_t>(n) * n;
-    Scratch<ND> PHt_(ND ? 0 : nD), K_(ND ? 0 : nD), KR_(ND ? 0 : nD);
-    Scratch<DD> S_(DD ? 0 : dd), L_(DD ? 0 : dd);
-    Scratch<NN> A_(NN ? 0 : nn), AP_(NN ? 0 : nn);
-    Scratch<DW> u_(DW ? 0 : D), inv_(DW ? 0 : D);
+    Scratch<NW> dl_(NW ? 0 : n);
+    Scratch<ND> Hl_(ND ? 0 : nD), PHt_(ND ? 0 : nD), K_(ND ? 0 : nD), KR_(ND ? 0 : nD);
+    Scratch<DD> Rl_(DD ? 0 : dd), S_(DD ? 0 : dd), L_(DD ? 0 : dd);
+    Scratch<NN> Pl_(NN ? 0 : nn), A_(NN ? 0 : nn), AP_(NN ? 0 : nn);
+    Scratch<DW> yl_(DW ? 0 : D), u_(DW ? 0 : D), inv_(DW ? 0 : D);
+    double *dl = dl_.data(), *Hl = Hl_.data(), *Rl = Rl_.data(), *Pl = Pl_.data(),
+           *yl = yl_.data();
     double *PHt = PHt_.data(), *K = K_.data(), *KR = KR_.data(), *S = S_.data(), *Lw = L_.data();
     double *A = A_.data(), *AP = AP_.data(), *u = u_.data(), *inv = inv_.data();
+    for (int l = 0; l < W; ++l) {  // the lanes' inputs, lane innermost
+        for (size_t e = 0; e < nn; ++e) Pl[e * W + l] = P[l][e];
+        for (size_t e = 0; e < nD; ++e) Hl[e * W + l] = H[l][e];
+        for (size_t e = 0; e < dd; ++e) Rl[e * W + l] = R[l][e];
+        for (int e = 0; e < D; ++e) yl[e * W + l] = y[l][e];
+        for (int e = 0; e < n; ++e) dl[e * W + l] = delta[l][e];
+    }
     for (int i = 0; i < n; ++i)  // P Hᵀ
         for (int a = 0; a < D; ++a)
             for (int l = 0; l < W; ++l) {
                 double s = 0.0;
-                for (int k = 0; k < n; ++k) s += P[l][i * n + k] * H[l][a * n + k];
-                PHt[l * nD + i * D + a] = s;
+                for (int k = 0; k < n; ++k) s += Pl[(i * n + k) * W + l] * Hl[(a * n + k) * W + l];
+                PHt[(i * D + a) * W + l] = s;
             }
     for (int a = 0; a < D; ++a)  // S = H P Hᵀ + R, symmetrized
         for (int b = 0; b <= a; ++b)
             for (int l = 0; l < W; ++l) {
                 double s = 0.0;
-                for (int k = 0; k < n; ++k) s += H[l][a * n + k] * PHt[l * nD + k * D + b];
-                S[l * dd + a * D + b] = S[l * dd + b * D + a] =
-                    s + 0.5 * (R[l][a * D + b] + R[l][b * D + a]);
+                for (int k = 0; k < n; ++k) s += Hl[(a * n + k) * W + l] * PHt[(k * D + b) * W + l];
+                S[(a * D + b) * W + l] = S[(b * D + a) * W + l] =
+                    s + 0.5 * (Rl[(a * D + b) * W + l] + Rl[(b * D + a) * W + l]);
+            }
+    for (int l = 0; l < W; ++l)
+        if (S_out[l])
+            for (size_t e = 0; e < dd; ++e) S_out[l][e] = S[e * W + l];
+    // S's lower Cholesky factor L and its diagonal's reciprocals (one division per row, the
+    // rest multiplications); a lane's S is positive definite if every pivot is positive and
+    // finite
+    for (int l = 0; l < W; ++l) ok[l] = true;
+    for (int i = 0; i < D; ++i)
+        for (int j = 0; j <= i; ++j)
+            for (int l = 0; l < W; ++l) {
+                double sum = S[(i * D + j) * W + l];
+                for (int k = 0; k < j; ++k) sum -= Lw[(i * D + k) * W + l] * Lw[(j * D + k) * W + l];
+                if (i == j) {
+                    const bool pd = sum > 0.0 && std::isfinite(sum);
+                    ok[l] = ok[l] && pd;
+                    Lw[(i * D + i) * W + l] = pd ? std::sqrt(sum) : 1.0;
+                    inv[i * W + l] = 1.0 / Lw[(i * D + i) * W + l];
+                } else {
+                    Lw[(i * D + j) * W + l] = sum * inv[j * W + l];
+                }
             }
     bool any = false;
     for (int l = 0; l < W; ++l) {
-        if (S_out[l]) std::copy(S + l * dd, S + (l + 1) * dd, S_out[l]);
-        ok[l] = cholesky<D_>(D, S + l * dd, Lw + l * dd, inv + l * D);
         if (!ok[l])
             for (int a = 0; a < D; ++a) {
-                for (int b = 0; b <= a; ++b) Lw[l * dd + a * D + b] = a == b ? 1.0 : 0.0;
-                inv[l * D + a] = 1.0;
+                for (int b = 0; b <= a; ++b) Lw[(a * D + b) * W + l] = a == b ? 1.0 : 0.0;
+                inv[a * W + l] = 1.0;
             }
         any = any || ok[l];
     }
@@ -208,33 +202,42 @@ void kalman_lanes(int n, int D, double* const* delta, double* const* P, const do
     for (int l = 0; l < W; ++l) q[l] = 0.0;
     for (int a = 0; a < D; ++a)
         for (int l = 0; l < W; ++l) {
-            const double* Ll = Lw + l * dd;
-            double* ul = u + l * D;
-            double s = y[l][a];
-            for (int k = 0; k < n; ++k) s -= H[l][a * n + k] * delta[l][k];
-            for (int k = 0; k < a; ++k) s -= Ll[a * D + k] * ul[k];
-            ul[a] = s * inv[l * D + a];
-            q[l] += ul[a] * ul[a];
-            logdet[l].times(Ll[a * D + a]);
+            double s = yl[a * W + l];
+            for (int k = 0; k < n; ++k) s -= Hl[(a * n + k) * W + l] * dl[k * W + l];
+            for (int k = 0; k < a; ++k) s -= Lw[(a * D + k) * W + l] * u[k * W + l];
+            u[a * W + l] = s * inv[a * W + l];
+            q[l] += u[a * W + l] * u[a * W + l];
         }
-    for (int l = 0; l < W; ++l) nis[l] += q[l];
+    for (int l = 0; l < W; ++l) {
+        nis[l] += q[l];
+        for (int a = 0; a < D; ++a) logdet[l].times(Lw[(a * D + a) * W + l]);
+    }
     for (int a = D - 1; a >= 0; --a)  // u = S⁻¹ y' (Lᵀ u = L⁻¹ y')
         for (int l = 0; l < W; ++l) {
-            double* ul = u + l * D;
-            double s = ul[a];
-            for (int k = a + 1; k < D; ++k) s -= Lw[l * dd + k * D + a] * ul[k];
-            ul[a] = s * inv[l * D + a];
+            double s = u[a * W + l];
+            for (int k = a + 1; k < D; ++k) s -= Lw[(k * D + a) * W + l] * u[k * W + l];
+            u[a * W + l] = s * inv[a * W + l];
         }
-    for (int i = 0; i < n; ++i)  // row i of K = P Hᵀ S⁻¹; δ += P Hᵀ S⁻¹ y'
+    for (int i = 0; i < n; ++i) {  // row i of K = P Hᵀ S⁻¹ (L Lᵀ Kᵢᵀ = (P Hᵀ)ᵢᵀ); δ += P Hᵀ u
+        for (int a = 0; a < D; ++a)
+            for (int l = 0; l < W; ++l) {
+                double s = PHt[(i * D + a) * W + l];
+                for (int k = 0; k < a; ++k) s -= Lw[(a * D + k) * W + l] * K[(i * D + k) * W + l];
+                K[(i * D + a) * W + l] = s * inv[a * W + l];
+            }
+        for (int a = D - 1; a >= 0; --a)
+            for (int l = 0; l < W; ++l) {
+                double s = K[(i * D + a) * W + l];
+                for (int k = a + 1; k < D; ++k)
+                    s -= Lw[(k * D + a) * W + l] * K[(i * D + k) * W + l];
+                K[(i * D + a) * W + l] = s * inv[a * W + l];
+            }
         for (int l = 0; l < W; ++l) {
-            double* Kl = K + l * nD;
-            const double* Pl = PHt + l * nD;
-            std::copy(Pl + i * D, Pl + (i + 1) * D, Kl + i * D);
-            cholesky_solve<D_>(D, Lw + l * dd, inv + l * D, Kl + i * D);
             double s = 0.0;
-            for (int a = 0; a < D; ++a) s += Pl[i * D + a] * u[l * D + a];
-            delta[l][i] += s;
+            for (int a = 0; a < D; ++a) s += PHt[(i * D + a) * W + l] * u[a * W + l];
+            dl[i * W + l] += s;
         }
+    }
     // Joseph form P = (I - KH) P (I - KH)ᵀ + K R Kᵀ rather than Eq. 28's P - K S Kᵀ: a sum of
     // two congruences, so P stays symmetric positive semi-definite under rounding (and for any
     // gain, e.g. a robust filter's reweighted one), even after many updates or with a reading
@@ -244,29 +247,32 @@ void kalman_lanes(int n, int D, double* const* delta, double* const* P, const do
     for (int i = 0; i < n; ++i)
         for (int j = 0; j < n; ++j)
             for (int l = 0; l < W; ++l) {
-                double s = P[l][i * n + j];
-                for (int a = 0; a < D; ++a) s -= K[l * nD + i * D + a] * PHt[l * nD + j * D + a];
-                AP[l * nn + i * n + j] = s;
+                double s = Pl[(i * n + j) * W + l];
+                for (int a = 0; a < D; ++a)
+                    s -= K[(i * D + a) * W + l] * PHt[(j * D + a) * W + l];
+                AP[(i * n + j) * W + l] = s;
             }
     for (int i = 0; i < n; ++i)  // KR ← AP Hᵀ - K R
         for (int b = 0; b < D; ++b)
             for (int l = 0; l < W; ++l) {
                 double s = 0.0;
-                for (int k = 0; k < n; ++k) s += AP[l * nn + i * n + k] * H[l][b * n + k];
-                for (int a = 0; a < D; ++a) s -= K[l * nD + i * D + a] * R[l][a * D + b];
-                KR[l * nD + i * D + b] = s;
+                for (int k = 0; k < n; ++k) s += AP[(i * n + k) * W + l] * Hl[(b * n + k) * W + l];
+                for (int a = 0; a < D; ++a) s -= K[(i * D + a) * W + l] * Rl[(a * D + b) * W + l];
+                KR[(i * D + b) * W + l] = s;
             }
     for (int i = 0; i < n; ++i)
         for (int j = 0; j < n; ++j)
             for (int l = 0; l < W; ++l) {
-                double s = AP[l * nn + i * n + j];
-                for (int b = 0; b < D; ++b) s -= KR[l * nD + i * D + b] * K[l * nD + j * D + b];
-                A[l * nn + i * n + j] = s;
+                double s = AP[(i * n + j) * W + l];
+                for (int b = 0; b < D; ++b) s -= KR[(i * D + b) * W + l] * K[(j * D + b) * W + l];
+                A[(i * n + j) * W + l] = s;
             }
-    for (int i = 0; i < n; ++i)  // symmetrized, into P (read no more)
-        for (int j = 0; j < n; ++j)
-            for (int l = 0; l < W; ++l)
-                P[l][i * n + j] = 0.5 * (A[l * nn + i * n + j] + A[l * nn + j * n + i]);
+    for (int l = 0; l < W; ++l) {  // symmetrized, into P; δ
+        for (int i = 0; i < n; ++i)
+            for (int j = 0; j < n; ++j)
+                P[l][i * n + j] = 0.5 * (A[(i * n + j) * W + l] + A[(j * n + i) * W + l]);
+        for (int i = 0; i < n; ++i) delta[l][i] = dl[i * W + l];
+    }
 }
 
 // One filter's block (kalman_lanes with one lane); false (nothing updated) when S is not
