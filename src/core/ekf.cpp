@@ -1629,18 +1629,12 @@ void register_ekf(nb::module_& m) {
                 throw nb::value_error("present and signature must be (..., m)");
             const uint8_t* const pr = reinterpret_cast<const uint8_t*>(present.data());
             const size_t ps = check_params(params, B);
-            // two packed outputs (one NumPy array each costs more than the arithmetic here),
-            // each of sections (the filters' values of one quantity after another, so that
-            // each is a contiguous array, e.g. the state that the next prediction reads):
-            // floats x (B, 3), P (B, 9), y (B, m d), S (B, m d d), d² (B, m), loglik (B),
-            // nis (B); integers status (B, m), landmark (B, m)
-            auto fo = new_result_like(x, 0, {B * (14 + mm * (d + d * d + 1))});
-            auto io = new_result_like<int64_t>(x, 0, {2 * B * mm});
-            double *const xo = fo.data, *const Po = xo + 3 * B, *const yo = Po + 9 * B;
-            double *const So = yo + B * mm * d, *const d2o = So + B * mm * d * d;
-            double *const llo = d2o + B * mm, *const niso = llo + B;
-            std::copy(x.data(), x.data() + 3 * B, xo);
-            std::copy(P.data(), P.data() + 9 * B, Po);
+            // two packed outputs (one NumPy array each costs more than the arithmetic here):
+            // floats per filter x (3), P (9), y (m d), S (m d d), d² (m), loglik, nis;
+            // integers per filter status (m), landmark (m)
+            const size_t F = 12 + mm * (d + d * d + 1) + 2, I = 2 * mm;
+            auto fo = new_result_like(x, n - 1, {F});
+            auto io = new_result_like<int64_t>(x, n - 1, {I});
             std::vector<int8_t> st(LANES * mm);
             std::vector<int32_t> lmo(LANES * mm);
             std::vector<int64_t> cands(2 * LANES * mm);
@@ -1650,24 +1644,28 @@ void register_ekf(nb::module_& m) {
                 Totals totals[LANES];
                 for (int l = 0; l < W; ++l) {
                     const size_t b = b0 + l;
+                    double* f = fo.data + b * F;
+                    std::copy(x.data() + 3 * b, x.data() + 3 * b + 3, f);
+                    std::copy(P.data() + 9 * b, P.data() + 9 * b + 9, f + 3);
                     int64_t* cl = cands.data() + 2 * mm * l;
                     if (opt.signatures)
                         signature_candidates(map, static_cast<int64_t>(mm),
                                              signature.data() + b * mm, cl);
-                    calls[l] = {xo + 3 * b, Po + 9 * b, static_cast<int64_t>(mm),
-                                z.data() + b * mm * d, pr + b * mm, cl, params.data() + b * ps,
-                                ReadingOut{yo + b * mm * d, So + b * mm * d * d, d2o + b * mm,
+                    calls[l] = {f, f + 3, static_cast<int64_t>(mm), z.data() + b * mm * d,
+                                pr + b * mm, cl, params.data() + b * ps,
+                                ReadingOut{f + 12, f + 12 + mm * d, f + 12 + mm * (d + d * d),
                                            st.data() + mm * l, lmo.data() + mm * l},
                                 &totals[l]};
                 }
                 correct_filters(W, calls, map, opt);
                 for (int l = 0; l < W; ++l) {
                     const size_t b = b0 + l;
-                    llo[b] = totals[l].loglik;
-                    niso[b] = totals[l].nis;
+                    double* f = fo.data + b * F;
+                    int64_t* iv = io.data + b * I;
+                    f[F - 2] = totals[l].loglik;
+                    f[F - 1] = totals[l].nis;
                     for (size_t i = 0; i < mm; ++i)
-                        io.data[b * mm + i] = st[mm * l + i],
-                        io.data[(B + b) * mm + i] = lmo[mm * l + i];
+                        iv[i] = st[mm * l + i], iv[mm + i] = lmo[mm * l + i];
                 }
             }
             return nb::make_tuple(fo.array, io.array);
@@ -1678,7 +1676,7 @@ void register_ekf(nb::module_& m) {
         nb::arg("gate2"), nb::arg("joint_gate2"), nb::arg("jcbb_nodes"),
         "Association, gating and one stacked correction per filter of the readings of one time "
         "stamp (each filter its own readings): x (..., 3), P (..., 3, 3), z (..., m, d), "
-        "present and signature (..., m) of one batch; two packed outputs of sections (see above).");
+        "present and signature (..., m) of one batch; packed outputs (..., F) and (..., I).");
 
     m.def(
         "ekf_run",

@@ -690,24 +690,19 @@ def correct_landmarks(
     x, P = state.mean, state.cov  # (float64 already: broadcast if the batch is larger)
     if x.shape[:-1] != batch:
         x, P = np.broadcast_to(x, (*batch, 3)), np.broadcast_to(P, (*batch, 3, 3))
-    # two packed outputs of sections, each a contiguous array (see the core's
-    # ekf_correct_readings): x, P, y, S, d², loglik, nis of the n filters; status, landmark
+    # packed outputs (*batch, F) and (*batch, I): see the core's ekf_correct_readings
     f, i = _core.ekf_correct_readings(
         x, P, _rows(z, np.float64, (*rows, d)), present, sig, lmap._core, params,
         1 if range_only else 0, _NOISE_MODELS[sensor.noise_model], method, cost,
         signatures is not None, gate2, joint, _JCBB_NODES,
     )  # fmt: skip
-    n = x.size // 3
-    e1, e2 = 12 * n, (12 + m * d) * n
-    e3 = e2 + m * d * d * n
-    e4 = e3 + m * n
-    y, S = f[e1:e2].reshape(*rows, d), f[e2:e3].reshape(*rows, d, d)
+    e, e2 = 12 + m * d, 12 + m * d + m * d * d
+    y, S = f[..., 12:e].reshape(*rows, d), f[..., e:e2].reshape(*rows, d, d)
     if range_only:
         y, S = y[..., 0], S[..., 0, 0]
     return LandmarkUpdate(
-        AT._trusted(f[: 3 * n].reshape(*batch, 3), f[3 * n : e1].reshape(*batch, 3, 3)),
-        i[m * n :].reshape(rows), f[e3:e4].reshape(rows), i[: m * n].reshape(rows), y, S,
-        f[e4 : e4 + n].reshape(batch), f[e4 + n :].reshape(batch),
+        AT._trusted(f[..., :3], f[..., 3:12].reshape(*batch, 3, 3)), i[..., m : 2 * m],
+        f[..., e2 : e2 + m], i[..., :m], y, S, f[..., -2], f[..., -1],
     )  # fmt: skip
 
 
