@@ -1629,12 +1629,16 @@ void register_ekf(nb::module_& m) {
                 throw nb::value_error("present and signature must be (..., m)");
             const uint8_t* const pr = reinterpret_cast<const uint8_t*>(present.data());
             const size_t ps = check_params(params, B);
-            // two packed outputs (one NumPy array each costs more than the arithmetic here):
-            // floats per filter x (3), P (9), y (m d), S (m d d), d² (m), loglik, nis;
-            // integers per filter status (m), landmark (m)
-            const size_t F = 12 + mm * (d + d * d + 1) + 2, I = 2 * mm;
+            // the state x, P (contiguous, as the next prediction reads it) and two packed
+            // outputs (one NumPy array each costs more than the arithmetic here): floats per
+            // filter y (m d), S (m d d), d² (m), loglik, nis; integers per filter status (m),
+            // landmark (m)
+            const size_t F = mm * (d + d * d + 1) + 2, I = 2 * mm;
+            auto xo = new_result_like(x, n), Po = new_result_like(P, n + 1);
             auto fo = new_result_like(x, n - 1, {F});
             auto io = new_result_like<int64_t>(x, n - 1, {I});
+            std::copy(x.data(), x.data() + 3 * B, xo.data);
+            std::copy(P.data(), P.data() + 9 * B, Po.data);
             std::vector<int8_t> st(LANES * mm);
             std::vector<int32_t> lmo(LANES * mm);
             std::vector<int64_t> cands(2 * LANES * mm);
@@ -1645,15 +1649,13 @@ void register_ekf(nb::module_& m) {
                 for (int l = 0; l < W; ++l) {
                     const size_t b = b0 + l;
                     double* f = fo.data + b * F;
-                    std::copy(x.data() + 3 * b, x.data() + 3 * b + 3, f);
-                    std::copy(P.data() + 9 * b, P.data() + 9 * b + 9, f + 3);
                     int64_t* cl = cands.data() + 2 * mm * l;
                     if (opt.signatures)
                         signature_candidates(map, static_cast<int64_t>(mm),
                                              signature.data() + b * mm, cl);
-                    calls[l] = {f, f + 3, static_cast<int64_t>(mm), z.data() + b * mm * d,
-                                pr + b * mm, cl, params.data() + b * ps,
-                                ReadingOut{f + 12, f + 12 + mm * d, f + 12 + mm * (d + d * d),
+                    calls[l] = {xo.data + 3 * b, Po.data + 9 * b, static_cast<int64_t>(mm),
+                                z.data() + b * mm * d, pr + b * mm, cl, params.data() + b * ps,
+                                ReadingOut{f, f + mm * d, f + mm * (d + d * d),
                                            st.data() + mm * l, lmo.data() + mm * l},
                                 &totals[l]};
                 }
@@ -1668,7 +1670,7 @@ void register_ekf(nb::module_& m) {
                         iv[i] = st[mm * l + i], iv[mm + i] = lmo[mm * l + i];
                 }
             }
-            return nb::make_tuple(fo.array, io.array);
+            return nb::make_tuple(xo.array, Po.array, fo.array, io.array);
         },
         nb::arg("x"), nb::arg("P"), nb::arg("z"), nb::arg("present"), nb::arg("signature"),
         nb::arg("map"), nb::arg("params"), nb::arg("sensor"),
@@ -1676,7 +1678,7 @@ void register_ekf(nb::module_& m) {
         nb::arg("gate2"), nb::arg("joint_gate2"), nb::arg("jcbb_nodes"),
         "Association, gating and one stacked correction per filter of the readings of one time "
         "stamp (each filter its own readings): x (..., 3), P (..., 3, 3), z (..., m, d), "
-        "present and signature (..., m) of one batch; packed outputs (..., F) and (..., I).");
+        "present and signature (..., m) of one batch; x, P and packed outputs (..., F), (..., I).");
 
     m.def(
         "ekf_run",
