@@ -46,6 +46,19 @@ inline double log_density(double d2, double logdet, int D, double nu) {
            0.5 * logdet - 0.5 * (nu + D) * std::log1p(d2 / nu);
 }
 
+// log det S of a stacked update, from the diagonals of its blocks' Cholesky factors
+// (log det S = 2 log Π Lᵢᵢ): their product, with one log at the end rather than one per block
+// (a time stamp's readings are blocks of one update); the product is taken in pieces that can
+// neither overflow nor underflow.
+struct LogDet {
+    double log = 0.0, prod = 1.0;
+    void times(double l) {
+        prod *= l;
+        if (!(prod > 1e-150 && prod < 1e150)) log += std::log(prod), prod = 1.0;
+    }
+    double value() const { return 2.0 * (log + std::log(prod)); }
+};
+
 // Scratch of SIZE doubles: on the stack when the size is known at compile time (SIZE > 0),
 // else a vector of the runtime size.
 template <int SIZE>
@@ -60,41 +73,6 @@ struct Scratch<0> {
     explicit Scratch(size_t n) : a(n) {}
     double* data() { return a.data(); }
 };
-
-// Lower Cholesky factor of the D × D matrix S (row-major) into Lw; false unless S is positive
-// definite with finite entries. D_ > 0 fixes the size at compile time.
-template <int D_>
-RELMAP_INLINE bool cholesky(int D, const double* S, double* Lw) {
-    if (D_ > 0) D = D_;
-    for (int i = 0; i < D; ++i)
-        for (int j = 0; j <= i; ++j) {
-            double sum = S[i * D + j];
-            for (int k = 0; k < j; ++k) sum -= Lw[i * D + k] * Lw[j * D + k];
-            if (i == j) {
-                if (!(sum > 0.0) || !std::isfinite(sum)) return false;
-                Lw[i * D + i] = std::sqrt(sum);
-            } else {
-                Lw[i * D + j] = sum / Lw[j * D + j];
-            }
-        }
-    return true;
-}
-
-// Solves L Lᵀ u = b in place (L from cholesky, inv its diagonal's reciprocals).
-template <int D_>
-RELMAP_INLINE void cholesky_solve(int D, const double* Lw, const double* inv, double* b) {
-    if (D_ > 0) D = D_;
-    for (int i = 0; i < D; ++i) {
-        double sum = b[i];
-        for (int k = 0; k < i; ++k) sum -= Lw[i * D + k] * b[k];
-        b[i] = sum * inv[i];
-    }
-    for (int i = D - 1; i >= 0; --i) {
-        double sum = b[i];
-        for (int k = i + 1; k < D; ++k) sum -= Lw[k * D + i] * b[k];
-        b[i] = sum * inv[i];
-    }
-}
 
 // P⁻ = F P Fᵀ + Q (n × n, row-major), symmetrized; out may alias P. N_ > 0 fixes n. Inlined:
 // a pose filter's F and Q then stay in registers (an out-of-line call had the odometry step
@@ -128,8 +106,9 @@ RELMAP_INLINE void predict_cov(int n, const double* F, const double* P, const do
 //   y' = y - H δ                  (what the blocks before did not explain: linear in δ)
 //   S = H P Hᵀ + R,  K = P Hᵀ S⁻¹,  δ ← δ + K y',
 //   P ← (I - KH) P (I - KH)ᵀ + K R Kᵀ   (Joseph form, see below)
-// and adds y'ᵀ S⁻¹ y' to nis and log det S to logdet. Blocks whose noises are independent (R
-// block diagonal) processed one after the other give exactly the stacked update of them all:
+// and adds y'ᵀ S⁻¹ y' to nis and log det S to logdet (a LogDet: one log per stacked update).
+// Blocks whose noises are independent (R block diagonal) processed one after the other give
+// exactly the stacked update of them all:
 // the stacked S factors into the blocks' S (its block Cholesky / Schur complements), so the
 // sums of nis and log det are the stacked yᵀS⁻¹y and log det S, and δ, P the stacked ones;
 // a 2k × 2k solve becomes k 2 × 2 ones. False (δ, P partly updated: the caller keeps copies)
@@ -140,90 +119,125 @@ RELMAP_INLINE void predict_cov(int n, const double* F, const double* P, const do
 // ok[l] whether its S is positive definite), each lane's arithmetic exactly that of the lane
 // alone. One block's steps depend on each other (P → S → its factor → K → P), so one filter's
 // blocks in turn leave the processor waiting; several filters' chains interleaved keep it busy
-// (the batch runners take their filters LANES at a time). With W = 1 it is kalman_block below;
-// the sizes known at run time (N_ = 0) have one lane. A lane whose S is not positive definite
-// goes on with a harmless factor (the identity) and its results are to be dropped.
+// (the batch runners take their filters LANES at a time). The lanes' inputs are gathered into
+// arrays with the lane innermost (entry e of lane l at e W + l), so that each step's loop over
+// the lanes is one over contiguous values, which the compiler vectorizes. With W = 1 it is
+// kalman_block below; the sizes known at run time (N_ = 0) have one lane. A lane whose S is not
+// positive definite goes on with a harmless factor (the identity) and its results are to be
+// dropped.
 template <int N_, int D_, int W>
 void kalman_lanes(int n, int D, double* const* delta, double* const* P, const double* const* y,
                   const double* const* H, const double* const* R, double* const* S_out,
-                  double* nis, double* logdet, bool* ok) {
+                  double* nis, LogDet* logdet, bool* ok) {
     static_assert(W >= 1 && (N_ > 0 || W == 1), "lanes need sizes known at compile time");
     if (N_ > 0) n = N_;
     if (D_ > 0) D = D_;
-    constexpr int ND = N_ * D_ * W, DD = D_ * D_ * W, NN = N_ * N_ * W, DW = D_ * W;
-    // lane l's matrices at l × their size
+    constexpr int NW = N_ * W, ND = N_ * D_ * W, DD = D_ * D_ * W, NN = N_ * N_ * W, DW = D_ * W;
     const size_t nD = static_cast<size_t>(n) * D, dd = static_cast<size_t>(D) * D,
                  nn = static_cast<size_t>(n) * n;
-    Scratch<ND> PHt_(ND ? 0 : nD), K_(ND ? 0 : nD), KR_(ND ? 0 : nD);
-    Scratch<DD> S_(DD ? 0 : dd), L_(DD ? 0 : dd);
-    Scratch<NN> A_(NN ? 0 : nn), AP_(NN ? 0 : nn);
-    Scratch<DW> u_(DW ? 0 : D), inv_(DW ? 0 : D);
+    Scratch<NW> dl_(NW ? 0 : n);
+    Scratch<ND> Hl_(ND ? 0 : nD), PHt_(ND ? 0 : nD), K_(ND ? 0 : nD), KR_(ND ? 0 : nD);
+    Scratch<DD> Rl_(DD ? 0 : dd), S_(DD ? 0 : dd), L_(DD ? 0 : dd);
+    Scratch<NN> Pl_(NN ? 0 : nn), A_(NN ? 0 : nn), AP_(NN ? 0 : nn);
+    Scratch<DW> yl_(DW ? 0 : D), u_(DW ? 0 : D), inv_(DW ? 0 : D);
+    double *dl = dl_.data(), *Hl = Hl_.data(), *Rl = Rl_.data(), *Pl = Pl_.data(),
+           *yl = yl_.data();
     double *PHt = PHt_.data(), *K = K_.data(), *KR = KR_.data(), *S = S_.data(), *Lw = L_.data();
     double *A = A_.data(), *AP = AP_.data(), *u = u_.data(), *inv = inv_.data();
+    for (int l = 0; l < W; ++l) {  // the lanes' inputs, lane innermost
+        for (size_t e = 0; e < nn; ++e) Pl[e * W + l] = P[l][e];
+        for (size_t e = 0; e < nD; ++e) Hl[e * W + l] = H[l][e];
+        for (size_t e = 0; e < dd; ++e) Rl[e * W + l] = R[l][e];
+        for (int e = 0; e < D; ++e) yl[e * W + l] = y[l][e];
+        for (int e = 0; e < n; ++e) dl[e * W + l] = delta[l][e];
+    }
     for (int i = 0; i < n; ++i)  // P Hᵀ
         for (int a = 0; a < D; ++a)
             for (int l = 0; l < W; ++l) {
                 double s = 0.0;
-                for (int k = 0; k < n; ++k) s += P[l][i * n + k] * H[l][a * n + k];
-                PHt[l * nD + i * D + a] = s;
+                for (int k = 0; k < n; ++k) s += Pl[(i * n + k) * W + l] * Hl[(a * n + k) * W + l];
+                PHt[(i * D + a) * W + l] = s;
             }
     for (int a = 0; a < D; ++a)  // S = H P Hᵀ + R, symmetrized
         for (int b = 0; b <= a; ++b)
             for (int l = 0; l < W; ++l) {
                 double s = 0.0;
-                for (int k = 0; k < n; ++k) s += H[l][a * n + k] * PHt[l * nD + k * D + b];
-                S[l * dd + a * D + b] = S[l * dd + b * D + a] =
-                    s + 0.5 * (R[l][a * D + b] + R[l][b * D + a]);
+                for (int k = 0; k < n; ++k) s += Hl[(a * n + k) * W + l] * PHt[(k * D + b) * W + l];
+                S[(a * D + b) * W + l] = S[(b * D + a) * W + l] =
+                    s + 0.5 * (Rl[(a * D + b) * W + l] + Rl[(b * D + a) * W + l]);
+            }
+    for (int l = 0; l < W; ++l)
+        if (S_out[l])
+            for (size_t e = 0; e < dd; ++e) S_out[l][e] = S[e * W + l];
+    // S's lower Cholesky factor L and its diagonal's reciprocals (one division per row, the
+    // rest multiplications); a lane's S is positive definite if every pivot is positive and
+    // finite
+    for (int l = 0; l < W; ++l) ok[l] = true;
+    for (int i = 0; i < D; ++i)
+        for (int j = 0; j <= i; ++j)
+            for (int l = 0; l < W; ++l) {
+                double sum = S[(i * D + j) * W + l];
+                for (int k = 0; k < j; ++k) sum -= Lw[(i * D + k) * W + l] * Lw[(j * D + k) * W + l];
+                if (i == j) {
+                    const bool pd = sum > 0.0 && std::isfinite(sum);
+                    ok[l] = ok[l] && pd;
+                    Lw[(i * D + i) * W + l] = pd ? std::sqrt(sum) : 1.0;
+                    inv[i * W + l] = 1.0 / Lw[(i * D + i) * W + l];
+                } else {
+                    Lw[(i * D + j) * W + l] = sum * inv[j * W + l];
+                }
             }
     bool any = false;
     for (int l = 0; l < W; ++l) {
-        if (S_out[l]) std::copy(S + l * dd, S + (l + 1) * dd, S_out[l]);
-        ok[l] = cholesky<D_>(D, S + l * dd, Lw + l * dd);
         if (!ok[l])
-            for (int a = 0; a < D; ++a)
-                for (int b = 0; b <= a; ++b) Lw[l * dd + a * D + b] = a == b ? 1.0 : 0.0;
+            for (int a = 0; a < D; ++a) {
+                for (int b = 0; b <= a; ++b) Lw[(a * D + b) * W + l] = a == b ? 1.0 : 0.0;
+                inv[a * W + l] = 1.0;
+            }
         any = any || ok[l];
     }
     if (!any) return;
-    for (int l = 0; l < W; ++l)
-        for (int a = 0; a < D; ++a) inv[l * D + a] = 1.0 / Lw[l * dd + a * D + a];
-    // y'ᵀ S⁻¹ y' = |L⁻¹ y'|², log det S = 2 log Π Lᵢᵢ (one log; the product is taken in
-    // pieces that can neither overflow nor underflow)
-    double q[W], ld[W], prod[W];
-    for (int l = 0; l < W; ++l) q[l] = 0.0, ld[l] = 0.0, prod[l] = 1.0;
+    // y'ᵀ S⁻¹ y' = |L⁻¹ y'|², log det S = 2 log Π Lᵢᵢ
+    double q[W];
+    for (int l = 0; l < W; ++l) q[l] = 0.0;
     for (int a = 0; a < D; ++a)
         for (int l = 0; l < W; ++l) {
-            const double* Ll = Lw + l * dd;
-            double* ul = u + l * D;
-            double s = y[l][a];
-            for (int k = 0; k < n; ++k) s -= H[l][a * n + k] * delta[l][k];
-            for (int k = 0; k < a; ++k) s -= Ll[a * D + k] * ul[k];
-            ul[a] = s * inv[l * D + a];
-            q[l] += ul[a] * ul[a];
-            prod[l] *= Ll[a * D + a];
-            if (!(prod[l] > 1e-150 && prod[l] < 1e150)) ld[l] += std::log(prod[l]), prod[l] = 1.0;
+            double s = yl[a * W + l];
+            for (int k = 0; k < n; ++k) s -= Hl[(a * n + k) * W + l] * dl[k * W + l];
+            for (int k = 0; k < a; ++k) s -= Lw[(a * D + k) * W + l] * u[k * W + l];
+            u[a * W + l] = s * inv[a * W + l];
+            q[l] += u[a * W + l] * u[a * W + l];
         }
     for (int l = 0; l < W; ++l) {
         nis[l] += q[l];
-        logdet[l] += 2.0 * (ld[l] + std::log(prod[l]));
+        for (int a = 0; a < D; ++a) logdet[l].times(Lw[(a * D + a) * W + l]);
     }
     for (int a = D - 1; a >= 0; --a)  // u = S⁻¹ y' (Lᵀ u = L⁻¹ y')
         for (int l = 0; l < W; ++l) {
-            double* ul = u + l * D;
-            double s = ul[a];
-            for (int k = a + 1; k < D; ++k) s -= Lw[l * dd + k * D + a] * ul[k];
-            ul[a] = s * inv[l * D + a];
+            double s = u[a * W + l];
+            for (int k = a + 1; k < D; ++k) s -= Lw[(k * D + a) * W + l] * u[k * W + l];
+            u[a * W + l] = s * inv[a * W + l];
         }
-    for (int i = 0; i < n; ++i)  // row i of K = P Hᵀ S⁻¹; δ += P Hᵀ S⁻¹ y'
+    for (int i = 0; i < n; ++i) {  // row i of K = P Hᵀ S⁻¹ (L Lᵀ Kᵢᵀ = (P Hᵀ)ᵢᵀ); δ += P Hᵀ u
+        for (int a = 0; a < D; ++a)
+            for (int l = 0; l < W; ++l) {
+                double s = PHt[(i * D + a) * W + l];
+                for (int k = 0; k < a; ++k) s -= Lw[(a * D + k) * W + l] * K[(i * D + k) * W + l];
+                K[(i * D + a) * W + l] = s * inv[a * W + l];
+            }
+        for (int a = D - 1; a >= 0; --a)
+            for (int l = 0; l < W; ++l) {
+                double s = K[(i * D + a) * W + l];
+                for (int k = a + 1; k < D; ++k)
+                    s -= Lw[(k * D + a) * W + l] * K[(i * D + k) * W + l];
+                K[(i * D + a) * W + l] = s * inv[a * W + l];
+            }
         for (int l = 0; l < W; ++l) {
-            double* Kl = K + l * nD;
-            const double* Pl = PHt + l * nD;
-            std::copy(Pl + i * D, Pl + (i + 1) * D, Kl + i * D);
-            cholesky_solve<D_>(D, Lw + l * dd, inv + l * D, Kl + i * D);
             double s = 0.0;
-            for (int a = 0; a < D; ++a) s += Pl[i * D + a] * u[l * D + a];
-            delta[l][i] += s;
+            for (int a = 0; a < D; ++a) s += PHt[(i * D + a) * W + l] * u[a * W + l];
+            dl[i * W + l] += s;
         }
+    }
     // Joseph form P = (I - KH) P (I - KH)ᵀ + K R Kᵀ rather than Eq. 28's P - K S Kᵀ: a sum of
     // two congruences, so P stays symmetric positive semi-definite under rounding (and for any
     // gain, e.g. a robust filter's reweighted one), even after many updates or with a reading
@@ -233,36 +247,39 @@ void kalman_lanes(int n, int D, double* const* delta, double* const* P, const do
     for (int i = 0; i < n; ++i)
         for (int j = 0; j < n; ++j)
             for (int l = 0; l < W; ++l) {
-                double s = P[l][i * n + j];
-                for (int a = 0; a < D; ++a) s -= K[l * nD + i * D + a] * PHt[l * nD + j * D + a];
-                AP[l * nn + i * n + j] = s;
+                double s = Pl[(i * n + j) * W + l];
+                for (int a = 0; a < D; ++a)
+                    s -= K[(i * D + a) * W + l] * PHt[(j * D + a) * W + l];
+                AP[(i * n + j) * W + l] = s;
             }
     for (int i = 0; i < n; ++i)  // KR ← AP Hᵀ - K R
         for (int b = 0; b < D; ++b)
             for (int l = 0; l < W; ++l) {
                 double s = 0.0;
-                for (int k = 0; k < n; ++k) s += AP[l * nn + i * n + k] * H[l][b * n + k];
-                for (int a = 0; a < D; ++a) s -= K[l * nD + i * D + a] * R[l][a * D + b];
-                KR[l * nD + i * D + b] = s;
+                for (int k = 0; k < n; ++k) s += AP[(i * n + k) * W + l] * Hl[(b * n + k) * W + l];
+                for (int a = 0; a < D; ++a) s -= K[(i * D + a) * W + l] * Rl[(a * D + b) * W + l];
+                KR[(i * D + b) * W + l] = s;
             }
     for (int i = 0; i < n; ++i)
         for (int j = 0; j < n; ++j)
             for (int l = 0; l < W; ++l) {
-                double s = AP[l * nn + i * n + j];
-                for (int b = 0; b < D; ++b) s -= KR[l * nD + i * D + b] * K[l * nD + j * D + b];
-                A[l * nn + i * n + j] = s;
+                double s = AP[(i * n + j) * W + l];
+                for (int b = 0; b < D; ++b) s -= KR[(i * D + b) * W + l] * K[(j * D + b) * W + l];
+                A[(i * n + j) * W + l] = s;
             }
-    for (int i = 0; i < n; ++i)  // symmetrized, into P (read no more)
-        for (int j = 0; j < n; ++j)
-            for (int l = 0; l < W; ++l)
-                P[l][i * n + j] = 0.5 * (A[l * nn + i * n + j] + A[l * nn + j * n + i]);
+    for (int l = 0; l < W; ++l) {  // symmetrized, into P; δ
+        for (int i = 0; i < n; ++i)
+            for (int j = 0; j < n; ++j)
+                P[l][i * n + j] = 0.5 * (A[(i * n + j) * W + l] + A[(j * n + i) * W + l]);
+        for (int i = 0; i < n; ++i) delta[l][i] = dl[i * W + l];
+    }
 }
 
 // One filter's block (kalman_lanes with one lane); false (nothing updated) when S is not
 // positive definite.
 template <int N_, int D_>
 bool kalman_block(int n, int D, double* delta, double* P, const double* y, const double* H,
-                  const double* R, double* S_out, double& nis, double& logdet) {
+                  const double* R, double* S_out, double& nis, LogDet& logdet) {
     bool ok;
     kalman_lanes<N_, D_, 1>(n, D, &delta, &P, &y, &H, &R, &S_out, &nis, &logdet, &ok);
     return ok;
@@ -282,7 +299,8 @@ bool kalman_update(int n, int D, double* x, double* P, const double* y, const do
     thread_local std::vector<double> delta, Pw;
     delta.assign(n, 0.0);
     Pw.assign(P, P + static_cast<size_t>(n) * n);
-    double q = 0.0, ld = 0.0;
+    double q = 0.0;
+    LogDet ld;
     if (!kalman_block<0, 0>(n, D, delta.data(), Pw.data(), y, H, R, S, q, ld)) return false;
     bool finite = true;
     for (double v : Pw) finite = finite && std::isfinite(v);
@@ -291,7 +309,7 @@ bool kalman_update(int n, int D, double* x, double* P, const double* y, const do
     for (int i = 0; i < n; ++i) x[i] += delta[i];
     std::copy(Pw.begin(), Pw.end(), P);
     *nis = q;
-    *logdet = ld;
+    *logdet = ld.value();
     return true;
 }
 
@@ -368,7 +386,7 @@ inline double bearing_variance(double r, const double* p, const Options& opt) {
 // R's diagonal (d); ok false for 0/0 (the landmark at the sensor, or S not positive definite).
 // Rx: R's off-diagonal entry (0 for a landmark's reading; a mixture's spread, see mix_reading).
 struct Predicted {
-    double h[2], H[6], S[4], R[2], det;
+    double h[2], H[6], S[4], R[2], det, inv_det;  // inv_det = 1 / det
     bool ok;
     double Rx = 0.0;
 };
@@ -380,7 +398,9 @@ struct Pair {
 };
 
 // The innovation covariance S = H P Hᵀ + R of a predicted reading (d × d; R diagonal
-// but for Rx off it), its determinant, and whether S is positive definite. D_ > 0 fixes d.
+// but for Rx off it), its determinant and the determinant's reciprocal (for the readings' d²:
+// one division per prediction, not per pair), and whether S is positive definite. D_ > 0
+// fixes d.
 template <int D_>
 RELMAP_INLINE void innovation_cov(Predicted& out, const double* P, int d) {
     if (D_ > 0) d = D_;
@@ -395,6 +415,7 @@ RELMAP_INLINE void innovation_cov(Predicted& out, const double* P, int d) {
                 HP[a * 3] * out.H[b * 3] + HP[a * 3 + 1] * out.H[b * 3 + 1] +
                 HP[a * 3 + 2] * out.H[b * 3 + 2];
     out.det = d == 2 ? out.S[0] * out.S[3] - out.S[1] * out.S[1] : out.S[0];
+    out.inv_det = 1.0 / out.det;
     out.ok = out.det > 0.0 && std::isfinite(out.det) && out.S[0] > 0.0;
 }
 
@@ -414,16 +435,19 @@ void predict_landmark(const SensorPose& sp, const double* P, const double* lm, c
     double scale = 1.0;
     if (opt.noise_model == PROPORTIONAL) scale = r;
     if (opt.noise_model == QUADRATIC) scale = q;
+    // one division: 1/r, and 1/r² as its square (a division's latency is that of many
+    // multiplications, and this is on every reading's path)
+    const double ir = 1.0 / r, iq = ir * ir;
     out.h[0] = r;
-    out.H[0] = -dx / r;
-    out.H[1] = -dy / r;
-    out.H[2] = (dx * oy - dy * ox) / r;  // through the mount: ∂sensor/∂θ = (-oy, ox)
+    out.H[0] = -dx * ir;
+    out.H[1] = -dy * ir;
+    out.H[2] = (dx * oy - dy * ox) * ir;  // through the mount: ∂sensor/∂θ = (-oy, ox)
     out.R[0] = range_variance(r, p, opt);
     if (d == 2) {
         out.h[1] = wrap(wrap(std::atan2(dy, dx) - sp.heading));
-        out.H[3] = dy / q;
-        out.H[4] = -dx / q;
-        out.H[5] = -(dy * oy + dx * ox) / q - 1.0;
+        out.H[3] = dy * iq;
+        out.H[4] = -dx * iq;
+        out.H[5] = -(dy * oy + dx * ox) * iq - 1.0;
         out.R[1] = (p[SIGMA_B] * scale) * (p[SIGMA_B] * scale);
     }
     out.Rx = 0.0;
@@ -431,8 +455,9 @@ void predict_landmark(const SensorPose& sp, const double* P, const double* lm, c
 }
 
 inline double mahalanobis2(const Predicted& pr, const double* v, int d) {
-    if (d == 1) return v[0] * v[0] / pr.S[0];
-    return (v[0] * v[0] * pr.S[3] - 2.0 * v[0] * v[1] * pr.S[1] + v[1] * v[1] * pr.S[0]) / pr.det;
+    if (d == 1) return v[0] * v[0] * pr.inv_det;
+    return (v[0] * v[0] * pr.S[3] - 2.0 * v[0] * v[1] * pr.S[1] + v[1] * v[1] * pr.S[0]) *
+           pr.inv_det;
 }
 
 // A pair's innovation v (d) given the correction δ (3) of the pairs before it: v - H δ.
@@ -448,7 +473,7 @@ inline void innovation_given(int d, const double* v, const double* H, const doub
 // W lanes: one pair of each of W filters (kalman_lanes); pair_block: one filter's.
 template <int W>
 void pair_lanes(int d, double* const* delta, double* const* P, const Pair* const* q,
-                const Predicted* const* pr, const double* w, double* nis, double* logdet,
+                const Predicted* const* pr, const double* w, double* nis, LogDet* logdet,
                 double* const* y_out, double* const* S_out, bool* ok) {
     double R[W][4];
     const double *Rp[W], *y[W], *H[W];
@@ -469,7 +494,7 @@ void pair_lanes(int d, double* const* delta, double* const* P, const Pair* const
 }
 
 inline bool pair_block(int d, double* delta, double* P, const Pair& q, const Predicted& pr,
-                       double w, double& nis, double& logdet, double* y_out = nullptr,
+                       double w, double& nis, LogDet& logdet, double* y_out = nullptr,
                        double* S_out = nullptr) {
     const Pair* qq = &q;
     const Predicted* pp = &pr;
@@ -547,7 +572,8 @@ inline double landmark_probability(const Pair& q, const Predicted& pr, int d, co
 // The joint d² of a set of pairs: the stacked innovation against its stacked S, pair by pair.
 double joint_d2(const std::vector<const Pair*>& pairs, const Predicted* pred,
                 const double* P, int d) {
-    double delta[3] = {0.0, 0.0, 0.0}, Pw[9], q = 0.0, ld = 0.0;
+    double delta[3] = {0.0, 0.0, 0.0}, Pw[9], q = 0.0;
+    LogDet ld;
     std::copy(P, P + 9, Pw);
     for (const Pair* p : pairs)
         if (!pair_block(d, delta, Pw, *p, pred[p->l], 1.0, q, ld)) return INF;
@@ -608,11 +634,19 @@ std::vector<const Pair*> jcbb(const std::vector<std::vector<const Pair*>>& optio
 
 namespace {
 
+// The part of the map where a reading's candidates whose bounds may not exceed a limit lie
+// (associate's window_of): ranges r0..r1 from the sensor and, range-bearing, within rho of the
+// point where the reading puts its landmark.
+struct Window {
+    double r0, r1, rho;
+};
+
 // The scratch of correct_readings.
 struct Work {
     std::vector<int8_t> status;
     std::vector<int32_t> landmark;
-    std::vector<double> nearest, zc, pair_d2, range, inv_bound, keys;
+    std::vector<double> nearest, zc, pair_d2, range, inv_bound, keys, point;
+    std::vector<Window> gate_window;
     std::vector<Predicted> pred;
     std::vector<char> done, taken, full;
     std::vector<Pair> pairs, mixed;  // mixed: a reading's mixture pair (mix_reading)
@@ -660,6 +694,8 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
     w.landmark.assign(m, -1);
     w.nearest.resize(m);
     w.zc.resize(m * d);
+    w.point.resize(2 * m);
+    w.gate_window.resize(m);
     w.pair_d2.assign(m, INF);
     w.lo.resize(m);
     w.hi.resize(m);
@@ -742,6 +778,29 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
     const double far_y = std::max(std::fabs(map.box[2] - sp.y), std::fabs(map.box[3] - sp.y));
     const double b_max =
         trace_gain + range_variance(std::sqrt(far_x * far_x + far_y * far_y), p, opt);
+    // The limit of the candidates' bounds for a least value (JCBB and the Mahalanobis cost: at
+    // least the gate's), with a margin for rounding: the bound is a bound of the exact values.
+    auto limit = [&](double least) {
+        const double t = by_d2 ? std::max(least, opt.gate2) : least;
+        return t * (1.0 + 1e-9) + 1e-300;
+    };
+    // The window of reading i for the limit tau (every landmark a candidate): ranges r0..r1 (the
+    // range bound: h² = τ max b, or τ for the Euclidean cost) and, range-bearing with the point
+    // bound (see collect), within rho of where the reading puts its landmark, the point bound's
+    // denominator at most its value with each term at its largest over r0..r1 (1/r terms at r0,
+    // the others at r1). (Rounding here is inside the margins.)
+    auto window_of = [&](int64_t i, double tau) {
+        const double zr = zc[i * d];
+        const double h = std::sqrt(by_d2 ? tau * b_max : tau) * (1.0 + 1e-6);
+        Window wd{zr - h, zr + h, INF};
+        if (d == 2 && by_d2 && zr > 0.0 && wd.r0 > 0.0) {
+            const double inv = 1.0 / wd.r0, u = 1.0 + mount_norm * inv;
+            const double b_phi = (inv * inv + u * u) * trace_p + bearing_variance(wd.r1, p, opt);
+            wd.rho = std::sqrt(tau * (trace_gain + range_variance(wd.r1, p, opt) +
+                                      wd.r1 * zr * b_phi));
+        }
+        return wd;
+    };
     // The landmarks that may lie in the annulus rlo <= r <= rhi around the sensor and within rho
     // of the point (px, py) (rho = INF: anywhere), each passed to f: the map's grid cells that
     // meet both (by the box of their landmarks), then each landmark's own squared distances, with
@@ -834,12 +893,7 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
                 for (int64_t k = 0; k < n; ++k) near[nn++] = ci[k];
             } else {
                 const double zr = zc[i * d];
-                // where the reading puts its landmark (range-bearing; range only: the sensor)
-                double px = sp.x, py = sp.y;
-                if (d == 2) {
-                    const double a = sp.heading + zc[i * d + 1];
-                    px = sp.x + zr * std::cos(a), py = sp.y + zr * std::sin(a);
-                }
+                const double px = w.point[2 * i], py = w.point[2 * i + 1];
                 auto dist2 = [&](int64_t l) {
                     const double ex = map.xy[2 * l] - px, ey = map.xy[2 * l + 1] - py;
                     return ex * ex + ey * ey;
@@ -855,8 +909,8 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
                     const double r = range[l], g = zr - r;
                     double k = by_d2 ? g * g * inv_bound[l] : g * g;
                     if (point) {
-                        const double u = 1.0 + mount_norm / r;
-                        const double b_phi = (1.0 / (r * r) + u * u) * trace_p +
+                        const double ir = 1.0 / r, u = 1.0 + mount_norm * ir;
+                        const double b_phi = (ir * ir + u * u) * trace_p +
                                              bearing_variance(r, p, opt);
                         const double kp = dist2(l) / (trace_gain + range_variance(r, p, opt) +
                                                       r * zr * b_phi);
@@ -868,45 +922,23 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
                     bound_of(l);
                     return keys[l] = bound_key(l);
                 };
-                // a margin for rounding: the bound is a bound of the exact values
-                auto limit = [&](double least) {
-                    const double t = by_d2 ? std::max(least, opt.gate2) : least;
-                    return t * (1.0 + 1e-9) + 1e-300;
-                };
-                // The candidates whose bound may not exceed tau, each passed to f: every one
-                // (signatures), or the region of the map of both bounds (all landmarks): ranges
-                // r0..r1 (the range bound) and, range-bearing, within rho of (px, py), the point
-                // bound's denominator at most its value with each term at its largest over
-                // r0..r1 (1/r terms at r0, the others at r1).
+                // The candidates whose bound does not exceed tau, in near (a NaN bound keeps
+                // one), from every candidate (signatures) or the reading's window wd in the map
+                // (all landmarks).
                 const bool window = !opt.signatures;
-                auto within = [&](double tau, auto&& f) {
-                    if (!window) {
-                        for (int64_t k = 0; k < n; ++k) f(ci[k]);
-                        return;
-                    }
-                    const double h = std::sqrt(by_d2 ? tau * b_max : tau) * (1.0 + 1e-6);
-                    const double r0 = zr - h, r1 = zr + h;
-                    double rho = INF;
-                    if (point && r0 > 0.0) {  // (rounding here is inside the margins)
-                        const double inv = 1.0 / r0, u = 1.0 + mount_norm * inv;
-                        const double b_phi =
-                            (inv * inv + u * u) * trace_p + bearing_variance(r1, p, opt);
-                        rho = std::sqrt(tau * (trace_gain + range_variance(r1, p, opt) +
-                                               r1 * zr * b_phi));
-                    }
-                    region(r0, r1, px, py, rho, f);
-                };
-                // the candidates whose bound does not exceed tau, in near (a NaN bound keeps one)
-                auto gather = [&](double tau) {
+                auto gather = [&](double tau, const Window& wd) {
                     nn = 0;
-                    within(tau, [&](int64_t l) {
+                    auto keep = [&](int64_t l) {
                         if (!(key_of(l) > tau)) near[nn++] = l;
-                    });
+                    };
+                    if (window)
+                        region(wd.r0, wd.r1, px, py, wd.rho, keep);
+                    else
+                        for (int64_t k = 0; k < n; ++k) keep(ci[k]);
                 };
                 bool settled = false;
                 if (by_d2) {  // τ is at least the gate's limit, that if a candidate is inside
-                    const double tau = limit(0.0);
-                    gather(tau);
+                    gather(limit(0.0), w.gate_window[i]);
                     for (int64_t j = 0; j < nn && !settled; ++j)
                         settled = value(i, near[j]) <= opt.gate2;
                 }
@@ -940,7 +972,7 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
                                    });
                     }
                     double least = value(i, first);
-                    gather(limit(least));
+                    gather(limit(least), window_of(i, limit(least)));
                     const double done_key = -1.0;  // marks a candidate evaluated
                     key_of(first);
                     keys[first] = done_key;
@@ -977,6 +1009,18 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
         if (d == 2) zc[i * d + 1] = zi[1] - p[BIAS_B];
         lo[i] = 0, hi[i] = map.L;
         if (opt.signatures) lo[i] = candidates[2 * i], hi[i] = candidates[2 * i + 1];
+        // A reading of several candidates: where it puts its landmark (range-bearing; range
+        // only: the sensor), and its window for the gate's limit, the first that collect looks
+        // in: computed here, for all readings before any search, so that their trigonometry,
+        // divisions and square roots (independent of each other) overlap.
+        if (hi[i] - lo[i] < 2) continue;
+        double* const pt = w.point.data() + 2 * i;
+        pt[0] = sp.x, pt[1] = sp.y;
+        if (d == 2) {
+            const double a = sp.heading + zc[i * d + 1];
+            pt[0] += zc[i * d] * std::cos(a), pt[1] += zc[i * d] * std::sin(a);
+        }
+        if (by_d2 && !opt.signatures) w.gate_window[i] = window_of(i, limit(0.0));
     }
     collect(opt.method == PER_LANDMARK);
     // chosen: each reading's pair (used or gated); update: the pairs of the stacked update
@@ -1141,7 +1185,7 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
 }
 
 void report(const Call& c, const Options& opt, Work& w, const double* delta, const double* Pn,
-            double nis, double logdet, bool ok);
+            double nis, LogDet logdet, bool ok);
 
 // The correction of W filters (each its own call and scratch), their association first, then
 // their updates side by side (kalman_lanes), then what each reports. (The filters of a batch
@@ -1157,7 +1201,8 @@ void correct_lanes(const Call* calls, const Map& map, const Options& opt) {
     // update, done pair by pair (kalman_block: each pair's noise is its own, so R is block
     // diagonal and the 2 × 2 blocks in turn are the stacked 2k × 2k update).
     struct Lane {
-        double delta[3] = {0.0, 0.0, 0.0}, Pn[9], nis = 0.0, logdet = 0.0, c2, lambda;
+        double delta[3] = {0.0, 0.0, 0.0}, Pn[9], nis = 0.0, c2, lambda;
+        LogDet logdet;
         bool ok = true, robust, reweighted;
     };
     Lane lane[W];
@@ -1201,7 +1246,8 @@ void correct_lanes(const Call* calls, const Map& map, const Options& opt) {
             yo[v] = s.reweighted ? nullptr : given(l, q[v], 0);
             So[v] = s.reweighted ? nullptr : given(l, q[v], 1);
         }
-        double nis[V], logdet[V];
+        double nis[V];
+        LogDet logdet[V];
         for (int v = 0; v < V; ++v) nis[v] = lane[which[v]].nis, logdet[v] = lane[which[v]].logdet;
         pair_lanes<V>(d, delta, Pp, q, pr, wgt, nis, logdet, yo, So, okl);
         for (int v = 0; v < V; ++v) {
@@ -1230,7 +1276,7 @@ void correct_lanes(const Call* calls, const Map& map, const Options& opt) {
 // the likelihood's sequence for a reweighted update, the filter's new state and totals, and
 // what it reports per reading.
 void report(const Call& c, const Options& opt, Work& w, const double* delta, const double* Pn,
-            double nis, double logdet, bool ok) {
+            double nis, LogDet logdet, bool ok) {
     double* const x = c.x;
     double* const P = c.P;
     const int64_t m = c.m;
@@ -1261,7 +1307,8 @@ void report(const Call& c, const Options& opt, Work& w, const double* delta, con
         const bool reweighted =
             robust || p[INFLATION] * p[INFLATION] != 1.0 || p[CLUTTER] > 0.0;
         if (reweighted && ok) {  // the likelihood is that of S with R itself, not reweighted
-            nis = logdet = 0.0;
+            nis = 0.0;
+            logdet = LogDet();
             for (size_t u = 0; u < update.size(); ++u)
                 ok = ok && pair_block(d, dL, PL, *update[u], *upred[u], 1.0, nis, logdet,
                                       given(update[u], 0), given(update[u], 1));
@@ -1277,7 +1324,7 @@ void report(const Call& c, const Options& opt, Work& w, const double* delta, con
             x[2] = wrap(x[2] + delta[2]);
             std::copy(Pn, Pn + 9, P);
             // robust: the multivariate Student-t of dimension D, scale S, ν dof
-            totals.loglik += log_density(nis, logdet, D, robust ? p[NU] : INF);
+            totals.loglik += log_density(nis, logdet.value(), D, robust ? p[NU] : INF);
             totals.nis += nis;
             totals.dof += D;
             totals.updates += 1;
@@ -1582,12 +1629,16 @@ void register_ekf(nb::module_& m) {
                 throw nb::value_error("present and signature must be (..., m)");
             const uint8_t* const pr = reinterpret_cast<const uint8_t*>(present.data());
             const size_t ps = check_params(params, B);
-            // two packed outputs (one NumPy array each costs more than the arithmetic here):
-            // floats per filter x (3), P (9), y (m d), S (m d d), d² (m), loglik, nis;
-            // integers per filter status (m), landmark (m), dof
-            const size_t F = 12 + mm * (d + d * d + 1) + 2, I = 2 * mm + 1;
+            // the state x, P (contiguous, as the next prediction reads it) and two packed
+            // outputs (one NumPy array each costs more than the arithmetic here): floats per
+            // filter y (m d), S (m d d), d² (m), loglik, nis; integers per filter status (m),
+            // landmark (m)
+            const size_t F = mm * (d + d * d + 1) + 2, I = 2 * mm;
+            auto xo = new_result_like(x, n), Po = new_result_like(P, n + 1);
             auto fo = new_result_like(x, n - 1, {F});
             auto io = new_result_like<int64_t>(x, n - 1, {I});
+            std::copy(x.data(), x.data() + 3 * B, xo.data);
+            std::copy(P.data(), P.data() + 9 * B, Po.data);
             std::vector<int8_t> st(LANES * mm);
             std::vector<int32_t> lmo(LANES * mm);
             std::vector<int64_t> cands(2 * LANES * mm);
@@ -1598,15 +1649,13 @@ void register_ekf(nb::module_& m) {
                 for (int l = 0; l < W; ++l) {
                     const size_t b = b0 + l;
                     double* f = fo.data + b * F;
-                    std::copy(x.data() + 3 * b, x.data() + 3 * b + 3, f);
-                    std::copy(P.data() + 9 * b, P.data() + 9 * b + 9, f + 3);
                     int64_t* cl = cands.data() + 2 * mm * l;
                     if (opt.signatures)
                         signature_candidates(map, static_cast<int64_t>(mm),
                                              signature.data() + b * mm, cl);
-                    calls[l] = {f, f + 3, static_cast<int64_t>(mm), z.data() + b * mm * d,
-                                pr + b * mm, cl, params.data() + b * ps,
-                                ReadingOut{f + 12, f + 12 + mm * d, f + 12 + mm * (d + d * d),
+                    calls[l] = {xo.data + 3 * b, Po.data + 9 * b, static_cast<int64_t>(mm),
+                                z.data() + b * mm * d, pr + b * mm, cl, params.data() + b * ps,
+                                ReadingOut{f, f + mm * d, f + mm * (d + d * d),
                                            st.data() + mm * l, lmo.data() + mm * l},
                                 &totals[l]};
                 }
@@ -1619,10 +1668,9 @@ void register_ekf(nb::module_& m) {
                     f[F - 1] = totals[l].nis;
                     for (size_t i = 0; i < mm; ++i)
                         iv[i] = st[mm * l + i], iv[mm + i] = lmo[mm * l + i];
-                    iv[2 * mm] = totals[l].dof;
                 }
             }
-            return nb::make_tuple(fo.array, io.array);
+            return nb::make_tuple(xo.array, Po.array, fo.array, io.array);
         },
         nb::arg("x"), nb::arg("P"), nb::arg("z"), nb::arg("present"), nb::arg("signature"),
         nb::arg("map"), nb::arg("params"), nb::arg("sensor"),
@@ -1630,7 +1678,7 @@ void register_ekf(nb::module_& m) {
         nb::arg("gate2"), nb::arg("joint_gate2"), nb::arg("jcbb_nodes"),
         "Association, gating and one stacked correction per filter of the readings of one time "
         "stamp (each filter its own readings): x (..., 3), P (..., 3, 3), z (..., m, d), "
-        "present and signature (..., m) of one batch; packed outputs (..., F) and (..., I).");
+        "present and signature (..., m) of one batch; x, P and packed outputs (..., F), (..., I).");
 
     m.def(
         "ekf_run",

@@ -690,18 +690,19 @@ def correct_landmarks(
     x, P = state.mean, state.cov  # (float64 already: broadcast if the batch is larger)
     if x.shape[:-1] != batch:
         x, P = np.broadcast_to(x, (*batch, 3)), np.broadcast_to(P, (*batch, 3, 3))
-    # packed outputs (*batch, F) and (*batch, I): see the core's ekf_correct_readings
-    f, i = _core.ekf_correct_readings(
+    # the state, and packed outputs (*batch, F) and (*batch, I): see the core's
+    # ekf_correct_readings
+    xo, Po, f, i = _core.ekf_correct_readings(
         x, P, _rows(z, np.float64, (*rows, d)), present, sig, lmap._core, params,
         1 if range_only else 0, _NOISE_MODELS[sensor.noise_model], method, cost,
         signatures is not None, gate2, joint, _JCBB_NODES,
     )  # fmt: skip
-    e, e2 = 12 + m * d, 12 + m * d + m * d * d
-    y, S = f[..., 12:e].reshape(*rows, d), f[..., e:e2].reshape(*rows, d, d)
+    e, e2 = m * d, m * d + m * d * d
+    y, S = f[..., :e].reshape(*rows, d), f[..., e:e2].reshape(*rows, d, d)
     if range_only:
         y, S = y[..., 0], S[..., 0, 0]
     return LandmarkUpdate(
-        AT._trusted(f[..., :3], f[..., 3:12].reshape(*batch, 3, 3)), i[..., m : 2 * m],
+        AT._trusted(xo, Po), i[..., m : 2 * m],
         f[..., e2 : e2 + m], i[..., :m], y, S, f[..., -2], f[..., -1],
     )  # fmt: skip
 
