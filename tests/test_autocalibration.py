@@ -12,7 +12,7 @@ from relmap import autocalibration as ac
 from relmap import ekf
 from relmap.errors import ParameterError, ShapeError
 from relmap.lie import se2
-from relmap.robot import DistanceNoise, increment
+from relmap.robot import DistanceNoise
 from relmap.sensors import RangeBearingSensor
 
 NOISE = DistanceNoise(0.01, 0.01, 0.002)

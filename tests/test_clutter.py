@@ -94,7 +94,7 @@ def test_no_clutter_is_the_filter_without_it_bit_for_bit():
     a, b = _one_reading(0.0, z), _one_reading(1e-300, z)
     assert np.array_equal(a.mean, _one_reading(0.0, z).mean)
     np.testing.assert_allclose(b.mean, a.mean, rtol=1e-15)  # λ → 0: w → 1
-    rec, truth = simulate(3, steps=300)
+    rec, _truth = simulate(3, steps=300)
     tr = ekf.run(rec.log(), LANDMARKS, ekf.NoiseParameters.of(
         NOISE, rm.sensors.RangeBearingSensor(SIGMA_R, SIGMA_B)), start=start(0.0),
         association="mahalanobis")  # fmt: skip
