@@ -774,8 +774,9 @@ def residuals(robots) -> None:
                   + f"; other landmarks ≤ 0.3 s {cx:.2f}", flush=True)  # fmt: skip
 
 
-def recording(data, robot):
-    """The autocalibration Recording of `relmap localize` (as localize_mrclam builds it)."""
+def recording(data, robot, associate="signatures"):
+    """The autocalibration Recording of `relmap localize` (as localize_mrclam builds it for
+    ``associate``: without signatures every reading is offered)."""
     import relmap.localize as L
 
     captured = {}
@@ -787,7 +788,10 @@ def recording(data, robot):
     orig = L._localization
     L._localization = grab
     try:
-        (L.localize_plaza(data) if robot == 0 else L.localize_mrclam(data, robot))
+        if robot == 0:
+            L.localize_plaza(data, associate=associate)
+        else:
+            L.localize_mrclam(data, robot, associate=associate)
     except StopIteration:
         pass
     finally:

@@ -35,12 +35,13 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 from scipy.stats import chi2
+from study_bias import recording
 
-from relmap import autocalibration, ekf
+from relmap import ekf
 from relmap.at import AT
 from relmap.io.datasets import read_mrclam
 from relmap.lie import se2
-from relmap.localize import _inside_truth, _start, localize_mrclam, score
+from relmap.localize import _start, localize_mrclam, score
 from relmap.sensors import RangeBearingSensor
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -57,14 +58,7 @@ class Robot:
         self.alone = alone.score
         cal = alone.calibration
         lg = data.robots[robot - 1]
-        odo = lg.odometry_t
-        first, end = np.flatnonzero(_inside_truth(odo, lg.truth_t))[[0, -1]]
-        rec = autocalibration.Recording(
-            odo[first:], lg.odometry_v[first:], lg.odometry_w[first:], lg.meas_t,
-            np.column_stack([lg.meas_range, lg.meas_bearing]),
-            data.landmark_index(lg.meas_subject), float(odo[end]),
-        )  # fmt: skip
-        self.log = rec.log(*cal.clock)  # every reading offered, as localize does
+        self.log = recording(data, robot, associate).log(*cal.clock)  # every reading offered
         inside = (lg.meas_t >= self.log.t[0]) & (lg.meas_t <= self.log.t[-1])
         robots = {
             int(b): int(s)

@@ -355,16 +355,17 @@ def test_innovations_given_the_readings_before_are_the_stacked_one_decomposed():
             np.testing.assert_allclose(tr.S_given[k], S[a, a] - gain @ S[b, a], rtol=1e-10)
             ll += stats.multivariate_normal(np.zeros(2), tr.S_given[k]).logpdf(tr.y_given[k])
         assert ll == pytest.approx(stats.multivariate_normal(np.zeros(6), S).logpdf(y), rel=1e-10)
-    far = log._replace(z=log.z + [[0.0, 0.0], [0.0, 0.0], [3.0, 0.0]])  # the third one gated
+    shift = np.array([3.0, 0.0])  # the third reading moved 3 m in range: gated
+    far = log._replace(z=log.z + np.array([[0.0, 0.0], [0.0, 0.0], shift]))
     tr = ekf.run(far, LANDMARKS, params_of(), start=state)
     np.testing.assert_array_equal(tr.status, [ekf.Status.USED, ekf.Status.USED, ekf.Status.GATED])
     u = slice(0, 4)
     K = state.cov @ Hs[u].T @ np.linalg.inv(S[u, u])
     post = (np.eye(3) - K @ Hs[u]) @ state.cov
     H2 = Hs[4:]
-    np.testing.assert_allclose(tr.y_given[2], y[4:] + [3.0, 0.0] - H2 @ K @ y[u], rtol=1e-10)
+    np.testing.assert_allclose(tr.y_given[2], y[4:] + shift - H2 @ K @ y[u], rtol=1e-10)
     np.testing.assert_allclose(tr.S_given[2], H2 @ post @ H2.T + R[4:, 4:], rtol=1e-9)
-    np.testing.assert_allclose(tr.y[2], y[4:] + [3.0, 0.0], rtol=1e-12)  # y, S: at the prior
+    np.testing.assert_allclose(tr.y[2], y[4:] + shift, rtol=1e-12)  # y, S: at the prior
     np.testing.assert_allclose(tr.S[2], S[4:, 4:], rtol=1e-12)
 
 
