@@ -58,6 +58,8 @@ from relmap.localize import localize_mrclam, localize_plaza, score
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("RELMAP_DATA", ROOT.parent / "shared" / "data"))
+#: The fits' default tolerance: a log-scale step of a factor 1.02.
+LOG_1_02 = math.log(1.02)
 CHI2_2_99 = 9.210340371976184
 CHI2_1_99 = 6.6348966010212145
 
@@ -140,7 +142,7 @@ def apply(x, P, D, Q):
     wx = c * D[..., 0] - s * D[..., 1]
     wy = s * D[..., 0] + c * D[..., 1]
     xn = np.stack([x[..., 0] + wx, x[..., 1] + wy, wrap(x[..., 2] + D[..., 2])], axis=-1)
-    F = np.zeros(D.shape[:-1] + (3, 3))
+    F = np.zeros((*D.shape[:-1], 3, 3))
     F[..., 0, 0] = F[..., 1, 1] = F[..., 2, 2] = 1.0
     F[..., 0, 2], F[..., 1, 2] = -wy, wx
     R = np.zeros_like(F)
@@ -247,18 +249,18 @@ def run_bias(log, lm, p, start, bias: Bias, comp, *, d=2, keep_all=True, gate2=N
         P[3:, :3] = P[:3, 3:].T
         P[3:, 3:] = P[3:, 3:] * np.outer(phi, phi) + np.diag(sc2 * (1 - phi**2))
         # readings of this time stamp
-        rows, Hs, ys, best = [], [], [], {}
+        best = {}
         c, s = math.cos(x[2]), math.sin(x[2])
         for i in range(lo, hi):
-            l = int(sig[i])
-            if l < 0 or l >= L:
+            lk = int(sig[i])
+            if lk < 0 or lk >= L:
                 status[i] = int(ekf.Status.UNKNOWN)
                 continue
-            yv, Hx = pose_reading(x, lm[l], z[i], d)
-            H = augmented(Hx, n, ir, ib, l, d)
-            yv[0] -= x[ir[l]]
+            yv, Hx = pose_reading(x, lm[lk], z[i], d)
+            H = augmented(Hx, n, ir, ib, lk, d)
+            yv[0] -= x[ir[lk]]
             if d == 2:
-                yv[1] = wrap(yv[1] - x[ib[l]])
+                yv[1] = wrap(yv[1] - x[ib[lk]])
             HP = H @ P
             S = HP @ H.T + Rw
             d2 = float(yv @ np.linalg.solve(S, yv))
@@ -266,12 +268,12 @@ def run_bias(log, lm, p, start, bias: Bias, comp, *, d=2, keep_all=True, gate2=N
             if d2 > gate2:
                 status[i] = int(ekf.Status.GATED)
                 continue
-            if l in best and best[l][0] <= d2:
+            if lk in best and best[lk][0] <= d2:
                 status[i] = int(ekf.Status.LOST)
                 continue
-            if l in best:
-                status[best[l][1]] = int(ekf.Status.LOST)
-            best[l] = (d2, i, H, yv)
+            if lk in best:
+                status[best[lk][1]] = int(ekf.Status.LOST)
+            best[lk] = (d2, i, H, yv)
         if best:
             idx = [v[1] for v in best.values()]
             for i in idx:
@@ -434,7 +436,7 @@ def ascend(f, x, tol, max_evals, *, keep_going):
 
 
 def fit_bias(log, lm, p, start, comp, nu, sigma, d=2, per="landmark", iters=30, parts=None,
-             x0=None, tol=math.log(1.02)):
+             x0=None, tol=LOG_1_02):
     """Maximum likelihood of (σ_w, σ_c, τ) for range (and bearing) by coordinate ascent in
     log scale, from σ_w = σ_c = σ/√2 and τ = 10 s (σ the calibration's reading σ)."""
     x = np.log(np.concatenate([np.asarray(sigma[:d]) / np.sqrt(2),
@@ -503,7 +505,7 @@ def structure(acf):
     return np.array(a_out), np.array(tau_out)
 
 
-def fit_total(log, lm, p, start, parts, nu, share, tau, per, d=2, tol=math.log(1.02)):
+def fit_total(log, lm, p, start, parts, nu, share, tau, per, d=2, tol=LOG_1_02):
     """With the structure (correlated share, τ) fixed: maximum likelihood of the readings'
     total σ and the odometry's k (coordinate ascent in log scale, from the calibration's)."""
     sig = [float(p.sigma_r), float(p.sigma_b)][:d]
@@ -687,9 +689,8 @@ def sim(seeds, steps, true: Bias, fit_k: bool) -> None:
     import sys
 
     sys.path.insert(0, str(ROOT))
-    from tests.test_autocalibration import LANDMARKS, NOISE, simulate, start
-
     from relmap.at import AT
+    from tests.test_autocalibration import LANDMARKS, NOISE, simulate, start
 
     for seed in seeds:
         rec, truth = simulate(seed, steps=steps)
@@ -698,11 +699,11 @@ def sim(seeds, steps, true: Bias, fit_k: bool) -> None:
         bias = np.zeros((L, 2))
         last = np.full(L, -np.inf)
         z = np.array(rec.z)
-        for i, (t, l) in enumerate(zip(rec.reading_t, rec.signature, strict=True)):
-            phi = np.exp(-(t - last[l]) / true.tau)  # 0 at a landmark's first reading
-            bias[l] = phi * bias[l] + np.sqrt(1 - phi**2) * true.sc * rng.normal(size=2)
-            last[l] = t
-            z[i] = z[i] + bias[l]  # the simulation's white errors are σ_w = (0.1, 0.02)
+        for i, (t, lk) in enumerate(zip(rec.reading_t, rec.signature, strict=True)):
+            phi = np.exp(-(t - last[lk]) / true.tau)  # 0 at a landmark's first reading
+            bias[lk] = phi * bias[lk] + np.sqrt(1 - phi**2) * true.sc * rng.normal(size=2)
+            last[lk] = t
+            z[i] = z[i] + bias[lk]  # the simulation's white errors are σ_w = (0.1, 0.02)
         rec = rec._replace(z=z)
         log = rec.log()
         p = ekf.NoiseParameters(NOISE.k_s, NOISE.k_theta, NOISE.k_theta_s, 0.1, 0.02)
@@ -714,7 +715,7 @@ def sim(seeds, steps, true: Bias, fit_k: bool) -> None:
         tt = truth  # at the odometry times = the log's times (readings share them)
         assert len(log.t) == len(tt)
 
-        def nees(bb, c=comp):
+        def nees(bb, c=comp, log=log, p=p, st=st, tt=tt):
             o = run_bias(log, LANDMARKS, p, st, bb, c)
             s = score(AT(o["mean"], o["cov"]), tt)
             return s, loglik(o, np.inf)
@@ -758,7 +759,7 @@ def residuals(robots) -> None:
             med = np.median(e)
             s = 1.4826 * np.median(np.abs(e - med))
             e = np.clip(e - med, -3 * s, 3 * s)
-            means = np.array([e[ll == l].mean() for l in range(ll.max() + 1)] if len(e) else [])
+            means = np.array([e[ll == k].mean() for k in range(ll.max() + 1)] if len(e) else [])
             share = np.var(means[ll]) / np.var(e)
             e2 = e - means[ll]
             same = ll[i] == ll[k]
