@@ -17,6 +17,17 @@
 #define RELMAP_INLINE inline __attribute__((always_inline))
 #endif
 
+// The hot kernels compiled twice from the one source, for baseline x86-64 (SSE2: two doubles
+// per vector) and for x86-64-v3 (AVX2: four, the LANES filters of a step in one vector); the
+// loader picks the one the processor runs (GCC function multi-versioning, an ifunc). Both do
+// the same IEEE operations in the same order: the build compiles with -ffp-contract=off (no
+// fused multiply-adds, which v3 has), so the results are bitwise those of the baseline build.
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__ELF__)
+#define RELMAP_CLONES __attribute__((target_clones("arch=x86-64-v3", "default")))
+#else
+#define RELMAP_CLONES
+#endif
+
 namespace relmap::ekf {
 
 namespace {
@@ -126,7 +137,7 @@ RELMAP_INLINE void predict_cov(int n, const double* F, const double* P, const do
 // positive definite goes on with a harmless factor (the identity) and its results are to be
 // dropped.
 template <int N_, int D_, int W>
-void kalman_lanes(int n, int D, double* const* delta, double* const* P, const double* const* y,
+RELMAP_CLONES void kalman_lanes(int n, int D, double* const* delta, double* const* P, const double* const* y,
                   const double* const* H, const double* const* R, double* const* S_out,
                   double* nis, LogDet* logdet, bool* ok) {
     static_assert(W >= 1 && (N_ > 0 || W == 1), "lanes need sizes known at compile time");
