@@ -135,8 +135,9 @@ RELMAP_INLINE void predict_cov(int n, const double* F, const double* P, const do
 // block to the next (their caller's, not gathered and scattered per block). A lane takes part if
 // active[l] (the others compute on whatever inputs they hold, harmlessly, and keep their δ, P,
 // nis and logdet); ok[l]: whether its S is positive definite (set for the active lanes). A lane
-// whose S is not keeps its δ, P, nis and logdet (S_out is written all the same). With W = 1 the layout is the plain one
-// (kalman_block below); the sizes known at run time (N_ = 0) have one lane.
+// whose S is not keeps its δ, P, nis and logdet (S_out is written all the same). With W = 1
+// the layout is the plain one (kalman_block below); the sizes known at run time (N_ = 0) have
+// one lane.
 template <int N_, int D_, int W>
 RELMAP_CLONES void kalman_lanes(int n, int D, double* delta, double* P, const double* y,
                                 const double* H, const double* R, const bool* active,
@@ -662,7 +663,7 @@ struct Window {
 struct Work {
     std::vector<int8_t> status;
     std::vector<int32_t> landmark;
-    std::vector<double> nearest, zc, pair_d2, range, inv_bound, keys, point;
+    std::vector<double> nearest, zc, pair_d2, range, bound, inv_bound, bound_phi, keys, point;
     std::vector<Window> gate_window;
     std::vector<Predicted> pred;
     std::vector<char> done, taken, full;
@@ -719,7 +720,9 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
     if (static_cast<int64_t>(w.pred.size()) < map.L) {
         w.pred.resize(map.L);
         w.range.resize(map.L);
+        w.bound.resize(map.L);
         w.inv_bound.resize(map.L);
+        w.bound_phi.resize(map.L);
     }
     w.done.assign(map.L, 0);  // per landmark: bit 1 its bound is known, bit 2 its prediction
     w.pairs.clear();
@@ -733,7 +736,8 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
     char* const done = w.done.data();
     double *const nearest = w.nearest.data(), *const zc = w.zc.data(),
                   *const pair_d2 = w.pair_d2.data(), *const range = w.range.data(),
-                  *const inv_bound = w.inv_bound.data();
+                  *const bound = w.bound.data(), *const inv_bound = w.inv_bound.data(),
+                  *const bound_phi = w.bound_phi.data();
     Predicted* const pred = w.pred.data();
     int64_t *const row_start = w.row_start.data(), *const lo = w.lo.data(),
                    *const hi = w.hi.data();
@@ -749,11 +753,19 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
     const double trace_p = P[0] + P[4] + P[8];
     const double trace_gain = trace_p * (1.0 + sp.ox * sp.ox + sp.oy * sp.oy);
     const double mount_norm = std::sqrt(sp.ox * sp.ox + sp.oy * sp.oy);
+    const bool by_d2 = opt.cost == MAHALANOBIS || opt.method == JCBB;  // (see value below)
+    // A landmark's range r, its b and 1/b; b_φ for the point bound (collect's bound_key).
     auto bound_of = [&](int64_t l) {
         if (!(done[l] & 1)) {
             const double dx = map.xy[2 * l] - sp.x, dy = map.xy[2 * l + 1] - sp.y;
-            range[l] = std::sqrt(dx * dx + dy * dy);
-            inv_bound[l] = 1.0 / (trace_gain + range_variance(range[l], p, opt));
+            const double r = std::sqrt(dx * dx + dy * dy);
+            range[l] = r;
+            bound[l] = trace_gain + range_variance(r, p, opt);
+            inv_bound[l] = 1.0 / bound[l];
+            if (d == 2 && by_d2) {
+                const double ir = 1.0 / r, u = 1.0 + mount_norm * ir;
+                bound_phi[l] = (ir * ir + u * u) * trace_p + bearing_variance(r, p, opt);
+            }
             done[l] |= 1;
         }
     };
@@ -781,8 +793,7 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
     };
     // The value a reading's pair is chosen by, and its bound from the range alone (above):
     // one-to-one pairing takes the pair of least cost (Mahalanobis d² or Euclidean |v|²);
-    // JCBB looks at the pairs inside the gate and the nearest by d².
-    const bool by_d2 = opt.cost == MAHALANOBIS || opt.method == JCBB;
+    // JCBB looks at the pairs inside the gate and the nearest by d² (by_d2).
     auto value = [&](int64_t i, int64_t l) {
         const Predicted& pr = predicted(l);
         if (!pr.ok) return INF;
@@ -925,12 +936,8 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
                 auto bound_key = [&](int64_t l) {  // (after bound_of(l))
                     const double r = range[l], g = zr - r;
                     double k = by_d2 ? g * g * inv_bound[l] : g * g;
-                    if (point) {
-                        const double ir = 1.0 / r, u = 1.0 + mount_norm * ir;
-                        const double b_phi = (ir * ir + u * u) * trace_p +
-                                             bearing_variance(r, p, opt);
-                        const double kp = dist2(l) / (trace_gain + range_variance(r, p, opt) +
-                                                      r * zr * b_phi);
+                    if (point) {  // (b and b_φ of the landmark from bound_of)
+                        const double kp = dist2(l) / (bound[l] + r * zr * bound_phi[l]);
                         k = std::max(k, kp);
                     }
                     return k;
