@@ -17,6 +17,17 @@
 #define RELMAP_INLINE inline __attribute__((always_inline))
 #endif
 
+// The hot kernels compiled twice from the one source, for baseline x86-64 (SSE2: two doubles
+// per vector) and for x86-64-v3 (AVX2: four, the LANES filters of a step in one vector); the
+// loader picks the one the processor runs (GCC function multi-versioning, an ifunc). Both do
+// the same IEEE operations in the same order: the build compiles with -ffp-contract=off (no
+// fused multiply-adds, which v3 has), so the results are bitwise those of the baseline build.
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__ELF__)
+#define RELMAP_CLONES __attribute__((target_clones("arch=x86-64-v3", "default")))
+#else
+#define RELMAP_CLONES
+#endif
+
 namespace relmap::ekf {
 
 namespace {
@@ -115,103 +126,95 @@ RELMAP_INLINE void predict_cov(int n, const double* F, const double* P, const do
 // when S is not positive definite (a 0/0), i.e. exactly when the stacked S is not.
 // S_out (D × D) if non-null. N_, D_ > 0 fix the sizes at compile time.
 //
-// W lanes: the blocks of W independent filters side by side (lane l: delta[l], P[l], y[l], ...;
-// ok[l] whether its S is positive definite), each lane's arithmetic exactly that of the lane
-// alone. One block's steps depend on each other (P → S → its factor → K → P), so one filter's
-// blocks in turn leave the processor waiting; several filters' chains interleaved keep it busy
-// (the batch runners take their filters LANES at a time). The lanes' inputs are gathered into
-// arrays with the lane innermost (entry e of lane l at e W + l), so that each step's loop over
-// the lanes is one over contiguous values, which the compiler vectorizes. With W = 1 it is
-// kalman_block below; the sizes known at run time (N_ = 0) have one lane. A lane whose S is not
-// positive definite goes on with a harmless factor (the identity) and its results are to be
-// dropped.
+// W lanes: the blocks of W independent filters side by side, each lane's arithmetic exactly that
+// of the lane alone. One block's steps depend on each other (P → S → its factor → K → P), so one
+// filter's blocks in turn leave the processor waiting; several filters' chains interleaved keep
+// it busy (the batch runners take their filters LANES at a time). Every array holds its lanes
+// innermost (entry e of lane l at e W + l), so that each step's loop over the lanes is one over
+// contiguous values, which the compiler vectorizes; the running δ and P stay so laid out from one
+// block to the next (their caller's, not gathered and scattered per block). A lane takes part if
+// active[l] (the others compute on whatever inputs they hold, harmlessly, and keep their δ, P,
+// nis and logdet); ok[l]: whether its S is positive definite (set for the active lanes). A lane
+// whose S is not keeps its δ, P, nis and logdet (S_out is written all the same). With W = 1
+// the layout is the plain one (kalman_block below); the sizes known at run time (N_ = 0) have
+// one lane.
 template <int N_, int D_, int W>
-void kalman_lanes(int n, int D, double* const* delta, double* const* P, const double* const* y,
-                  const double* const* H, const double* const* R, double* const* S_out,
-                  double* nis, LogDet* logdet, bool* ok) {
+RELMAP_CLONES void kalman_lanes(int n, int D, double* delta, double* P, const double* y,
+                                const double* H, const double* R, const bool* active,
+                                double* const* S_out, double* nis, LogDet* logdet, bool* ok) {
     static_assert(W >= 1 && (N_ > 0 || W == 1), "lanes need sizes known at compile time");
     if (N_ > 0) n = N_;
     if (D_ > 0) D = D_;
-    constexpr int NW = N_ * W, ND = N_ * D_ * W, DD = D_ * D_ * W, NN = N_ * N_ * W, DW = D_ * W;
+    constexpr int ND = N_ * D_ * W, DD = D_ * D_ * W, NN = N_ * N_ * W, DW = D_ * W;
     const size_t nD = static_cast<size_t>(n) * D, dd = static_cast<size_t>(D) * D,
                  nn = static_cast<size_t>(n) * n;
-    Scratch<NW> dl_(NW ? 0 : n);
-    Scratch<ND> Hl_(ND ? 0 : nD), PHt_(ND ? 0 : nD), K_(ND ? 0 : nD), KR_(ND ? 0 : nD);
-    Scratch<DD> Rl_(DD ? 0 : dd), S_(DD ? 0 : dd), L_(DD ? 0 : dd);
-    Scratch<NN> Pl_(NN ? 0 : nn), A_(NN ? 0 : nn), AP_(NN ? 0 : nn);
-    Scratch<DW> yl_(DW ? 0 : D), u_(DW ? 0 : D), inv_(DW ? 0 : D);
-    double *dl = dl_.data(), *Hl = Hl_.data(), *Rl = Rl_.data(), *Pl = Pl_.data(),
-           *yl = yl_.data();
+    Scratch<ND> PHt_(ND ? 0 : nD), K_(ND ? 0 : nD), KR_(ND ? 0 : nD);
+    Scratch<DD> S_(DD ? 0 : dd), L_(DD ? 0 : dd);
+    Scratch<NN> A_(NN ? 0 : nn), AP_(NN ? 0 : nn);
+    Scratch<DW> u_(DW ? 0 : D), inv_(DW ? 0 : D);
     double *PHt = PHt_.data(), *K = K_.data(), *KR = KR_.data(), *S = S_.data(), *Lw = L_.data();
     double *A = A_.data(), *AP = AP_.data(), *u = u_.data(), *inv = inv_.data();
-    for (int l = 0; l < W; ++l) {  // the lanes' inputs, lane innermost
-        for (size_t e = 0; e < nn; ++e) Pl[e * W + l] = P[l][e];
-        for (size_t e = 0; e < nD; ++e) Hl[e * W + l] = H[l][e];
-        for (size_t e = 0; e < dd; ++e) Rl[e * W + l] = R[l][e];
-        for (int e = 0; e < D; ++e) yl[e * W + l] = y[l][e];
-        for (int e = 0; e < n; ++e) dl[e * W + l] = delta[l][e];
-    }
     for (int i = 0; i < n; ++i)  // P Hᵀ
         for (int a = 0; a < D; ++a)
             for (int l = 0; l < W; ++l) {
                 double s = 0.0;
-                for (int k = 0; k < n; ++k) s += Pl[(i * n + k) * W + l] * Hl[(a * n + k) * W + l];
+                for (int k = 0; k < n; ++k) s += P[(i * n + k) * W + l] * H[(a * n + k) * W + l];
                 PHt[(i * D + a) * W + l] = s;
             }
     for (int a = 0; a < D; ++a)  // S = H P Hᵀ + R, symmetrized
         for (int b = 0; b <= a; ++b)
             for (int l = 0; l < W; ++l) {
                 double s = 0.0;
-                for (int k = 0; k < n; ++k) s += Hl[(a * n + k) * W + l] * PHt[(k * D + b) * W + l];
+                for (int k = 0; k < n; ++k) s += H[(a * n + k) * W + l] * PHt[(k * D + b) * W + l];
                 S[(a * D + b) * W + l] = S[(b * D + a) * W + l] =
-                    s + 0.5 * (Rl[(a * D + b) * W + l] + Rl[(b * D + a) * W + l]);
+                    s + 0.5 * (R[(a * D + b) * W + l] + R[(b * D + a) * W + l]);
             }
-    for (int l = 0; l < W; ++l)
-        if (S_out[l])
-            for (size_t e = 0; e < dd; ++e) S_out[l][e] = S[e * W + l];
     // S's lower Cholesky factor L and its diagonal's reciprocals (one division per row, the
     // rest multiplications); a lane's S is positive definite if every pivot is positive and
-    // finite
-    for (int l = 0; l < W; ++l) ok[l] = true;
+    // finite (sum <= DBL_MAX: not +inf, not NaN). Without branches, so that the lanes'
+    // square roots and divisions are vector ones: a pivot that is not goes on as 1 (a harmless
+    // factor: the lane's results are dropped).
+    bool pd[W];
+    for (int l = 0; l < W; ++l) pd[l] = true;
     for (int i = 0; i < D; ++i)
         for (int j = 0; j <= i; ++j)
             for (int l = 0; l < W; ++l) {
                 double sum = S[(i * D + j) * W + l];
                 for (int k = 0; k < j; ++k) sum -= Lw[(i * D + k) * W + l] * Lw[(j * D + k) * W + l];
                 if (i == j) {
-                    const bool pd = sum > 0.0 && std::isfinite(sum);
-                    ok[l] = ok[l] && pd;
-                    Lw[(i * D + i) * W + l] = pd ? std::sqrt(sum) : 1.0;
+                    const bool good = sum > 0.0 && sum <= std::numeric_limits<double>::max();
+                    pd[l] = pd[l] && good;
+                    Lw[(i * D + i) * W + l] = std::sqrt(good ? sum : 1.0);
                     inv[i * W + l] = 1.0 / Lw[(i * D + i) * W + l];
                 } else {
                     Lw[(i * D + j) * W + l] = sum * inv[j * W + l];
                 }
             }
-    bool any = false;
+    bool keep[W], any = false;  // keep: the lanes whose results are kept
     for (int l = 0; l < W; ++l) {
-        if (!ok[l])
-            for (int a = 0; a < D; ++a) {
-                for (int b = 0; b <= a; ++b) Lw[(a * D + b) * W + l] = a == b ? 1.0 : 0.0;
-                inv[a * W + l] = 1.0;
-            }
-        any = any || ok[l];
+        if (active[l]) ok[l] = pd[l];
+        keep[l] = active[l] && pd[l];
+        any = any || keep[l];
+        if (active[l] && S_out[l])
+            for (size_t e = 0; e < dd; ++e) S_out[l][e] = S[e * W + l];
     }
     if (!any) return;
-    // y'ᵀ S⁻¹ y' = |L⁻¹ y'|², log det S = 2 log Π Lᵢᵢ
+    // y' = y - H δ; y'ᵀ S⁻¹ y' = |L⁻¹ y'|², log det S = 2 log Π Lᵢᵢ
     double q[W];
     for (int l = 0; l < W; ++l) q[l] = 0.0;
     for (int a = 0; a < D; ++a)
         for (int l = 0; l < W; ++l) {
-            double s = yl[a * W + l];
-            for (int k = 0; k < n; ++k) s -= Hl[(a * n + k) * W + l] * dl[k * W + l];
+            double s = y[a * W + l];
+            for (int k = 0; k < n; ++k) s -= H[(a * n + k) * W + l] * delta[k * W + l];
             for (int k = 0; k < a; ++k) s -= Lw[(a * D + k) * W + l] * u[k * W + l];
             u[a * W + l] = s * inv[a * W + l];
             q[l] += u[a * W + l] * u[a * W + l];
         }
-    for (int l = 0; l < W; ++l) {
-        nis[l] += q[l];
-        for (int a = 0; a < D; ++a) logdet[l].times(Lw[(a * D + a) * W + l]);
-    }
+    for (int l = 0; l < W; ++l)
+        if (keep[l]) {
+            nis[l] += q[l];
+            for (int a = 0; a < D; ++a) logdet[l].times(Lw[(a * D + a) * W + l]);
+        }
     for (int a = D - 1; a >= 0; --a)  // u = S⁻¹ y' (Lᵀ u = L⁻¹ y')
         for (int l = 0; l < W; ++l) {
             double s = u[a * W + l];
@@ -235,7 +238,8 @@ void kalman_lanes(int n, int D, double* const* delta, double* const* P, const do
         for (int l = 0; l < W; ++l) {
             double s = 0.0;
             for (int a = 0; a < D; ++a) s += PHt[(i * D + a) * W + l] * u[a * W + l];
-            dl[i * W + l] += s;
+            const double v = delta[i * W + l] + s;
+            delta[i * W + l] = keep[l] ? v : delta[i * W + l];
         }
     }
     // Joseph form P = (I - KH) P (I - KH)ᵀ + K R Kᵀ rather than Eq. 28's P - K S Kᵀ: a sum of
@@ -247,7 +251,7 @@ void kalman_lanes(int n, int D, double* const* delta, double* const* P, const do
     for (int i = 0; i < n; ++i)
         for (int j = 0; j < n; ++j)
             for (int l = 0; l < W; ++l) {
-                double s = Pl[(i * n + j) * W + l];
+                double s = P[(i * n + j) * W + l];
                 for (int a = 0; a < D; ++a)
                     s -= K[(i * D + a) * W + l] * PHt[(j * D + a) * W + l];
                 AP[(i * n + j) * W + l] = s;
@@ -256,8 +260,8 @@ void kalman_lanes(int n, int D, double* const* delta, double* const* P, const do
         for (int b = 0; b < D; ++b)
             for (int l = 0; l < W; ++l) {
                 double s = 0.0;
-                for (int k = 0; k < n; ++k) s += AP[(i * n + k) * W + l] * Hl[(b * n + k) * W + l];
-                for (int a = 0; a < D; ++a) s -= K[(i * D + a) * W + l] * Rl[(a * D + b) * W + l];
+                for (int k = 0; k < n; ++k) s += AP[(i * n + k) * W + l] * H[(b * n + k) * W + l];
+                for (int a = 0; a < D; ++a) s -= K[(i * D + a) * W + l] * R[(a * D + b) * W + l];
                 KR[(i * D + b) * W + l] = s;
             }
     for (int i = 0; i < n; ++i)
@@ -267,12 +271,12 @@ void kalman_lanes(int n, int D, double* const* delta, double* const* P, const do
                 for (int b = 0; b < D; ++b) s -= KR[(i * D + b) * W + l] * K[(j * D + b) * W + l];
                 A[(i * n + j) * W + l] = s;
             }
-    for (int l = 0; l < W; ++l) {  // symmetrized, into P; δ
-        for (int i = 0; i < n; ++i)
-            for (int j = 0; j < n; ++j)
-                P[l][i * n + j] = 0.5 * (A[(i * n + j) * W + l] + A[(j * n + i) * W + l]);
-        for (int i = 0; i < n; ++i) delta[l][i] = dl[i * W + l];
-    }
+    for (int i = 0; i < n; ++i)  // symmetrized, into P
+        for (int j = 0; j < n; ++j)
+            for (int l = 0; l < W; ++l) {
+                const double v = 0.5 * (A[(i * n + j) * W + l] + A[(j * n + i) * W + l]);
+                P[(i * n + j) * W + l] = keep[l] ? v : P[(i * n + j) * W + l];
+            }
 }
 
 // One filter's block (kalman_lanes with one lane); false (nothing updated) when S is not
@@ -280,8 +284,9 @@ void kalman_lanes(int n, int D, double* const* delta, double* const* P, const do
 template <int N_, int D_>
 bool kalman_block(int n, int D, double* delta, double* P, const double* y, const double* H,
                   const double* R, double* S_out, double& nis, LogDet& logdet) {
+    const bool active = true;
     bool ok;
-    kalman_lanes<N_, D_, 1>(n, D, &delta, &P, &y, &H, &R, &S_out, &nis, &logdet, &ok);
+    kalman_lanes<N_, D_, 1>(n, D, delta, P, y, H, R, &active, &S_out, &nis, &logdet, &ok);
     return ok;
 }
 
@@ -460,37 +465,49 @@ inline double mahalanobis2(const Predicted& pr, const double* v, int d) {
            pr.inv_det;
 }
 
-// A pair's innovation v (d) given the correction δ (3) of the pairs before it: v - H δ.
+// A pair's innovation v (d) given the correction δ (3, entries stride apart) of the pairs before
+// it: v - H δ.
 inline void innovation_given(int d, const double* v, const double* H, const double* delta,
-                             double* out) {
+                             double* out, int stride = 1) {
     for (int a = 0; a < d; ++a)
-        out[a] = v[a] - H[3 * a] * delta[0] - H[3 * a + 1] * delta[1] - H[3 * a + 2] * delta[2];
+        out[a] = v[a] - H[3 * a] * delta[0] - H[3 * a + 1] * delta[stride] -
+                 H[3 * a + 2] * delta[2 * stride];
 }
 
 // One pair's block of the stacked correction, on the running (δ, P) of a pose filter (see
 // kalman_block), with the pair's noise R (d, diagonal) divided by weight w.
 // y_out (d), S_out (d × d) if non-null: the block's innovation y' = y - H δ and its S.
-// W lanes: one pair of each of W filters (kalman_lanes); pair_block: one filter's.
+// W lanes: one pair of each of W filters (kalman_lanes: δ (3 W) and P (9 W) lane innermost; the
+// inactive lanes' q and pr are not read); pair_block: one filter's.
 template <int W>
-void pair_lanes(int d, double* const* delta, double* const* P, const Pair* const* q,
-                const Predicted* const* pr, const double* w, double* nis, LogDet* logdet,
+void pair_lanes(int d, double* delta, double* P, const Pair* const* q, const Predicted* const* pr,
+                const double* w, const bool* active, double* nis, LogDet* logdet,
                 double* const* y_out, double* const* S_out, bool* ok) {
-    double R[W][4];
-    const double *Rp[W], *y[W], *H[W];
-    for (int l = 0; l < W; ++l) {
-        const Predicted& p = *pr[l];
-        const double wl = w[l];
-        // (x / 1 is x: no division for an unweighted reading)
-        R[l][0] = wl == 1.0 ? p.R[0] : p.R[0] / wl;
-        R[l][1] = R[l][2] = wl == 1.0 ? p.Rx : p.Rx / wl;
-        R[l][3] = d == 2 ? (wl == 1.0 ? p.R[1] : p.R[1] / wl) : 0.0;
-        if (y_out[l]) innovation_given(d, q[l]->v, p.H, delta[l], y_out[l]);
-        Rp[l] = R[l], y[l] = q[l]->v, H[l] = p.H;
-    }
+    auto lanes = [&](auto dim) {
+        constexpr int D = decltype(dim)::value;
+        double H[3 * D * W], y[D * W], R[D * D * W];  // lane innermost
+        for (int l = 0; l < W; ++l) {
+            if (!active[l]) {  // a harmless block (H = 0, R = I): its results are not kept
+                for (int e = 0; e < 3 * D; ++e) H[e * W + l] = 0.0;
+                for (int e = 0; e < D; ++e) y[e * W + l] = 0.0;
+                for (int e = 0; e < D * D; ++e) R[e * W + l] = e % (D + 1) == 0 ? 1.0 : 0.0;
+                continue;
+            }
+            const Predicted& p = *pr[l];
+            const double wl = w[l];
+            const double r[4] = {p.R[0], p.Rx, p.Rx, p.R[1]};  // (d = 1: its first entry)
+            // (x / 1 is x: no division for an unweighted reading)
+            for (int e = 0; e < D * D; ++e) R[e * W + l] = wl == 1.0 ? r[e] : r[e] / wl;
+            for (int e = 0; e < 3 * D; ++e) H[e * W + l] = p.H[e];
+            for (int e = 0; e < D; ++e) y[e * W + l] = q[l]->v[e];
+            if (y_out[l]) innovation_given(D, q[l]->v, p.H, delta + l, y_out[l], W);
+        }
+        kalman_lanes<3, D, W>(3, D, delta, P, y, H, R, active, S_out, nis, logdet, ok);
+    };
     if (d == 2)
-        kalman_lanes<3, 2, W>(3, 2, delta, P, y, H, Rp, S_out, nis, logdet, ok);
+        lanes(std::integral_constant<int, 2>{});
     else
-        kalman_lanes<3, 1, W>(3, 1, delta, P, y, H, Rp, S_out, nis, logdet, ok);
+        lanes(std::integral_constant<int, 1>{});
 }
 
 inline bool pair_block(int d, double* delta, double* P, const Pair& q, const Predicted& pr,
@@ -498,8 +515,9 @@ inline bool pair_block(int d, double* delta, double* P, const Pair& q, const Pre
                        double* S_out = nullptr) {
     const Pair* qq = &q;
     const Predicted* pp = &pr;
+    const bool active = true;
     bool ok;
-    pair_lanes<1>(d, &delta, &P, &qq, &pp, &w, &nis, &logdet, &y_out, &S_out, &ok);
+    pair_lanes<1>(d, delta, P, &qq, &pp, &w, &active, &nis, &logdet, &y_out, &S_out, &ok);
     return ok;
 }
 
@@ -645,7 +663,7 @@ struct Window {
 struct Work {
     std::vector<int8_t> status;
     std::vector<int32_t> landmark;
-    std::vector<double> nearest, zc, pair_d2, range, inv_bound, keys, point;
+    std::vector<double> nearest, zc, pair_d2, range, bound, inv_bound, bound_phi, keys, point;
     std::vector<Window> gate_window;
     std::vector<Predicted> pred;
     std::vector<char> done, taken, full;
@@ -702,7 +720,9 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
     if (static_cast<int64_t>(w.pred.size()) < map.L) {
         w.pred.resize(map.L);
         w.range.resize(map.L);
+        w.bound.resize(map.L);
         w.inv_bound.resize(map.L);
+        w.bound_phi.resize(map.L);
     }
     w.done.assign(map.L, 0);  // per landmark: bit 1 its bound is known, bit 2 its prediction
     w.pairs.clear();
@@ -716,7 +736,8 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
     char* const done = w.done.data();
     double *const nearest = w.nearest.data(), *const zc = w.zc.data(),
                   *const pair_d2 = w.pair_d2.data(), *const range = w.range.data(),
-                  *const inv_bound = w.inv_bound.data();
+                  *const bound = w.bound.data(), *const inv_bound = w.inv_bound.data(),
+                  *const bound_phi = w.bound_phi.data();
     Predicted* const pred = w.pred.data();
     int64_t *const row_start = w.row_start.data(), *const lo = w.lo.data(),
                    *const hi = w.hi.data();
@@ -732,11 +753,19 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
     const double trace_p = P[0] + P[4] + P[8];
     const double trace_gain = trace_p * (1.0 + sp.ox * sp.ox + sp.oy * sp.oy);
     const double mount_norm = std::sqrt(sp.ox * sp.ox + sp.oy * sp.oy);
+    const bool by_d2 = opt.cost == MAHALANOBIS || opt.method == JCBB;  // (see value below)
+    // A landmark's range r, its b and 1/b; b_φ for the point bound (collect's bound_key).
     auto bound_of = [&](int64_t l) {
         if (!(done[l] & 1)) {
             const double dx = map.xy[2 * l] - sp.x, dy = map.xy[2 * l + 1] - sp.y;
-            range[l] = std::sqrt(dx * dx + dy * dy);
-            inv_bound[l] = 1.0 / (trace_gain + range_variance(range[l], p, opt));
+            const double r = std::sqrt(dx * dx + dy * dy);
+            range[l] = r;
+            bound[l] = trace_gain + range_variance(r, p, opt);
+            inv_bound[l] = 1.0 / bound[l];
+            if (d == 2 && by_d2) {
+                const double ir = 1.0 / r, u = 1.0 + mount_norm * ir;
+                bound_phi[l] = (ir * ir + u * u) * trace_p + bearing_variance(r, p, opt);
+            }
             done[l] |= 1;
         }
     };
@@ -764,8 +793,7 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
     };
     // The value a reading's pair is chosen by, and its bound from the range alone (above):
     // one-to-one pairing takes the pair of least cost (Mahalanobis d² or Euclidean |v|²);
-    // JCBB looks at the pairs inside the gate and the nearest by d².
-    const bool by_d2 = opt.cost == MAHALANOBIS || opt.method == JCBB;
+    // JCBB looks at the pairs inside the gate and the nearest by d² (by_d2).
     auto value = [&](int64_t i, int64_t l) {
         const Predicted& pr = predicted(l);
         if (!pr.ok) return INF;
@@ -908,12 +936,8 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
                 auto bound_key = [&](int64_t l) {  // (after bound_of(l))
                     const double r = range[l], g = zr - r;
                     double k = by_d2 ? g * g * inv_bound[l] : g * g;
-                    if (point) {
-                        const double ir = 1.0 / r, u = 1.0 + mount_norm * ir;
-                        const double b_phi = (ir * ir + u * u) * trace_p +
-                                             bearing_variance(r, p, opt);
-                        const double kp = dist2(l) / (trace_gain + range_variance(r, p, opt) +
-                                                      r * zr * b_phi);
+                    if (point) {  // (b and b_φ of the landmark from bound_of)
+                        const double kp = dist2(l) / (bound[l] + r * zr * bound_phi[l]);
                         k = std::max(k, kp);
                     }
                     return k;
@@ -1199,18 +1223,21 @@ void correct_lanes(const Call* calls, const Map& map, const Options& opt) {
     for (int l = 0; l < W; ++l) associate(calls[l], map, opt, work[l]);
     // The correction with the used pairs (Eqs. 26-28), one per time stamp: their stacked
     // update, done pair by pair (kalman_block: each pair's noise is its own, so R is block
-    // diagonal and the 2 × 2 blocks in turn are the stacked 2k × 2k update).
+    // diagonal and the 2 × 2 blocks in turn are the stacked 2k × 2k update). The lanes' running
+    // δ and P lane innermost (kalman_lanes), from one pair to the next.
     struct Lane {
-        double delta[3] = {0.0, 0.0, 0.0}, Pn[9], nis = 0.0, c2, lambda;
+        double nis = 0.0, c2, lambda;
         LogDet logdet;
         bool ok = true, robust, reweighted;
     };
     Lane lane[W];
+    double delta[3 * W], Pn[9 * W];
     size_t most = 0;  // the most pairs of a lane
     for (int l = 0; l < W; ++l) {
         Lane& s = lane[l];
         const double* p = calls[l].p;
-        std::copy(calls[l].P, calls[l].P + 9, s.Pn);
+        for (int e = 0; e < 3; ++e) delta[e * W + l] = 0.0;
+        for (int e = 0; e < 9; ++e) Pn[e * W + l] = calls[l].P[e];
         s.robust = std::isfinite(p[NU]);
         // correlated readings carry less information than their spread says: the update's R
         // is inflated by c² (NoiseParameters.inflation); association, gate and likelihood
@@ -1225,51 +1252,44 @@ void correct_lanes(const Call* calls, const Map& map, const Options& opt) {
         return !out.y_given ? nullptr
                             : (k ? out.S_given + q->i * d * d : out.y_given + q->i * d);
     };
-    // Pair u of every lane that has one (and has not failed), those lanes side by side.
-    auto step = [&](auto lanes, const int* which, size_t u) {
-        constexpr int V = decltype(lanes)::value;
-        double *delta[V], *Pp[V], wgt[V], *yo[V], *So[V];
-        const Pair* q[V];
-        const Predicted* pr[V];
-        bool okl[V];
-        for (int v = 0; v < V; ++v) {
-            const int l = which[v];
-            Lane& s = lane[l];
-            const double* p = calls[l].p;
-            q[v] = work[l].update[u];
-            pr[v] = work[l].upred[u];
-            // Student-t readings: the reading's weight (ν + d)/(ν + d²) scales R by its inverse
-            wgt[v] = s.robust ? (p[NU] + d) / (p[NU] + q[v]->d2) : 1.0;
-            if (s.c2 != 1.0) wgt[v] /= s.c2;  // (x / 1 is x: no division without inflation)
-            if (s.lambda > 0.0) wgt[v] *= landmark_probability(*q[v], *pr[v], d, p, s.lambda);
-            delta[v] = s.delta, Pp[v] = s.Pn;
-            yo[v] = s.reweighted ? nullptr : given(l, q[v], 0);
-            So[v] = s.reweighted ? nullptr : given(l, q[v], 1);
-        }
-        double nis[V];
-        LogDet logdet[V];
-        for (int v = 0; v < V; ++v) nis[v] = lane[which[v]].nis, logdet[v] = lane[which[v]].logdet;
-        pair_lanes<V>(d, delta, Pp, q, pr, wgt, nis, logdet, yo, So, okl);
-        for (int v = 0; v < V; ++v) {
-            Lane& s = lane[which[v]];
-            s.ok = okl[v], s.nis = nis[v], s.logdet = logdet[v];
-        }
-    };
+    // Pair u of every lane that has one (and has not failed), those lanes side by side (the
+    // others idle in their lanes).
     for (size_t u = 0; u < most; ++u) {
-        int which[W], na = 0;
-        for (int l = 0; l < W; ++l)
-            if (lane[l].ok && u < work[l].update.size()) which[na++] = l;
-        if (na == W)
-            step(std::integral_constant<int, W>{}, which, u);
-        else if (W > 2 && na == 3)
-            step(std::integral_constant<int, (W > 2 ? 3 : 1)>{}, which, u);
-        else if (W > 1 && na == 2)
-            step(std::integral_constant<int, (W > 1 ? 2 : 1)>{}, which, u);
-        else if (na == 1)
-            step(std::integral_constant<int, 1>{}, which, u);
+        double wgt[W], nis[W];
+        double *yo[W], *So[W];
+        const Pair* q[W];
+        const Predicted* pr[W];
+        bool active[W], okl[W];
+        LogDet logdet[W];
+        for (int l = 0; l < W; ++l) {
+            Lane& s = lane[l];
+            active[l] = s.ok && u < work[l].update.size();
+            nis[l] = s.nis, logdet[l] = s.logdet;
+            yo[l] = So[l] = nullptr;
+            if (!active[l]) continue;
+            const double* p = calls[l].p;
+            q[l] = work[l].update[u];
+            pr[l] = work[l].upred[u];
+            // Student-t readings: the reading's weight (ν + d)/(ν + d²) scales R by its inverse
+            wgt[l] = s.robust ? (p[NU] + d) / (p[NU] + q[l]->d2) : 1.0;
+            if (s.c2 != 1.0) wgt[l] /= s.c2;  // (x / 1 is x: no division without inflation)
+            if (s.lambda > 0.0) wgt[l] *= landmark_probability(*q[l], *pr[l], d, p, s.lambda);
+            if (!s.reweighted) yo[l] = given(l, q[l], 0), So[l] = given(l, q[l], 1);
+        }
+        if (std::none_of(active, active + W, [](bool a) { return a; })) break;  // all failed
+        pair_lanes<W>(d, delta, Pn, q, pr, wgt, active, nis, logdet, yo, So, okl);
+        for (int l = 0; l < W; ++l) {
+            if (!active[l]) continue;
+            Lane& s = lane[l];
+            s.ok = okl[l], s.nis = nis[l], s.logdet = logdet[l];
+        }
     }
-    for (int l = 0; l < W; ++l) report(calls[l], opt, work[l], lane[l].delta, lane[l].Pn,
-                                       lane[l].nis, lane[l].logdet, lane[l].ok);
+    for (int l = 0; l < W; ++l) {
+        double dl[3], Pl[9];
+        for (int e = 0; e < 3; ++e) dl[e] = delta[e * W + l];
+        for (int e = 0; e < 9; ++e) Pl[e] = Pn[e * W + l];
+        report(calls[l], opt, work[l], dl, Pl, lane[l].nis, lane[l].logdet, lane[l].ok);
+    }
 }
 
 // After the update of a filter's used pairs (delta, Pn, nis, logdet, ok from correct_lanes):
