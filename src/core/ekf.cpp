@@ -892,7 +892,8 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
     // gate), i.e. each reading's cheapest pair (what one-to-one pairing takes when no two
     // readings want the same landmark) and, with the Mahalanobis cost or JCBB, every pair inside
     // the gate. With those, τ is the gate's own limit as soon as one candidate lies inside the
-    // gate: that is tried first. Else the least value, best first: from a guess, candidates in
+    // gate: that is tried first (on the gate's window, a superset). Else the least value, best
+    // first: from a guess, candidates in
     // increasing bound, exactly, until the next bound exceeds the least value found (no
     // candidate left can beat it).
     // all = true: every candidate (Eq. 21, and the Euclidean one-to-one when two readings want
@@ -973,8 +974,18 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
                 if (by_d2) {  // τ is at least the gate's limit, that if a candidate is inside
                     // (mostly the case): the pairs of the gate's candidates, kept if one is
                     // inside the gate (so the reading is not degenerate), else dropped for the
-                    // search below
-                    gather(limit(0.0), w.gate_window[i]);
+                    // search below. The candidates: those in the gate's window (every landmark
+                    // a candidate) or all of them (signatures), their bounds not tested: the
+                    // window's landmarks are mostly those the bounds keep, and a pair outside
+                    // the gate next to one inside changes nothing (not the cheapest, not in the
+                    // gate's pass of one-to-one pairing, not of JCBB, not of the mixture).
+                    nn = 0;
+                    if (window) {
+                        const Window& wd = w.gate_window[i];
+                        region(wd.r0, wd.r1, px, py, wd.rho, [&](int64_t l) { near[nn++] = l; });
+                    } else {
+                        for (int64_t k = 0; k < n; ++k) near[nn++] = ci[k];
+                    }
                     std::sort(near, near + nn);  // increasing row (the grid's cells are by place)
                     for (int64_t j = 0; j < nn; ++j) add_pair(i, near[j]);
                     bool settled = false;
