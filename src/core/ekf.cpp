@@ -855,8 +855,9 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
             cells(std::max(sp.y - es, py - ep), std::min(sp.y + es, py + ep), map.gy, map.ny, y0,
                   y1);
         }
-        // |a| nearest to 0 and farthest from it over the interval [a0, a1]
-        auto nearest_abs = [](double a0, double a1) { return a0 > 0.0 ? a0 : (a1 < 0.0 ? -a1 : 0.0); };
+        // |a| nearest to 0 over the interval [a0, a1]: a0 if a0 > 0, -a1 if a1 < 0, else 0,
+        // i.e. the largest of the three (maxima: no branches, whose outcome varies by cell)
+        auto nearest_abs = [](double a0, double a1) { return std::max(std::max(a0, -a1), 0.0); };
         for (int64_t cy = y0; cy <= y1; ++cy)
             for (int64_t cx = x0; cx <= x1; ++cx) {
                 const int64_t c = cy * map.nx + cx;
@@ -893,9 +894,8 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
     // readings want the same landmark) and, with the Mahalanobis cost or JCBB, every pair inside
     // the gate. With those, τ is the gate's own limit as soon as one candidate lies inside the
     // gate: that is tried first (on the gate's window, a superset). Else the least value, best
-    // first: from a guess, candidates in
-    // increasing bound, exactly, until the next bound exceeds the least value found (no
-    // candidate left can beat it).
+    // first: from a guess, candidates in increasing bound, exactly, until the next bound
+    // exceeds the least value found (no candidate left can beat it).
     // all = true: every candidate (Eq. 21, and the Euclidean one-to-one when two readings want
     // the same landmark); full[i]: every candidate of reading i (the readings the gate's pass
     // of one-to-one pairing left).
