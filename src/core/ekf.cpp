@@ -816,9 +816,12 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
     // bound (see collect), within rho of where the reading puts its landmark, the point bound's
     // denominator at most its value with each term at its largest over r0..r1 (1/r terms at r0,
     // the others at r1). (Rounding here is inside the margins.)
-    auto window_of = [&](int64_t i, double tau) {
+    // h: half_width(tau), the same for all readings.
+    auto half_width = [&](double tau) {
+        return std::sqrt(by_d2 ? tau * b_max : tau) * (1.0 + 1e-6);
+    };
+    auto window_of = [&](int64_t i, double tau, double h) {
         const double zr = zc[i * d];
-        const double h = std::sqrt(by_d2 ? tau * b_max : tau) * (1.0 + 1e-6);
         Window wd{zr - h, zr + h, INF};
         if (d == 2 && by_d2 && zr > 0.0 && wd.r0 > 0.0) {
             const double inv = 1.0 / wd.r0, u = 1.0 + mount_norm * inv;
@@ -1025,7 +1028,7 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
                                    });
                     }
                     double least = value(i, first);
-                    gather(limit(least), window_of(i, limit(least)));
+                    gather(limit(least), window_of(i, limit(least), half_width(limit(least))));
                     for (int64_t j = 0; j < nn; ++j) keys[near[j]] = key_of(near[j]);
                     const double done_key = -1.0;  // marks a candidate evaluated
                     keys[first] = done_key;
@@ -1063,9 +1066,9 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
         lo[i] = 0, hi[i] = map.L;
         if (opt.signatures) lo[i] = candidates[2 * i], hi[i] = candidates[2 * i + 1];
         // A reading of several candidates: where it puts its landmark (range-bearing; range
-        // only: the sensor), and its window for the gate's limit, the first that collect looks
-        // in: computed here, for all readings before any search, so that their trigonometry,
-        // divisions and square roots (independent of each other) overlap.
+        // only: the sensor), and below its window for the gate's limit, the first that collect
+        // looks in: computed here, for all readings before any search, so that their
+        // trigonometry, divisions and square roots (independent of each other) overlap.
         if (hi[i] - lo[i] < 2) continue;
         double* const pt = w.point.data() + 2 * i;
         pt[0] = sp.x, pt[1] = sp.y;
@@ -1073,7 +1076,15 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
             const double a = sp.heading + zc[i * d + 1];
             pt[0] += zc[i * d] * std::cos(a), pt[1] += zc[i * d] * std::sin(a);
         }
-        if (by_d2 && !opt.signatures) w.gate_window[i] = window_of(i, limit(0.0));
+    }
+    // (The windows in a loop of their own: glibc's sin and cos begin by saving the rounding
+    // mode (stmxcsr), which waits for the floating-point operations before it, so each
+    // window's divisions and square roots would be waited for in turn.)
+    if (by_d2 && !opt.signatures) {
+        const double gate_tau = limit(0.0), gate_h = half_width(gate_tau);
+        for (int64_t i = 0; i < m; ++i)
+            if (status[i] == UNKNOWN && hi[i] - lo[i] >= 2)
+                w.gate_window[i] = window_of(i, gate_tau, gate_h);
     }
     collect(opt.method == PER_LANDMARK);
     // chosen: each reading's pair (used or gated); update: the pairs of the stacked update
