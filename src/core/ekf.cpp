@@ -983,7 +983,7 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
                     pairs.resize(row_start[i]);
                     nearest[i] = INF;
                 }
-                {
+                {  // (no candidate inside the gate, or the Euclidean cost's one-to-one pairing)
                     // The first candidate evaluated: a guess at the cheapest, which only sets
                     // how many candidates the search below evaluates, never what it finds (the
                     // least value over all of them): the landmark nearest to where the reading
