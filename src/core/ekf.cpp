@@ -832,10 +832,11 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
         return wd;
     };
     // The landmarks that may lie in the annulus rlo <= r <= rhi around the sensor and within rho
-    // of the point (px, py) (rho = INF: anywhere), each passed to f: the landmarks of the map's
-    // grid cells in the box around both discs, by their own squared distances, with a margin
-    // for rounding: a superset (the caller tests exactly what it needs). The distances are
-    // computed as the bounds compute them. Non-finite input: every landmark.
+    // of the point (px, py) (rho = INF: anywhere), each passed to f: the map's grid cells that
+    // meet both (by the box of their landmarks), then each landmark's own squared distances, with
+    // a margin for rounding: a superset (the caller tests exactly what it needs). The distances
+    // are computed as the bounds compute them, and a landmark's are no less (no more) than its
+    // box's nearest (farthest) ones (rounding is monotone). Non-finite input: every landmark.
     auto region = [&](double rlo, double rhi, double px, double py, double rho, auto&& f) {
         const double qlo = rlo > 0.0 ? rlo * rlo * (1.0 - 1e-6) : -INF;
         const double qhi = rhi * rhi * (1.0 + 1e-6), rho2 = rho * rho * (1.0 + 1e-6);
@@ -857,11 +858,25 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
             cells(std::max(sp.y - es, py - ep), std::min(sp.y + es, py + ep), map.gy, map.ny, y0,
                   y1);
         }
-        // (no test of a cell as a whole: it holds about one landmark, as cheap to test)
+        // |a| nearest to 0 over the interval [a0, a1]: a0 if a0 > 0, -a1 if a1 < 0, else 0,
+        // i.e. the largest of the three (maxima: no branches, whose outcome varies by cell)
+        auto nearest_abs = [](double a0, double a1) { return std::max(std::max(a0, -a1), 0.0); };
         for (int64_t cy = y0; cy <= y1; ++cy)
             for (int64_t cx = x0; cx <= x1; ++cx) {
                 const int64_t c = cy * map.nx + cx;
                 const int64_t k0 = map.cell_start[c], k1 = map.cell_start[c + 1];
+                if (k0 == k1) continue;
+                if (clip) {
+                    const double* b = map.cell_box.data() + 4 * c;
+                    const double sx0 = b[0] - sp.x, sx1 = b[1] - sp.x, sy0 = b[2] - sp.y,
+                                 sy1 = b[3] - sp.y;
+                    const double ax = nearest_abs(sx0, sx1), ay = nearest_abs(sy0, sy1);
+                    const double fx = std::max(-sx0, sx1), fy = std::max(-sy0, sy1);
+                    if (ax * ax + ay * ay > qhi || fx * fx + fy * fy < qlo) continue;
+                    const double bx = nearest_abs(b[0] - px, b[1] - px),
+                                 by = nearest_abs(b[2] - py, b[3] - py);
+                    if (bx * bx + by * by > rho2) continue;
+                }
                 for (int64_t k = k0; k < k1; ++k) {
                     const int64_t l = map.cell_landmark[k];
                     if (clip) {
@@ -1450,9 +1465,16 @@ Map::Map(int64_t L_, const double* xy_, const int64_t* s) : L(L_), store(xy_, xy
     }
     for (int64_t c = 0; c < C; ++c) cell_start[c + 1] += cell_start[c];
     cell_landmark.resize(L);
+    cell_box.assign(4 * C, 0.0);
     std::vector<int64_t> fill(cell_start.begin(), cell_start.end() - 1);
     for (int64_t l = 0; l < L; ++l) {
-        cell_landmark[fill[of[l]]++] = l;
+        const int64_t c = of[l];
+        const double x = xy[2 * l], y = xy[2 * l + 1];
+        double* b = cell_box.data() + 4 * c;
+        if (fill[c] == cell_start[c]) b[0] = b[1] = x, b[2] = b[3] = y;
+        b[0] = std::min(b[0], x), b[1] = std::max(b[1], x);
+        b[2] = std::min(b[2], y), b[3] = std::max(b[3], y);
+        cell_landmark[fill[c]++] = l;
     }
     // the table: at least twice as many slots as signatures (short probes)
     size_t size = 2;

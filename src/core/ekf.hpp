@@ -88,11 +88,12 @@ struct Map {
     // A uniform grid over the landmarks (about one per cell), to find those near a place
     // without looking at the others: cell c = cy nx + cx, of side `cell` from (gx, gy), holds
     // the landmarks cell_landmark[cell_start[c] .. cell_start[c + 1]) (increasing rows); a
-    // coordinate's cell is ⌊(x - gx) inv_cell⌋ (clamped); box the map's (x min, x max, y min,
-    // y max).
+    // coordinate's cell is ⌊(x - gx) inv_cell⌋ (clamped); cell_box[4c .. 4c + 4) the box of its
+    // landmarks (x min, x max, y min, y max); box the map's.
     double gx = 0.0, gy = 0.0, cell = 1.0, inv_cell = 1.0, box[4] = {0.0, 0.0, 0.0, 0.0};
     int64_t nx = 1, ny = 1;
     std::vector<int64_t> cell_start, cell_landmark;
+    std::vector<double> cell_box;
 
     Map(int64_t L, const double* xy, const int64_t* signatures);
     Map(const Map&) = delete;
