@@ -1077,9 +1077,10 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
             pt[0] += zc[i * d] * std::cos(a), pt[1] += zc[i * d] * std::sin(a);
         }
     }
-    // (The windows in a loop of their own: glibc's sin and cos begin by saving the rounding
-    // mode (stmxcsr), which waits for the floating-point operations before it, so each
-    // window's divisions and square roots would be waited for in turn.)
+    // (The windows in a loop of their own, after the points: glibc's sincos begins by saving
+    // the rounding mode (stmxcsr, where a profile puts much of its time), which presumably
+    // waits for the floating-point operations before it, here each window's divisions and
+    // square roots.)
     if (by_d2 && !opt.signatures) {
         const double gate_tau = limit(0.0), gate_h = half_width(gate_tau);
         for (int64_t i = 0; i < m; ++i)
