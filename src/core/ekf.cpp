@@ -663,7 +663,7 @@ struct Window {
 struct Work {
     std::vector<int8_t> status;
     std::vector<int32_t> landmark;
-    std::vector<double> nearest, zc, pair_d2, range, bound, inv_bound, bound_phi, keys, point;
+    std::vector<double> nearest, zc, pair_d2, range, bound, bound_phi, keys, point;
     std::vector<Window> gate_window;
     std::vector<Predicted> pred;
     std::vector<char> done, taken, full;
@@ -721,7 +721,6 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
         w.pred.resize(map.L);
         w.range.resize(map.L);
         w.bound.resize(map.L);
-        w.inv_bound.resize(map.L);
         w.bound_phi.resize(map.L);
     }
     w.done.assign(map.L, 0);  // per landmark: bit 1 its bound is known, bit 2 its prediction
@@ -736,7 +735,7 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
     char* const done = w.done.data();
     double *const nearest = w.nearest.data(), *const zc = w.zc.data(),
                   *const pair_d2 = w.pair_d2.data(), *const range = w.range.data(),
-                  *const bound = w.bound.data(), *const inv_bound = w.inv_bound.data(),
+                  *const bound = w.bound.data(),
                   *const bound_phi = w.bound_phi.data();
     Predicted* const pred = w.pred.data();
     int64_t *const row_start = w.row_start.data(), *const lo = w.lo.data(),
@@ -754,14 +753,13 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
     const double trace_gain = trace_p * (1.0 + sp.ox * sp.ox + sp.oy * sp.oy);
     const double mount_norm = std::sqrt(sp.ox * sp.ox + sp.oy * sp.oy);
     const bool by_d2 = opt.cost == MAHALANOBIS || opt.method == JCBB;  // (see value below)
-    // A landmark's range r, its b and 1/b; b_φ for the point bound (collect's bound_key).
+    // A landmark's range r and its b; b_φ for the point bound (collect's bounds).
     auto bound_of = [&](int64_t l) {
         if (!(done[l] & 1)) {
             const double dx = map.xy[2 * l] - sp.x, dy = map.xy[2 * l + 1] - sp.y;
             const double r = std::sqrt(dx * dx + dy * dy);
             range[l] = r;
             bound[l] = trace_gain + range_variance(r, p, opt);
-            inv_bound[l] = 1.0 / bound[l];
             if (d == 2 && by_d2) {
                 const double ir = 1.0 / r, u = 1.0 + mount_norm * ir;
                 bound_phi[l] = (ir * ir + u * u) * trace_p + bearing_variance(r, p, opt);
@@ -781,7 +779,9 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
     auto add_pair = [&](int64_t i, int64_t l) {
         const Predicted& pr = predicted(l);
         if (!pr.ok) return;
-        Pair q;
+        // written in place (a Pair built aside and copied in is read back, 16 bytes at a time,
+        // before its 8-byte stores have landed: a store-forwarding stall per pair)
+        Pair& q = pairs.emplace_back();
         q.i = i;
         q.l = l;
         q.v[0] = zc[i * d] - pr.h[0];
@@ -789,7 +789,6 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
         q.d2 = mahalanobis2(pr, q.v, d);
         q.cost = opt.cost == EUCLIDEAN ? q.v[0] * q.v[0] + q.v[1] * q.v[1] : q.d2;
         nearest[i] = std::min(nearest[i], q.d2);
-        pairs.push_back(q);
     };
     // The value a reading's pair is chosen by, and its bound from the range alone (above):
     // one-to-one pairing takes the pair of least cost (Mahalanobis d² or Euclidean |v|²);
@@ -817,9 +816,12 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
     // bound (see collect), within rho of where the reading puts its landmark, the point bound's
     // denominator at most its value with each term at its largest over r0..r1 (1/r terms at r0,
     // the others at r1). (Rounding here is inside the margins.)
-    auto window_of = [&](int64_t i, double tau) {
+    // h: half_width(tau), the same for all readings.
+    auto half_width = [&](double tau) {
+        return std::sqrt(by_d2 ? tau * b_max : tau) * (1.0 + 1e-6);
+    };
+    auto window_of = [&](int64_t i, double tau, double h) {
         const double zr = zc[i * d];
-        const double h = std::sqrt(by_d2 ? tau * b_max : tau) * (1.0 + 1e-6);
         Window wd{zr - h, zr + h, INF};
         if (d == 2 && by_d2 && zr > 0.0 && wd.r0 > 0.0) {
             const double inv = 1.0 / wd.r0, u = 1.0 + mount_norm * inv;
@@ -856,8 +858,9 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
             cells(std::max(sp.y - es, py - ep), std::min(sp.y + es, py + ep), map.gy, map.ny, y0,
                   y1);
         }
-        // |a| nearest to 0 and farthest from it over the interval [a0, a1]
-        auto nearest_abs = [](double a0, double a1) { return a0 > 0.0 ? a0 : (a1 < 0.0 ? -a1 : 0.0); };
+        // |a| nearest to 0 over the interval [a0, a1]: a0 if a0 > 0, -a1 if a1 < 0, else 0,
+        // i.e. the largest of the three (maxima: no branches, whose outcome varies by cell)
+        auto nearest_abs = [](double a0, double a1) { return std::max(std::max(a0, -a1), 0.0); };
         for (int64_t cy = y0; cy <= y1; ++cy)
             for (int64_t cx = x0; cx <= x1; ++cx) {
                 const int64_t c = cy * map.nx + cx;
@@ -893,9 +896,9 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
     // gate), i.e. each reading's cheapest pair (what one-to-one pairing takes when no two
     // readings want the same landmark) and, with the Mahalanobis cost or JCBB, every pair inside
     // the gate. With those, τ is the gate's own limit as soon as one candidate lies inside the
-    // gate: that is tried first. Else the least value, best first: from a guess, candidates in
-    // increasing bound, exactly, until the next bound exceeds the least value found (no
-    // candidate left can beat it).
+    // gate: that is tried first (on the gate's window, a superset). Else the least value, best
+    // first: from a guess, candidates in increasing bound, exactly, until the next bound
+    // exceeds the least value found (no candidate left can beat it).
     // all = true: every candidate (Eq. 21, and the Euclidean one-to-one when two readings want
     // the same landmark); full[i]: every candidate of reading i (the readings the gate's pass
     // of one-to-one pairing left).
@@ -933,18 +936,29 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
                 // S_φφ <= |H_φ|² tr P + R_φφ, |H_φ|² = 1/r² + (1 + (dy oy + dx ox)/r²)² <=
                 // 1/r² + (1 + |o|/r)²: no bearing (atan2) needed. The key is the larger bound.
                 const bool point = d == 2 && by_d2 && zr > 0.0;
-                auto bound_key = [&](int64_t l) {  // (after bound_of(l))
-                    const double r = range[l], g = zr - r;
-                    double k = by_d2 ? g * g * inv_bound[l] : g * g;
-                    if (point) {  // (b and b_φ of the landmark from bound_of)
-                        const double kp = dist2(l) / (bound[l] + r * zr * bound_phi[l]);
-                        k = std::max(k, kp);
-                    }
-                    return k;
+                // The two bounds of landmark l as fractions: the range's g²/b (by_d2; else the
+                // Euclidean g²/1) and, with point, the point's dist2/(b + r z_r b_φ).
+                struct Bounds {
+                    double num, den, num_p, den_p;
                 };
-                auto key_of = [&](int64_t l) {
+                auto bounds = [&](int64_t l) {  // (b and b_φ of the landmark from bound_of)
                     bound_of(l);
-                    return keys[l] = bound_key(l);
+                    const double r = range[l], g = zr - r;
+                    Bounds f{g * g, by_d2 ? bound[l] : 1.0, 0.0, 1.0};
+                    if (point) f.num_p = dist2(l), f.den_p = bound[l] + r * zr * bound_phi[l];
+                    return f;
+                };
+                // The key: the larger bound (a NaN range bound stays NaN).
+                auto key_of = [&](int64_t l) {
+                    const Bounds f = bounds(l);
+                    const double k = f.num / f.den;
+                    return point ? std::max(k, f.num_p / f.den_p) : k;
+                };
+                // Whether the key exceeds tau, without its divisions (num > τ den: the same to
+                // rounding, inside the limit's margin; a NaN bound exceeds nothing).
+                auto exceeds = [&](int64_t l, double tau) {
+                    const Bounds f = bounds(l);
+                    return f.num > tau * f.den || f.num_p > tau * f.den_p;
                 };
                 // The candidates whose bound does not exceed tau, in near (a NaN bound keeps
                 // one), from every candidate (signatures) or the reading's window wd in the map
@@ -953,20 +967,38 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
                 auto gather = [&](double tau, const Window& wd) {
                     nn = 0;
                     auto keep = [&](int64_t l) {
-                        if (!(key_of(l) > tau)) near[nn++] = l;
+                        if (!exceeds(l, tau)) near[nn++] = l;
                     };
                     if (window)
                         region(wd.r0, wd.r1, px, py, wd.rho, keep);
                     else
                         for (int64_t k = 0; k < n; ++k) keep(ci[k]);
                 };
-                bool settled = false;
                 if (by_d2) {  // τ is at least the gate's limit, that if a candidate is inside
-                    gather(limit(0.0), w.gate_window[i]);
-                    for (int64_t j = 0; j < nn && !settled; ++j)
-                        settled = value(i, near[j]) <= opt.gate2;
+                    // (mostly the case): the pairs of the gate's candidates, kept if one is
+                    // inside the gate (so the reading is not degenerate), else dropped for the
+                    // search below. The candidates: those in the gate's window (every landmark
+                    // a candidate) or all of them (signatures), their bounds not tested: the
+                    // window's landmarks are mostly those the bounds keep, and a pair outside
+                    // the gate next to one inside changes nothing (not the cheapest, not in the
+                    // gate's pass of one-to-one pairing, not of JCBB, not of the mixture).
+                    nn = 0;
+                    if (window) {
+                        const Window& wd = w.gate_window[i];
+                        region(wd.r0, wd.r1, px, py, wd.rho, [&](int64_t l) { near[nn++] = l; });
+                    } else {
+                        for (int64_t k = 0; k < n; ++k) near[nn++] = ci[k];
+                    }
+                    std::sort(near, near + nn);  // increasing row (the grid's cells are by place)
+                    for (int64_t j = 0; j < nn; ++j) add_pair(i, near[j]);
+                    bool settled = false;
+                    for (size_t k = row_start[i]; k < pairs.size(); ++k)
+                        settled = settled || pairs[k].d2 <= opt.gate2;
+                    if (settled) continue;
+                    pairs.resize(row_start[i]);
+                    nearest[i] = INF;
                 }
-                if (!settled) {
+                {  // (no candidate inside the gate, or the Euclidean cost's one-to-one pairing)
                     // The first candidate evaluated: a guess at the cheapest, which only sets
                     // how many candidates the search below evaluates, never what it finds (the
                     // least value over all of them): the landmark nearest to where the reading
@@ -996,9 +1028,9 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
                                    });
                     }
                     double least = value(i, first);
-                    gather(limit(least), window_of(i, limit(least)));
+                    gather(limit(least), window_of(i, limit(least), half_width(limit(least))));
+                    for (int64_t j = 0; j < nn; ++j) keys[near[j]] = key_of(near[j]);
                     const double done_key = -1.0;  // marks a candidate evaluated
-                    key_of(first);
                     keys[first] = done_key;
                     for (;;) {  // best first among the rest
                         int64_t next = -1;
@@ -1013,7 +1045,7 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
                     const double tau = limit(least);
                     int64_t kept = 0;
                     for (int64_t j = 0; j < nn; ++j)
-                        if (!(bound_key(near[j]) > tau)) near[kept++] = near[j];
+                        if (!exceeds(near[j], tau)) near[kept++] = near[j];
                     nn = kept;
                 }
                 std::sort(near, near + nn);  // increasing row (the grid's cells are by place)
@@ -1034,9 +1066,9 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
         lo[i] = 0, hi[i] = map.L;
         if (opt.signatures) lo[i] = candidates[2 * i], hi[i] = candidates[2 * i + 1];
         // A reading of several candidates: where it puts its landmark (range-bearing; range
-        // only: the sensor), and its window for the gate's limit, the first that collect looks
-        // in: computed here, for all readings before any search, so that their trigonometry,
-        // divisions and square roots (independent of each other) overlap.
+        // only: the sensor), and below its window for the gate's limit, the first that collect
+        // looks in: computed here, for all readings before any search, so that their
+        // trigonometry, divisions and square roots (independent of each other) overlap.
         if (hi[i] - lo[i] < 2) continue;
         double* const pt = w.point.data() + 2 * i;
         pt[0] = sp.x, pt[1] = sp.y;
@@ -1044,7 +1076,16 @@ void associate(const Call& c, const Map& map, const Options& opt, Work& w) {
             const double a = sp.heading + zc[i * d + 1];
             pt[0] += zc[i * d] * std::cos(a), pt[1] += zc[i * d] * std::sin(a);
         }
-        if (by_d2 && !opt.signatures) w.gate_window[i] = window_of(i, limit(0.0));
+    }
+    // (The windows in a loop of their own, after the points: glibc's sincos begins by saving
+    // the rounding mode (stmxcsr, where a profile puts much of its time), which presumably
+    // waits for the floating-point operations before it, here each window's divisions and
+    // square roots.)
+    if (by_d2 && !opt.signatures) {
+        const double gate_tau = limit(0.0), gate_h = half_width(gate_tau);
+        for (int64_t i = 0; i < m; ++i)
+            if (status[i] == UNKNOWN && hi[i] - lo[i] >= 2)
+                w.gate_window[i] = window_of(i, gate_tau, gate_h);
     }
     collect(opt.method == PER_LANDMARK);
     // chosen: each reading's pair (used or gated); update: the pairs of the stacked update
