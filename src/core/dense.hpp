@@ -11,13 +11,7 @@
 #include <cstdint>
 #include <cstring>
 
-// Function multiversioning where the toolchain resolves it at load time (GCC with glibc's
-// ifunc on x86-64); elsewhere the baseline build alone.
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__GLIBC__)
-#define RELMAP_MULTIVERSION __attribute__((target_clones("arch=x86-64-v3", "default")))
-#else
-#define RELMAP_MULTIVERSION
-#endif
+#include "multiversion.hpp"  // RELMAP_MULTIVERSION
 #if defined(__GNUC__)
 #define RELMAP_INLINE inline __attribute__((always_inline))
 #define RELMAP_LAMBDA_INLINE __attribute__((always_inline))  // after a lambda's parameters

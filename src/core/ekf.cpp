@@ -8,6 +8,7 @@
 #include <type_traits>
 
 #include "arrays.hpp"
+#include "multiversion.hpp"
 
 #if defined(_MSC_VER)
 #define RELMAP_NOINLINE __declspec(noinline)
@@ -17,16 +18,11 @@
 #define RELMAP_INLINE inline __attribute__((always_inline))
 #endif
 
-// The hot kernels compiled twice from the one source, for baseline x86-64 (SSE2: two doubles
-// per vector) and for x86-64-v3 (AVX2: four, the LANES filters of a step in one vector); the
-// loader picks the one the processor runs (GCC function multi-versioning, an ifunc). Both do
-// the same IEEE operations in the same order: the build compiles with -ffp-contract=off (no
-// fused multiply-adds, which v3 has), so the results are bitwise those of the baseline build.
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__ELF__)
-#define RELMAP_CLONES __attribute__((target_clones("arch=x86-64-v3", "default")))
-#else
-#define RELMAP_CLONES
-#endif
+// The Kalman update's lanes (kalman_lanes) carry RELMAP_MULTIVERSION: compiled for baseline
+// x86-64 (SSE2: two doubles per vector) and for x86-64-v3 (AVX2: four, the LANES filters of a
+// step in one vector). This file is compiled with -ffp-contract=off (CMakeLists.txt: no fused
+// multiply-adds, which v3 has), so both copies do the same IEEE operations in the same order
+// and the filter's results are bitwise those of the baseline build on every processor.
 
 namespace relmap::ekf {
 
@@ -139,7 +135,7 @@ RELMAP_INLINE void predict_cov(int n, const double* F, const double* P, const do
 // the layout is the plain one (kalman_block below); the sizes known at run time (N_ = 0) have
 // one lane.
 template <int N_, int D_, int W>
-RELMAP_CLONES void kalman_lanes(int n, int D, double* delta, double* P, const double* y,
+RELMAP_MULTIVERSION void kalman_lanes(int n, int D, double* delta, double* P, const double* y,
                                 const double* H, const double* R, const bool* active,
                                 double* const* S_out, double* nis, LogDet* logdet, bool* ok) {
     static_assert(W >= 1 && (N_ > 0 || W == 1), "lanes need sizes known at compile time");
