@@ -136,8 +136,9 @@ RELMAP_INLINE void predict_cov(int n, const double* F, const double* P, const do
 // one lane.
 template <int N_, int D_, int W>
 RELMAP_MULTIVERSION void kalman_lanes(int n, int D, double* delta, double* P, const double* y,
-                                const double* H, const double* R, const bool* active,
-                                double* const* S_out, double* nis, LogDet* logdet, bool* ok) {
+                                      const double* H, const double* R, const bool* active,
+                                      double* const* S_out, double* nis, LogDet* logdet,
+                                      bool* ok) {
     static_assert(W >= 1 && (N_ > 0 || W == 1), "lanes need sizes known at compile time");
     if (N_ > 0) n = N_;
     if (D_ > 0) D = D_;
