@@ -208,11 +208,37 @@ def augmented(Hx, n, ir, ib, lk, d):
     return H
 
 
+def predict_augmented(P, F, RQR, phi, sc2):
+    """The augmented covariance ``P`` [pose; biases] (n, n) predicted in place: the pose by its
+    Jacobian ``F`` and noise ``RQR``, each bias decayed by ``phi`` towards its stationary
+    variance ``sc2`` (first-order Gauss–Markov)."""
+    P[:3, 3:] = F @ P[:3, 3:] * phi
+    P[3:, :3] = P[:3, 3:].T
+    P[:3, :3] = F @ P[:3, :3] @ F.T + RQR
+    P[3:, 3:] = P[3:, 3:] * np.outer(phi, phi) + np.diag(sc2 * (1 - phi**2))
+
+
+def at_every_time(comp, start, ev_idx, post_x, post_P):
+    """The pose and its covariance at every filter time, each predicted (composed steps) from
+    its base event's posterior ``post_x``, ``post_P`` (events at the times ``ev_idx``), or from
+    the start where the base is no event."""
+    base, D, Q = comp
+    ev_of = np.full(len(base), -1, np.int64)
+    ev_of[ev_idx] = np.arange(len(ev_idx))
+    j = ev_of[base]
+    bx = np.where(j[:, None] >= 0, post_x[np.maximum(j, 0)], start.mean)
+    bP = np.where(j[:, None, None] >= 0, post_P[np.maximum(j, 0)], start.cov)
+    xs, F, R = apply(bx, None, D, Q)
+    Ps = F @ bP @ np.swapaxes(F, -1, -2) + R @ Q @ np.swapaxes(R, -1, -2)
+    xs[ev_idx], Ps[ev_idx] = post_x, post_P  # the posteriors at the event times
+    return xs, Ps
+
+
 def run_bias(log, lm, p, start, bias: Bias, comp, *, d=2, keep_all=True, gate2=None):
     """The augmented-state EKF over ``log`` (signatures association, χ² gate, one stacked
     Joseph update per time stamp, one reading per landmark and time). Returns dict with
     loglik inputs (y, S, status per reading) and, with ``keep_all``, mean/cov at every time."""
-    base, D, Q = comp
+    _, D, Q = comp
     L = len(lm)
     ir, ib, n, sc2, tau = layout(bias, L, d)
     x = np.zeros(n)
@@ -239,15 +265,10 @@ def run_bias(log, lm, p, start, bias: Bias, comp, *, d=2, keep_all=True, gate2=N
         # predict the pose from the last event (composed steps) and decay the biases
         xn, F, R = apply(x[:3], None, D[k], Q[k])
         x[:3] = xn
-        Pxb = F @ P[:3, 3:]
-        P[:3, :3] = F @ P[:3, :3] @ F.T + R @ Q[k] @ R.T
-        dt = t[k] - last_t
+        phi = np.exp(-(t[k] - last_t) / tau)
         last_t = t[k]
-        phi = np.exp(-dt / tau)
         x[3:] *= phi
-        P[:3, 3:] = Pxb * phi
-        P[3:, :3] = P[:3, 3:].T
-        P[3:, 3:] = P[3:, 3:] * np.outer(phi, phi) + np.diag(sc2 * (1 - phi**2))
+        predict_augmented(P, F, R @ Q[k] @ R.T, phi, sc2)
         # readings of this time stamp
         best = {}
         c, s = math.cos(x[2]), math.sin(x[2])
@@ -297,18 +318,7 @@ def run_bias(log, lm, p, start, bias: Bias, comp, *, d=2, keep_all=True, gate2=N
         del c, s
     out = {"y": y_out, "S": S_out, "status": status}
     if keep_all:
-        # every filter time from its base event's posterior (or the start)
-        T = len(t)
-        ev_of = np.full(T, -1, np.int64)
-        ev_of[ev_idx] = np.arange(len(ev_idx))
-        bx = np.where(ev_of[base][:, None] >= 0, post_x[np.maximum(ev_of[base], 0)], start.mean)
-        bP = np.where(ev_of[base][:, None, None] >= 0, post_P[np.maximum(ev_of[base], 0)],
-                      start.cov)  # fmt: skip
-        # base of time 0 is 0: the start itself (if 0 is no event)
-        xs, F, R = apply(bx, None, D, Q)
-        Ps = F @ bP @ np.swapaxes(F, -1, -2) + R @ Q @ np.swapaxes(R, -1, -2)
-        xs[ev_idx], Ps[ev_idx] = post_x, post_P  # the posteriors at the event times
-        out["mean"], out["cov"] = xs, Ps
+        out["mean"], out["cov"] = at_every_time(comp, start, ev_idx, post_x, post_P)
     return out
 
 
@@ -319,7 +329,7 @@ def run_factor(log, lm, p, start, bias: Bias, comp, *, d=2):
     *consider* analysis: the augmented error [pose; biases] through ``(I - K_a H_a)`` with
     ``K_a = [K; 0]``, the biases decaying between time stamps). Returns the filter's mean and
     covariance and the considered covariance at every filter time."""
-    base, D, Q = comp
+    _, D, Q = comp
     L = len(lm)
     ir, ib, n, sc2, tau = layout(bias, L, d)
     c2 = float(p.inflation) ** 2
@@ -344,10 +354,7 @@ def run_factor(log, lm, p, start, bias: Bias, comp, *, d=2):
         Pc = F @ Pc @ F.T + RQR
         phi = np.exp(-(t[k] - last_t) / tau)
         last_t = t[k]
-        Pa[:3, 3:] = F @ Pa[:3, 3:] * phi
-        Pa[3:, :3] = Pa[:3, 3:].T
-        Pa[:3, :3] = F @ Pa[:3, :3] @ F.T + RQR
-        Pa[3:, 3:] = Pa[3:, 3:] * np.outer(phi, phi) + np.diag(sc2 * (1 - phi**2))
+        predict_augmented(Pa, F, RQR, phi, sc2)
         best = {}
         for i in range(lo, hi):
             lk = int(sig[i])
@@ -376,19 +383,8 @@ def run_factor(log, lm, p, start, bias: Bias, comp, *, d=2):
             Pa = IKHa @ Pa @ IKHa.T + Ka @ Rw @ Ka.T
             Pa = 0.5 * (Pa + Pa.T)
         post[0][e], post[1][e], post[2][e] = x, Pc, Pa[:3, :3]
-    T = len(t)
-    ev_of = np.full(T, -1, np.int64)
-    ev_of[ev_idx] = np.arange(len(ev_idx))
-    j = ev_of[base]
-    out = []
-    for which, s0 in ((1, start.cov), (2, start.cov)):
-        bx = np.where(j[:, None] >= 0, post[0][np.maximum(j, 0)], start.mean)
-        bP = np.where(j[:, None, None] >= 0, post[which][np.maximum(j, 0)], s0)
-        xs, F, R = apply(bx, None, D, Q)
-        Ps = F @ bP @ np.swapaxes(F, -1, -2) + R @ Q @ np.swapaxes(R, -1, -2)
-        xs[ev_idx], Ps[ev_idx] = post[0], post[which]
-        out.append((xs, Ps))
-    return out[0][0], out[0][1], out[1][1]
+    xs, Ps = at_every_time(comp, start, ev_idx, post[0], post[1])
+    return xs, Ps, at_every_time(comp, start, ev_idx, post[0], post[2])[1]
 
 
 def loglik(out, nu, d=2):
