@@ -37,7 +37,7 @@ import numpy as np
 from scipy.stats import chi2
 from study_bias import recording
 
-from relmap import ekf
+from relmap import autocalibration, ekf
 from relmap.at import AT
 from relmap.io.datasets import read_mrclam
 from relmap.lie import se2
@@ -98,7 +98,7 @@ class Robot:
             y = self.log.z - zh
             y[:, 1] = se2.wrap_angle(y[:, 1])
             d2 = np.einsum("ni,ni->n", y, np.linalg.solve(S, y[..., None])[..., 0])
-            return -0.5 * d2 - 0.5 * np.log(np.linalg.det(S)), d2
+            return autocalibration.logpdf(d2, np.linalg.slogdet(S)[1], 2, np.inf), d2
 
         none = np.zeros((n, 2, 2))
         landmark = np.max([density(np.broadcast_to(q, (n, 2)), none)[0]
