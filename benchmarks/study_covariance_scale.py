@@ -59,7 +59,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np
 from study_bias import recording
 
-from relmap import autocalibration, ekf
+from relmap import autocalibration, ekf, gaussian
 from relmap.at import AT
 from relmap.io.datasets import read_mrclam
 from relmap.lie import se2
@@ -134,7 +134,7 @@ def forward_backward(data, run: Localization, gap: float = 0.0, cache=None):
     two = predicted(xb[b], Pb[b], bwd, noise) if gap else AT(xb[at], Pb[at])
     d = one.mean[:, :2] - two.mean[:, :2]
     C = (one.cov + two.cov)[:, :2, :2]
-    alpha = float(np.mean(np.einsum("ni,ni->n", d, np.linalg.solve(C, d[..., None])[..., 0])) / 2)
+    alpha = float(np.mean(gaussian.mahalanobis2(d, 0.0, C)) / 2)
     heading = se2.wrap_angle(one.mean[:, 2] - two.mean[:, 2])
     ef, eb = (x[at, :2] - run.truth[at, :2] for x in (xf, xb))
     corr = float((ef * eb).sum(1).mean() / np.sqrt((ef**2).sum(1).mean() * (eb**2).sum(1).mean()))
