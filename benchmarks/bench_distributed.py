@@ -3,7 +3,7 @@
 On ``manhattanOlson3500`` (``../shared/data/posegraph2d``), the query 0 → 3499 by the optimal
 method: every sample re-solves the 5 598-AT pose graph. In one run, interleaved and repeated:
 
-1. ``relmap.validate.run(plan, n=N)`` in this process;
+1. ``relmap.app.validate.run(plan, n=N)`` in this process;
 2. the same on a ``LocalCluster`` of ``--workers`` processes (one thread each), started once
    and warmed (each worker loads relmap and its kernels) before timing; the map is scattered
    to the workers inside every timed run;
@@ -27,9 +27,10 @@ from pathlib import Path
 
 import numpy as np
 
-from relmap import montecarlo, validate
-from relmap.distributed import local_client
+from relmap.app import validate
 from relmap.io import load_map
+from relmap.sim import montecarlo
+from relmap.sim.distributed import local_client
 
 DATA = Path(os.environ.get("RELMAP_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
 

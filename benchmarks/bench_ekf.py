@@ -44,10 +44,9 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # small dense blocks: thread
 import numpy as np
 
 import relmap as rm
-from relmap import ekf
+from relmap.filter import ekf
 from relmap.lie import se2
-from relmap.robot import DistanceNoise, increment
-from relmap.sensors import RangeBearingSensor
+from relmap.models import DistanceNoise, RangeBearingSensor, increment
 
 L = 50
 SENSOR = RangeBearingSensor(0.1, np.radians(1.0), mount=[0.1, 0.0, 0.0], fov=np.pi, max_range=8.0)
@@ -285,8 +284,8 @@ def main() -> None:
         "RELMAP_DATA", str(Path(__file__).resolve().parents[2] / "shared" / "data")
     )
     if Path(folder, "landmarks", "mrclam6").is_dir():
+        from relmap.app.localize import calibrate_mrclam
         from relmap.io import read_mrclam
-        from relmap.localize import calibrate_mrclam
 
         data = read_mrclam(Path(folder, "landmarks", "mrclam6"))
         r1 = data.robots[0]

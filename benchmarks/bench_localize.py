@@ -44,8 +44,8 @@ def main() -> None:
     ap.add_argument("--modes", default="signatures,mahalanobis,jcbb")
     ap.add_argument("--from-run", action="store_true", help="also the noise of the next robot")
     args = ap.parse_args()
+    from relmap.app.localize import calibrate_mrclam, localize_mrclam, localize_plaza
     from relmap.io import read_mrclam, read_plaza
-    from relmap.localize import calibrate_mrclam, localize_mrclam, localize_plaza
 
     mrclam = read_mrclam(DATA / "landmarks" / "mrclam6")
     print(f"{'run':26s} {'RMSE m':>7s} {'cov90':>6s} {'ANEES':>7s}   calibration")

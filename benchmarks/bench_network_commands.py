@@ -59,12 +59,12 @@ def main() -> None:
     sphere = str(DATA / "posegraph3d" / "sphere2500.g2o")
     jobs = {
         "relmap query city10000.g2o 0 9999": (
-            [py, "-m", "relmap.cli", "query", city, "0", "9999"],
+            [py, "-m", "relmap.app.cli", "query", city, "0", "9999"],
             [py, "-c", GTSAM_QUERY, city, "9999"],
             2.0,
         ),
         "relmap solve sphere2500.g2o --out F": (
-            [py, "-m", "relmap.cli", "solve", sphere, "--out", str(out)],
+            [py, "-m", "relmap.app.cli", "solve", sphere, "--out", str(out)],
             [py, "-c", GTSAM_SOLVE, sphere, str(out)],
             1.5,
         ),

@@ -3,7 +3,7 @@
 N wheel-odometry steps of a differential-drive robot (midpoint integration, proportional wheel
 noise), every intermediate pose and covariance kept:
 
-- relmap: ``relmap.robot.dead_reckon`` (each step an AT in the robot frame, the run one parallel
+- relmap: ``relmap.models.dead_reckon`` (each step an AT in the robot frame, the run one parallel
   scan);
 - GTSAM: a Python loop of ``Pose2.compose`` with Jacobians and the covariance update in GTSAM's
   body chart (each step's covariance converted once, before timing);
@@ -26,7 +26,7 @@ import numpy as np
 
 import relmap as rm
 from relmap.lie import se2
-from relmap.robot import DiffDrive, WheelNoise, dead_reckon, increment
+from relmap.models import DiffDrive, WheelNoise, dead_reckon, increment
 
 
 def numpy_loop(u: np.ndarray, drive: DiffDrive, noise: WheelNoise) -> tuple[np.ndarray, np.ndarray]:

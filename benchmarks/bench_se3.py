@@ -11,7 +11,7 @@
 2. N reversals with covariance: ``a.reverse()`` vs ``Pose3.inverse(H)`` and ``H Σ Hᵀ``.
 3. Chains: B independent chains of L steps (B·L compounds), every intermediate kept: relmap
    compounds the B chains one step at a time (L batched calls of width B), and all prefixes in
-   one call (``relmap.at3.compound_chain3``) on the steps as stored, (B, L), and stored
+   one call (``relmap.uncertain.at3.compound_chain3``) on the steps as stored, (B, L), and stored
    step-major, (L, B) (the order its kernel reads; (B, L) is first copied into it); GTSAM
    loops over all.
 4. One pair per call (no batch): relmap's fixed overhead against GTSAM's, for a compound and
@@ -48,7 +48,7 @@ import gtsam
 import numpy as np
 
 import relmap as rm
-from relmap.at3 import compound_chain3
+from relmap.uncertain.at3 import compound_chain3
 
 Timing = tuple[float, float]
 

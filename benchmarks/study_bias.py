@@ -8,7 +8,7 @@ Bar-Shalom, Li & Kirubarajan 2001 §8.2; Gelb 1974 §4.6): ``--per landmark`` a 
 bearing bias per landmark (2L states), ``robot`` one of each for the robot's sensor (2),
 ``mixed`` a range bias per landmark and one bearing bias (L + 1). ``--consider``: the
 Schmidt–Kalman filter (the biases' covariance carried, their gain zero). Everything else is
-``relmap.ekf.run``'s filter (signatures, χ² gate 0.99, one stacked Joseph update per time
+``relmap.filter.ekf.run``'s filter (signatures, χ² gate 0.99, one stacked Joseph update per time
 stamp, one reading per landmark and time stamp); ``--check`` confirms that with σ_c → 0 it
 gives the C++ filter's states (at inflation 1) to rounding.
 
@@ -19,7 +19,7 @@ the calibrated one (:func:`run_factor`, a consider analysis of the gain): does t
 model give the σ-factor filter an honest covariance?
 
 Noise, without ground truth: the odometry's k, the clock and ν are those of
-``relmap.autocalibration.calibrate`` (what ``relmap localize`` runs; cached in ``--cache``);
+``relmap.filter.autocalibration.calibrate`` (what ``relmap localize`` runs; cached in ``--cache``);
 then (default) the bias model's (σ_w, σ_c, τ) for range and bearing by maximum likelihood of
 the run's innovations (the calibration's Student-t likelihood, ν fixed; coordinate ascent in
 log scale from σ_w = σ_c = σ/√2, τ = 10 s), with ``--fit-k`` the odometry's k with them; or
@@ -27,7 +27,7 @@ log scale from σ_w = σ_c = σ/√2, τ = 10 s), with ``--fit-k`` the odometry'
 innovations over time (:func:`innovation_acf`, :func:`structure`), the total σ and the k by
 maximum likelihood. ``--fixed`` gives the six numbers instead. Diagnostics that read the
 ground truth (never the method): ``--oracle SHARE TAU_R TAU_B`` (k and σ of
-``relmap.localize.calibrate_mrclam`` on the same robot's truth), ``--residuals`` (the
+``relmap.app.localize.calibrate_mrclam`` on the same robot's truth), ``--residuals`` (the
 structure of the reading errors against the truth), ``--sim SEEDS`` (the simulated robot of
 tests/test_autocalibration.py with known Gauss–Markov biases: what the likelihood recovers).
 
@@ -52,9 +52,9 @@ from pathlib import Path
 
 import numpy as np
 
-from relmap import autocalibration, ekf
+from relmap.app.localize import localize_mrclam, localize_plaza, score
+from relmap.filter import autocalibration, ekf
 from relmap.io.datasets import read_mrclam, read_plaza
-from relmap.localize import localize_mrclam, localize_plaza, score
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("RELMAP_DATA", ROOT.parent / "shared" / "data"))
@@ -324,7 +324,7 @@ def run_bias(log, lm, p, start, bias: Bias, comp, *, d=2, keep_all=True, gate2=N
 
 def run_factor(log, lm, p, start, bias: Bias, comp, *, d=2):
     """relmap's σ-factor filter (signatures, its χ² gate on ``R``, the gain and Joseph update
-    with ``inflation² R``: :func:`relmap.ekf.run`'s states) and, for the same gain, the
+    with ``inflation² R``: :func:`relmap.filter.ekf.run`'s states) and, for the same gain, the
     covariance of its error under the Gauss–Markov reading model ``bias`` (the gain's
     *consider* analysis: the augmented error [pose; biases] through ``(I - K_a H_a)`` with
     ``K_a = [K; 0]``, the biases decaying between time stamps). Returns the filter's mean and
@@ -577,7 +577,7 @@ def main() -> None:
         # the simulation's white σ (0.1 m, 0.02 rad) plus a bias of σ_c 0.15 m, 0.02 rad, τ 20 s
         sim(a.sim, a.steps, Bias([0.1, 0.02], [0.15, 0.02], [20.0, 20.0]), a.fit_k)
         return
-    from relmap.localize import _start
+    from relmap.app.localize import _start
 
     for robot in a.robots:
         t0 = time.time()
@@ -612,7 +612,7 @@ def main() -> None:
             p = p._replace(k_s=a.k[0], k_theta=a.k[1], k_theta_s=a.k[2])
             comp = compose(log, p)
         if a.oracle is not None:  # ground truth's noise: a diagnostic, not the method
-            from relmap.localize import calibrate_mrclam
+            from relmap.app.localize import calibrate_mrclam
 
             g = calibrate_mrclam(data, robot)
             o, f = g.odometry, a.kscale
@@ -629,7 +629,7 @@ def main() -> None:
             sg = np.asarray(sigma[:d])
             b = Bias(sg * np.sqrt(1 - share), sg * np.sqrt(share), tau, a.per)
             mean, Pc, Pa = run_factor(log, lm, p, start, b, comp, d=d)
-            from relmap.at import AT
+            from relmap.uncertain.at import AT
 
             sc, sa = score(AT(mean, Pc), c["truth"]), score(AT(mean, Pa), c["truth"])
             print("  innovation ACF at " + ", ".join(f"{v:g}" for v in ACF_LAGS) + " s: "
@@ -668,7 +668,7 @@ def main() -> None:
                       f"{float(p.k_theta_s):.4g})")  # fmt: skip
         gate = (CHI2_1_99 if d == 1 else CHI2_2_99) * (a.scale**2 if a.fixed else 1.0)
         out = run_bias(log, lm, p, start, b, comp, d=d, gate2=gate)
-        from relmap.at import AT
+        from relmap.uncertain.at import AT
 
         s = score(AT(out["mean"], out["cov"]), c["truth"])
         used = int((out["status"] == 0).sum())
@@ -685,7 +685,7 @@ def sim(seeds, steps, true: Bias, fit_k: bool) -> None:
     import sys
 
     sys.path.insert(0, str(ROOT))
-    from relmap.at import AT
+    from relmap.uncertain.at import AT
     from tests.test_autocalibration import LANDMARKS, NOISE, simulate, start
 
     for seed in seeds:
@@ -732,8 +732,8 @@ def residuals(robots) -> None:
     prediction from the true pose, robust-clipped): per robot the share of their variance that
     is a per-landmark constant, the correlation of errors of one landmark ``lag`` s apart after
     removing it, and the correlation of errors of *different* landmarks read within 0.3 s."""
-    from relmap.localize import _robot_log
-    from relmap.sensors.polar import RangeBearingSensor
+    from relmap.app.localize import _robot_log
+    from relmap.models.range_bearing import RangeBearingSensor
 
     data = read_mrclam(DATA / "landmarks" / "mrclam6")
     sens = RangeBearingSensor(0.0, 0.0)
@@ -774,7 +774,7 @@ def residuals(robots) -> None:
 def recording(data, robot, associate="signatures"):
     """The autocalibration Recording of `relmap localize` (as localize_mrclam builds it for
     ``associate``: without signatures every reading is offered)."""
-    import relmap.localize as L
+    import relmap.app.localize as L
 
     captured = {}
 

@@ -37,7 +37,7 @@ docs/consistency.md).
    over an infinite mean. A filter whose prior range variance is ``H P Hᵀ`` averages about
    ``N = c² σ_r² / (H P Hᵀ)_rr`` readings (the median over used readings); the variance
    factor of the mean of ``N`` correlated readings is ``1 + 2 Σ_k (1 - k/N) ρ_k`` with the
-   innovations' own ``ρ_k`` (lags 1-60, :func:`relmap.autocalibration.innovation_correlation`).
+   innovations' own ``ρ_k`` (lags 1-60, :func:`relmap.filter.autocalibration.innovation_correlation`).
    Iterated four times from c = 1 (N grows with c), then scored.
 
 Ground truth is read only to score. Run: ``python benchmarks/study_covariance_scale.py
@@ -59,13 +59,13 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np
 from study_bias import recording
 
-from relmap import autocalibration, ekf, gaussian
-from relmap.at import AT
+from relmap.app.localize import Localization, _start, localize_mrclam, score
+from relmap.filter import autocalibration, ekf
 from relmap.io.datasets import read_mrclam
 from relmap.lie import se2
-from relmap.localize import Localization, _start, localize_mrclam, score
-from relmap.robot import DistanceNoise
-from relmap.sensors import RangeBearingSensor
+from relmap.models import DistanceNoise, RangeBearingSensor
+from relmap.uncertain import gaussian
+from relmap.uncertain.at import AT
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("RELMAP_DATA", ROOT.parent / "shared" / "data"))
@@ -189,7 +189,7 @@ def held_out(data, robots: list[int], scales: list[float], folds: int) -> None:
 
 
 def thinned(data, robots: list[int], spacings: list[float]) -> None:
-    import relmap.localize as localize
+    import relmap.app.localize as localize
 
     def thin(rec: autocalibration.Recording, spacing: float) -> autocalibration.Recording:
         keep, last = np.zeros(len(rec.reading_t), bool), {}

@@ -23,10 +23,11 @@ import argparse
 import numpy as np
 
 import relmap as rm
-from relmap import montecarlo
-from relmap.demo import DELTA_Y_HEADER, _shipped, delta_y_rows, delta_y_study
+from relmap.app.demo import DELTA_Y_HEADER, _shipped, delta_y_rows, delta_y_study
 from relmap.errors import IrreducibleNetworkError
 from relmap.lie import se2
+from relmap.sim import montecarlo
+from relmap.uncertain import gaussian
 
 
 def random_map(rng: np.random.Generator) -> list[tuple[str, str, rm.AT]]:
@@ -42,7 +43,7 @@ def random_map(rng: np.random.Generator) -> list[tuple[str, str, rm.AT]]:
     for a, b in pairs:
         sig = [rng.uniform(0.01, 0.3), rng.uniform(0.01, 0.3), np.radians(rng.uniform(0.1, 10))]
         C = np.zeros((3, 3))
-        C[:2, :2] = rm.gaussian.rotated_covariance(sig[0], sig[1], rng.uniform(0, np.pi))
+        C[:2, :2] = gaussian.rotated_covariance(sig[0], sig[1], rng.uniform(0, np.pi))
         C[2, 2] = sig[2] ** 2
         out.append((f"f{a}", f"f{b}", rm.AT(se2.between(truth[a], truth[b]), C)))
     return out

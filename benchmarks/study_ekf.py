@@ -1,7 +1,7 @@
-"""An EKF study with ``relmap.study``: MRCLAM robots × association × calibration, here or on a
+"""An EKF study with ``relmap.sim.study``: MRCLAM robots × association × calibration, here or on a
 Dask cluster.
 
-Each point runs ``relmap.localize.localize_mrclam`` (its public options only) on the UTIAS
+Each point runs ``relmap.app.localize.localize_mrclam`` (its public options only) on the UTIAS
 MRCLAM dataset 6 (``../shared/data/landmarks/mrclam6``), read once and sent to each worker once
 (``shared=``). Calibration choices: ``"auto"`` (the default of ``localize``: noise from the run's
 own innovations, no ground truth), ``"neighbour"`` (robot ``k mod 5 + 1``'s run against its
@@ -21,9 +21,9 @@ import os
 import time
 from pathlib import Path
 
-from relmap import study
+from relmap.app.localize import ASSOCIATIONS, calibrate_mrclam, localize_mrclam
 from relmap.io.datasets import read_mrclam
-from relmap.localize import ASSOCIATIONS, calibrate_mrclam, localize_mrclam
+from relmap.sim import study
 
 DATA = Path(os.environ.get("RELMAP_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
 
@@ -56,7 +56,7 @@ def main() -> None:
     points = study.grid(
         robot=args.robots, associate=list(ASSOCIATIONS), calibration=["auto", "neighbour", "own"]
     )
-    from relmap.distributed import client_for
+    from relmap.sim.distributed import client_for
 
     with client_for(args.workers, args.scheduler) as client:
         t0 = time.perf_counter()

@@ -1,10 +1,10 @@
 """Multiple-hypothesis localization without barcodes (issue 14's Mahalanobis target): a prototype.
 
 With ``associate="mahalanobis"`` the other robots' readings are offered to the filter, and a
-robot seen near a landmark while the heading is uncertain captures it (``relmap.localize``'s
+robot seen near a landmark while the heading is uncertain captures it (``relmap.app.localize``'s
 docstring). This study asks whether keeping several association hypotheses instead of one (a
 Gaussian-sum filter pruned to the ``--hypotheses`` most likely, Reid 1979) avoids the capture.
-Each hypothesis is a pose belief of ``relmap.ekf.run`` with the run's autocalibrated noise (its
+Each hypothesis is a pose belief of ``relmap.filter.ekf.run`` with the run's autocalibrated noise (its
 clutter weighting off: the branches model the clutter); its weight is the product of its
 readings' densities (the autocalibration's Student-t, given the readings before it). Each
 reading branches every hypothesis:
@@ -47,12 +47,14 @@ from typing import NamedTuple
 
 import numpy as np
 
-from relmap import autocalibration, ekf, gaussian, localize
-from relmap.at import AT
+from relmap.app import localize
+from relmap.filter import autocalibration, ekf
 from relmap.io.datasets import read_mrclam
 from relmap.lie import se2
-from relmap.sensors import RangeBearingSensor
-from relmap.sensors.polar import polar_to_cartesian
+from relmap.models import RangeBearingSensor
+from relmap.models.range_bearing import polar_to_cartesian
+from relmap.uncertain import gaussian
+from relmap.uncertain.at import AT
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("RELMAP_DATA", ROOT.parent / "shared" / "data"))

@@ -1,5 +1,5 @@
 """How the whitening's inflation decides the filter's consistency, and how well the likelihood
-recovers a simulated robot's noise: two diagnostics of ``relmap.autocalibration`` (issue 14).
+recovers a simulated robot's noise: two diagnostics of ``relmap.filter.autocalibration`` (issue 14).
 
 1. ``mrclam`` (the default): for each MRCLAM robot of ``../shared/data/landmarks/mrclam6``,
    the autocalibration of ``relmap localize`` (no ground truth), then the same filter with the
@@ -30,10 +30,10 @@ from pathlib import Path
 
 import numpy as np
 
-from relmap import autocalibration, ekf
-from relmap.at import AT
+from relmap.app.localize import localize_mrclam, score
+from relmap.filter import autocalibration, ekf
 from relmap.io.datasets import read_mrclam
-from relmap.localize import localize_mrclam, score
+from relmap.uncertain.at import AT
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("RELMAP_DATA", ROOT.parent / "shared" / "data"))

@@ -8,7 +8,7 @@ Gaussian in relmap's chart ``(x, y, θ)``.
 For each case the end pose's mean and covariance are computed three ways —
 ``compound_chain(steps)`` (first order, Eqs. 3-4), ``moments="unscented"`` (the unscented
 transform one compounding at a time), the unscented transform of the whole 60-D chain input at
-once (``relmap.moments.unscented_chain(..., scheme="joint")``) and ``moments="exact"`` — and
+once (``relmap.uncertain.moments.unscented_chain(..., scheme="joint")``) and ``moments="exact"`` — and
 compared with 10⁶ Monte Carlo
 samples (links drawn with ``AT.sample``, headings summed without wrapping, as the exact moments
 are those of the unwrapped heading). Columns: relative Frobenius error of the covariance,
@@ -34,7 +34,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np
 
 import relmap as rm
-from relmap.montecarlo import SampleSet
+from relmap.sim.montecarlo import SampleSet
+from relmap.uncertain import moments
 
 LINKS = 20
 SIGMA_XY = 0.05
@@ -103,7 +104,7 @@ def accuracy(n_samples: int, seed: int) -> None:
             first = rm.compound_chain(steps, axis=0)[-1]
             uns = rm.compound_chain(steps, axis=0, moments="unscented")[-1]
             joint = rm.AT(
-                *rm.moments.unscented_chain(steps.mean, steps.cov, axis=0, scheme="joint")
+                *moments.unscented_chain(steps.mean, steps.cov, axis=0, scheme="joint")
             )[-1]
             ex = rm.compound_chain(steps, axis=0, moments="exact")[-1]
             ref = ex.mean.copy()

@@ -1,4 +1,4 @@
-"""A noise sweep of ``forecast_sensing`` with ``relmap.study``, here or on a Dask cluster.
+"""A noise sweep of ``forecast_sensing`` with ``relmap.sim.study``, here or on a Dask cluster.
 
 On a real pose graph (default ``manhattanOlson3500``): how much would sensing the relation
 between frame 0 and frame ``k`` directly, with a sensor of position σ (and heading σ/10 rad per
@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from relmap import study
 from relmap.io import load_map
+from relmap.sim import study
 
 DATA = Path(os.environ.get("RELMAP_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
 
@@ -40,7 +40,7 @@ def main() -> None:
     g = load_map(DATA / "posegraph2d" / f"{args.graph}.g2o")
     last = max(g.frames)
     points = study.grid(k=[last // 4, last // 2, last], sigma=[0.01, 0.1, 1.0, 10.0])
-    from relmap.distributed import client_for
+    from relmap.sim.distributed import client_for
 
     with client_for(args.workers, args.scheduler) as client:
         t0 = time.perf_counter()

@@ -37,12 +37,12 @@ import numpy as np
 from scipy.stats import chi2
 from study_bias import recording
 
-from relmap import autocalibration, ekf
-from relmap.at import AT
+from relmap.app.localize import _start, localize_mrclam, score
+from relmap.filter import autocalibration, ekf
 from relmap.io.datasets import read_mrclam
 from relmap.lie import se2
-from relmap.localize import _start, localize_mrclam, score
-from relmap.sensors import RangeBearingSensor
+from relmap.models import RangeBearingSensor
+from relmap.uncertain.at import AT
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("RELMAP_DATA", ROOT.parent / "shared" / "data"))

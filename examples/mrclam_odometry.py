@@ -1,8 +1,8 @@
 """Dead reckoning of the five MRCLAM robots with covariance, and how well calibrated it is.
 
-The noise model (relmap.robot.DistanceNoise: random-walk errors per metre and per radian) is
+The noise model (relmap.models.DistanceNoise: random-walk errors per metre and per radian) is
 fitted on robot 1 only, by the method of moments on windows of the run
-(relmap.robot.calibration.fit_distance_noise), then every robot is dead-reckoned from its true
+(relmap.models.calibration.fit_distance_noise), then every robot is dead-reckoned from its true
 start over its whole run. Printed: the fitted parameters for several window lengths, and for
 each robot the fraction of time the ground truth lies inside the predicted 90% position
 ellipse, overall and per tenth of the run.
@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 
 import relmap as rm
-from relmap import gaussian
 from relmap.io import read_mrclam
-from relmap.robot import dead_reckon, increments_from_velocities
-from relmap.robot.calibration import fit_distance_noise
+from relmap.models import dead_reckon, increments_from_velocities
+from relmap.models.calibration import fit_distance_noise
+from relmap.uncertain import gaussian
 
 
 def clipped(robot):

@@ -28,36 +28,17 @@ PACKAGE = SRC / "relmap"
 #: Layers, bottom-up (docs/architecture.md): a module may import from its layer and those below.
 #: A name covers the module and, for a package, everything in it.
 LAYERS: list[tuple[str, tuple[str, ...]]] = [
-    (
-        "base",
-        ("errors", "typing", "_version", "_layout", "_sym3", "_progress", "_core"),
-    ),
-    ("distributed", ("distributed",)),
+    ("base", ("errors", "typing", "_version", "_layout", "_core")),
     ("lie", ("lie",)),
-    ("gaussian", ("gaussian",)),
-    ("propagate", ("propagate",)),
-    ("at", ("uncertain", "at", "at3", "moments")),
-    ("montecarlo", ("montecarlo",)),
-    ("trajectory", ("trajectory",)),
-    ("robot/sensors", ("robot", "sensors", "decisions")),
+    ("uncertain", ("uncertain",)),
+    ("models", ("models",)),
     ("network", ("network",)),
-    ("ekf", ("ekf", "autocalibration")),
+    ("filter", ("filter",)),
     ("io", ("io",)),
-    ("evaluate", ("evaluate", "study")),
-    ("plot", ("plot", "report", "plot_trajectory")),
-    (
-        "applications",
-        (
-            "cli",
-            "demo",
-            "demo_report",
-            "validate",
-            "localize",
-            "localize_plot",
-            "cli_trajectory",
-            "__main__",
-        ),
-    ),
+    ("evaluate", ("evaluate",)),
+    ("sim", ("sim",)),
+    ("viz", ("viz",)),
+    ("app", ("app", "__main__")),
 ]
 
 #: Still true on this branch, being removed by other parts of issue 17 (the integrator removes
@@ -172,7 +153,7 @@ def test_a_module_imports_only_from_its_layer_and_below(module):
     )
     assert not above, f"{module} ({LAYERS[mine][0]}) imports from layers above it: {above}"
     if "relmap" in imports(module):  # the package's namespace re-exports every layer
-        assert LAYERS[mine][0] == "applications", f"{module} imports the relmap package itself"
+        assert LAYERS[mine][0] == "app", f"{module} imports the relmap package itself"
 
 
 def _cycles() -> list[list[str]]:
@@ -222,12 +203,12 @@ def test_no_import_cycles():
 
 def test_the_import_parser_sees_relmaps_imports():
     """What the checks above rely on: every form of import is seen and resolved."""
-    assert "relmap._core" in imports("relmap.at3")  # from relmap import _core (compiled)
-    assert "relmap.errors" in imports("relmap.gaussian")  # from relmap.errors import ...
-    assert "relmap.lie" in imports("relmap.at3")  # from relmap.lie import SE3 (a package's name)
+    assert "relmap._core" in imports("relmap.uncertain.at3")  # from relmap import _core (compiled)
+    assert "relmap.errors" in imports("relmap.uncertain.gaussian")  # from relmap.errors import ...
+    assert "relmap.lie" in imports("relmap.uncertain.at3")  # from relmap.lie import SE3
     assert "relmap.network.graph" in imports("relmap.io.maps")  # in a function or at the top
-    assert "relmap" in imports("relmap.cli")  # from relmap import __version__: the package
-    assert "numpy" in imports("relmap.gaussian")
+    assert "relmap" in imports("relmap.app.cli")  # from relmap import __version__: the package
+    assert "numpy" in imports("relmap.uncertain.gaussian")
     assert layer_of("relmap.io.posegraph") > layer_of("relmap.network.graph")
 
 

@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 import relmap as rm
-from relmap import montecarlo
 from relmap.errors import (
     InconsistentMergeError,
     NonFiniteError,
@@ -18,7 +17,8 @@ from relmap.errors import (
     ShapeError,
 )
 from relmap.lie import se2
-from relmap.propagate import SE2, Chart, propagate
+from relmap.sim import montecarlo
+from relmap.uncertain.propagate import SE2, Chart, propagate
 from tests.helpers import assert_poses_close, random_ats, random_covs, random_poses
 
 

@@ -176,8 +176,8 @@ def test_folder_check(tmp_path):
 def test_png_and_report_use_the_writer(tmp_path, umask_027):
     from matplotlib.figure import Figure
 
-    from relmap.plot import save_png
-    from relmap.report import Report
+    from relmap.viz.plot import save_png
+    from relmap.viz.report import Report
 
     fig = Figure()
     fig.add_subplot().plot([0, 1])

@@ -8,12 +8,11 @@ import pytest
 from scipy import stats
 
 import relmap as rm
-from relmap import autocalibration as ac
-from relmap import ekf
 from relmap.errors import ParameterError, ShapeError
+from relmap.filter import autocalibration as ac
+from relmap.filter import ekf
 from relmap.lie import se2
-from relmap.robot import DistanceNoise
-from relmap.sensors import RangeBearingSensor
+from relmap.models import DistanceNoise, RangeBearingSensor
 
 NOISE = DistanceNoise(0.01, 0.01, 0.002)
 SIGMA_R, SIGMA_B = 0.02, 0.005  # a laser scanner's landmarks: 2 cm, 0.3°

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 import relmap as rm
-from relmap import gaussian
 from relmap.errors import ParameterError, ShapeError
 from relmap.lie import se2
-from relmap.robot import DistanceNoise, dead_reckon, increment, increments_from_velocities
-from relmap.robot.calibration import fit_distance_noise
+from relmap.models import DistanceNoise, dead_reckon, increment, increments_from_velocities
+from relmap.models.calibration import fit_distance_noise
+from relmap.uncertain import gaussian
 
 
 def test_fit_recovers_the_parameters_of_a_simulated_run():

@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 from relmap import __version__
-from relmap.demo import fig1
+from relmap.app.demo import fig1
 
 
 def _run(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "relmap.cli", *args], capture_output=True, text=True, timeout=120
+        [sys.executable, "-m", "relmap.app.cli", *args], capture_output=True, text=True, timeout=120
     )
 
 
@@ -47,12 +47,13 @@ def test_import_stays_light():
 
 def test_help_imports_neither_numpy_nor_scipy():
     """`relmap --help` starts light: the package's names are imported on first use only, and
-    the trajectory commands' parsers (relmap.cli_trajectory) are built only when they run."""
+    the trajectory commands' parsers (relmap.app.trajectory) are built only when they run."""
     code = (
-        "import sys; from relmap.cli import main\n"
+        "import sys; from relmap.app.cli import main\n"
         "try:\n    main(['--help'])\nexcept SystemExit:\n    pass\n"
         "print([m for m in sys.modules if m.split('.')[0] in ('numpy', 'scipy', 'relmap') "
-        "and m not in ('relmap', 'relmap._version', 'relmap.cli', 'relmap.errors')], "
+        "and m not in ('relmap', 'relmap._version', 'relmap.app', 'relmap.app.cli', "
+        "'relmap.errors')], "
         "file=sys.stderr)"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)

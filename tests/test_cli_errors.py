@@ -11,7 +11,7 @@ import sys
 
 import pytest
 
-from relmap import cli
+from relmap.app import cli
 from relmap.errors import NumericalError
 
 G2O = (
@@ -86,8 +86,8 @@ def test_outputs_are_checked_before_any_work(capsys, graph, tmp_path, argv, mess
         raise AssertionError("the work started before the output was checked")
 
     monkeypatch.setattr("relmap.io.read_graph", no_work)
-    monkeypatch.setattr("relmap.localize.localize", no_work)
-    monkeypatch.setattr("relmap.demo.run", no_work)
+    monkeypatch.setattr("relmap.app.localize.localize", no_work)
+    monkeypatch.setattr("relmap.app.demo.run", no_work)
     argv = [a.format(g=graph, tmp=tmp_path) for a in argv]
     status, _out, err = run(capsys, *argv)
     assert status == 2
@@ -176,7 +176,7 @@ def test_closed_pipe_ends_quietly(tmp_path):
     g = tmp_path / "g.g2o"
     g.write_text(G2O)
     proc = subprocess.Popen(
-        [sys.executable, "-c", "import sys; from relmap.cli import main; sys.exit(main())",
+        [sys.executable, "-c", "import sys; from relmap.app.cli import main; sys.exit(main())",
          "query", str(g), "0", "2"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -203,7 +203,7 @@ def test_localize_on_overflowing_odometry_is_one_line_and_a_failure(data_dir, tm
     fields[1] = "1e300"
     lines[200] = "  ".join(fields)
     odometry.write_text("\n".join(lines) + "\n")
-    run = "import sys; from relmap.cli import main; sys.exit(main())"
+    run = "import sys; from relmap.app.cli import main; sys.exit(main())"
     proc = subprocess.run(  # a process of its own: stderr as a user sees it
         [sys.executable, "-c", run, "localize", str(tmp_path), "--robot", "1"],
         capture_output=True,

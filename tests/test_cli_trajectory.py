@@ -8,9 +8,9 @@ import json
 import numpy as np
 import pytest
 
-from relmap.cli import main
+from relmap.app.cli import main
 from relmap.io.trajectory import read_trajectory, write_trajectory
-from relmap.trajectory import Trajectory
+from relmap.uncertain.trajectory import Trajectory
 
 
 def run(capsys, *argv):  # type: ignore[no-untyped-def]

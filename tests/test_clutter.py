@@ -1,5 +1,5 @@
 """Readings of nothing in the map (clutter, a moving object): the clutter hypothesis of
-relmap.ekf (a used reading weighed by w = g/(g + λ)) against its mathematics, and the filter
+relmap.filter.ekf (a used reading weighed by w = g/(g + λ)) against its mathematics, and the filter
 and its autocalibration on a simulated robot whose clutter is known."""
 
 from __future__ import annotations
@@ -9,8 +9,9 @@ import pytest
 from scipy import stats
 
 import relmap as rm
-from relmap import autocalibration as ac
-from relmap import ekf
+from relmap import models
+from relmap.filter import autocalibration as ac
+from relmap.filter import ekf
 from relmap.lie import se2
 
 from .test_autocalibration import LANDMARKS, NOISE, SIGMA_B, SIGMA_R, simulate, start
@@ -38,7 +39,7 @@ def with_clutter(rec: ac.Recording, truth: np.ndarray, seed: int, fraction: floa
         if mover:
             a = 0.2 * t / radius
             obj = np.array([[radius * np.cos(a), radius * np.sin(a)]])
-            zz = rm.sensors.RangeBearingSensor(0.0, 0.0).predict(truth[kk], obj)
+            zz = models.RangeBearingSensor(0.0, 0.0).predict(truth[kk], obj)
             if FOV[0][0] < zz[0, 0] < FOV[0][1]:
                 rt.append([t])
                 z.append(zz + rng.normal(size=(1, 2)) * [SIGMA_R, SIGMA_B])
@@ -96,7 +97,7 @@ def test_no_clutter_is_the_filter_without_it_bit_for_bit():
     np.testing.assert_allclose(b.mean, a.mean, rtol=1e-15)  # λ → 0: w → 1
     rec, _truth = simulate(3, steps=300)
     tr = ekf.run(rec.log(), LANDMARKS, ekf.NoiseParameters.of(
-        NOISE, rm.sensors.RangeBearingSensor(SIGMA_R, SIGMA_B)), start=start(0.0),
+        NOISE, models.RangeBearingSensor(SIGMA_R, SIGMA_B)), start=start(0.0),
         association="mahalanobis")  # fmt: skip
     for nu in (np.inf, 4.0):
         assert np.array_equal(ac.loglik(tr, nu, 0.0, 5.0), ac.loglik(tr, nu))
@@ -108,7 +109,7 @@ def test_the_mixture_likelihood_is_landmark_or_uniform_clutter():
     given the readings before it at its time); a LOST reading is clutter."""
     rec, truth = simulate(3, steps=300)
     rec = with_clutter(rec, truth, 7, mover=False)
-    p = ekf.NoiseParameters.of(NOISE, rm.sensors.RangeBearingSensor(SIGMA_R, SIGMA_B))
+    p = ekf.NoiseParameters.of(NOISE, models.RangeBearingSensor(SIGMA_R, SIGMA_B))
     tr = ekf.run(rec.log(), LANDMARKS, p, start=start(0.0), association="mahalanobis")
     nu, V, lam = 5.0, 2.5, 0.3
     paired = np.flatnonzero((tr.status == ekf.Status.USED) | (tr.status == ekf.Status.GATED))
@@ -147,7 +148,7 @@ def test_the_filter_with_clutter_and_a_mover_stays_consistent(association):
     out = log.signature < 0
     V = ac.measurement_volume(rec.z) / len(LANDMARKS)
     lam = out.mean() / ((1 - out.mean()) * V)
-    p = ekf.NoiseParameters.of(NOISE, rm.sensors.RangeBearingSensor(SIGMA_R, SIGMA_B))
+    p = ekf.NoiseParameters.of(NOISE, models.RangeBearingSensor(SIGMA_R, SIGMA_B))
     tr = ekf.run(log, LANDMARKS, p._replace(clutter=lam), start=start(0.0),
                  association=association)  # fmt: skip
     nees, e = _nees(tr, log, rec, truth)

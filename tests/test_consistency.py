@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from relmap import gaussian
 from relmap.evaluate import align, consistency, relative_consistency
 from relmap.lie import se2, se3
-from relmap.trajectory import Trajectory
+from relmap.uncertain import gaussian
+from relmap.uncertain.trajectory import Trajectory
 
 
 def _covs(rng, n, d, scale):  # type: ignore[no-untyped-def]

@@ -14,10 +14,10 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 import relmap as rm
-from relmap import gaussian
 from relmap.errors import RelmapError
-from relmap.robot import motion
-from relmap.sensors import polar
+from relmap.models import odometry as motion
+from relmap.models import range_bearing as polar
+from relmap.uncertain import gaussian
 
 # ------------------------------------------------------------------ arbitrary input
 _scalars = st.one_of(

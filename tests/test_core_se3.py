@@ -1,4 +1,5 @@
-"""relmap._core's SE(3) part (src/core/se3.cpp) through relmap.at3, against the textbook form
+"""relmap._core's SE(3) part (src/core/se3.cpp) through relmap.uncertain.at3, against the textbook
+form
 (full 6×6 Jacobians of relmap.lie.se3, batched matmul): batch sizes around the core's chunk of
 lanes, strided and broadcast inputs (views the core reads in place), and the core's contract."""
 
@@ -8,7 +9,8 @@ import numpy as np
 import pytest
 
 import relmap as rm
-from relmap import _core, at3
+from relmap import _core
+from relmap.uncertain import at3
 
 from .helpers import random_at3s, valid_cross_cov
 from .test_at3 import _close, _reference_compound, _reference_reverse

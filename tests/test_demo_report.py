@@ -11,7 +11,7 @@ import re
 import numpy as np
 import pytest
 
-from relmap import demo as d
+from relmap.app import demo as d
 
 pytestmark = pytest.mark.slow  # every test shares one built report (a full demo run)
 
@@ -21,8 +21,8 @@ SAMPLES = 2000  # reduced Monte Carlo sizes: the test checks plumbing, not stati
 @pytest.fixture(scope="module")
 def built(tmp_path_factory):
     """One ``relmap demo`` (the command, run in this process): the demo's result (seen on its
-    way from :func:`relmap.demo.run` to the report), the report's index and what it printed."""
-    from relmap.cli import main
+    way from :func:`relmap.app.demo.run` to the report), the report's index and what it printed."""
+    from relmap.app.cli import main
 
     runs = []
     real_run, real_print = d.run, d.print_demo
@@ -128,9 +128,9 @@ def test_decisions_improve_after_sensing(built):
 
 
 def test_report_writes_atomically_and_rejects_bad_names(tmp_path):
-    from relmap import plot
     from relmap.errors import ParameterError
-    from relmap.report import Report
+    from relmap.viz import plot
+    from relmap.viz.report import Report
 
     rep = Report("t")
     fig, ax = plot.figure()

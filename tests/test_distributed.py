@@ -17,11 +17,12 @@ import pytest
 
 distributed = pytest.importorskip("distributed")
 
-from relmap import montecarlo, study, validate  # noqa: E402
-from relmap.cli import main  # noqa: E402
-from relmap.distributed import connect, local_client  # noqa: E402
+from relmap.app import validate  # noqa: E402
+from relmap.app.cli import main  # noqa: E402
 from relmap.errors import ChunkError, ClusterError, ParameterError  # noqa: E402
 from relmap.io import save_map  # noqa: E402
+from relmap.sim import montecarlo, study  # noqa: E402
+from relmap.sim.distributed import connect, local_client  # noqa: E402
 from tests.test_validate import bridge_map  # noqa: E402
 
 
@@ -192,7 +193,7 @@ def test_cli_workers_starts_its_own_cluster(tmp_path, capsys):
 def test_client_for_a_commands_options():
     """--workers N / --scheduler ADDRESS: neither is this process (None), both is refused, a
     bad count is refused before any cluster starts."""
-    from relmap.distributed import client_for
+    from relmap.sim.distributed import client_for
 
     with client_for() as client:
         assert client is None

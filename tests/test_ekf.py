@@ -1,4 +1,5 @@
-"""relmap.ekf: prediction, full-pose and landmark corrections, association, gating, batches."""
+"""relmap.filter.ekf: prediction, full-pose and landmark corrections, association, gating,
+batches."""
 
 from __future__ import annotations
 
@@ -6,11 +7,12 @@ import numpy as np
 import pytest
 
 import relmap as rm
-from relmap import ekf, gaussian
+from relmap import models
 from relmap.errors import NonFiniteError, ParameterError, ShapeError
+from relmap.filter import ekf
 from relmap.lie import se2
-from relmap.robot import DistanceNoise, step
-from relmap.sensors import RangeBearingSensor
+from relmap.models import DistanceNoise, RangeBearingSensor, step
+from relmap.uncertain import gaussian
 
 SENSOR = RangeBearingSensor(0.1, 0.02, mount=[0.1, 0.0, 0.0], fov=np.radians(180), max_range=10.0)
 LANDMARKS = np.array([[3.0, 1.0], [4.0, -2.0], [6.0, 0.5], [2.0, 3.0], [-3.0, 0.0]])
@@ -153,7 +155,7 @@ def test_consistency_over_many_runs():
     for _ in range(T):
         S = noise.covariance(motion)
         m = motion + rng.multivariate_normal([0, 0], S, size=B)
-        truth = se2.compose(truth, rm.robot.increment(m))
+        truth = se2.compose(truth, models.increment(m))
         state = ekf.predict(state, motion, noise)
         z = SENSOR.predict(truth[:, None, :], LANDMARKS)
         z = z + rng.normal(size=z.shape) * np.array([0.1, 0.02])

@@ -1,4 +1,4 @@
-"""relmap.ekf against filterpy's ExtendedKalmanFilter, step by step, to 1e-12.
+"""relmap.filter.ekf against filterpy's ExtendedKalmanFilter, step by step, to 1e-12.
 
 filterpy (MIT licence) is given the same model by hand: its ``predict`` with ``F = Gx``,
 ``Q = Gu Σu Guᵀ`` and ``predict_x`` overridden to ``x = g(x, u)`` (its default is linear), and
@@ -13,10 +13,9 @@ import numpy as np
 import pytest
 
 import relmap as rm
-from relmap import ekf
+from relmap.filter import ekf
 from relmap.lie import se2
-from relmap.robot import DistanceNoise, increment
-from relmap.sensors import RangeBearingSensor
+from relmap.models import DistanceNoise, RangeBearingSensor, increment
 
 filterpy_ekf = pytest.importorskip("filterpy.kalman.EKF")
 

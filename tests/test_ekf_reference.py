@@ -1,9 +1,9 @@
-"""relmap.ekf (the compiled core) against the textbook procedure, on random inputs.
+"""relmap.filter.ekf (the compiled core) against the textbook procedure, on random inputs.
 
 The reference below is the plain algorithm written in numpy: predict every landmark's reading,
 the m×L innovations and Mahalanobis distances, greedy one-to-one pairing over the whole matrix
 (or Eq. 21), χ² gate, a reading with several landmarks inside its gate replaced by the
-moment-matched mixture of them (relmap.ekf.correct_landmarks), one stacked 2k×2k update in
+moment-matched mixture of them (relmap.filter.ekf.correct_landmarks), one stacked 2k×2k update in
 Joseph form. The core (the shortcut of
 distinct nearest landmarks, the sorted greedy, signature lookup by binary search, candidates
 pruned by a range-only bound on d², the stacked update done as k 2×2 blocks in turn) must give
@@ -18,9 +18,10 @@ import numpy as np
 import pytest
 
 import relmap as rm
-from relmap import ekf, gaussian
+from relmap.filter import ekf
 from relmap.lie import se2
-from relmap.sensors import RangeBearingSensor
+from relmap.models import RangeBearingSensor
+from relmap.uncertain import gaussian
 
 
 def reference(state, readings, sensor, landmarks, *, associate="mahalanobis",

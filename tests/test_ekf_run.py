@@ -1,4 +1,4 @@
-"""relmap.ekf's generic steps, built-in models and runner against the mathematics.
+"""relmap.filter.ekf's generic steps, built-in models and runner against the mathematics.
 
 - generic predict/correct (a user's motion and sensor models, analytic or numeric Jacobians)
   against the textbook equations written in numpy here;
@@ -21,12 +21,12 @@ import numpy as np
 import pytest
 
 import relmap as rm
-from relmap import ekf, gaussian
 from relmap.errors import NonFiniteError, NumericalError, ParameterError, ShapeError
+from relmap.filter import ekf
 from relmap.lie import se2
-from relmap.propagate import SE2, numerical_jacobian
-from relmap.robot import DistanceNoise, increment
-from relmap.sensors import RangeBearingSensor
+from relmap.models import DistanceNoise, RangeBearingSensor, increment
+from relmap.uncertain import gaussian
+from relmap.uncertain.propagate import SE2, numerical_jacobian
 from tests.test_ekf_reference import reference
 
 NOISE = DistanceNoise(0.004, 0.003, 0.001)
@@ -192,7 +192,7 @@ def simulated_log(rng, steps=60, per_step=3, clutter=0.1):
 @pytest.mark.parametrize("associate", ["signatures", "mahalanobis", "euclidean"])
 def test_run_is_the_textbook_procedure_step_by_step(associate):
     """ekf.run over a log against a Python loop: relmap.compound with the odometry step's AT
-    (relmap.robot) for each prediction, the reference correction of test_ekf_reference."""
+    (relmap.models) for each prediction, the reference correction of test_ekf_reference."""
     rng = np.random.default_rng(5)
     log = simulated_log(rng)
     start = rm.AT([0.0, -1.0, 0.2], np.diag([0.01, 0.01, 0.002]))
@@ -201,7 +201,7 @@ def test_run_is_the_textbook_procedure_step_by_step(associate):
     state = start
     means = [state.mean]
     covs = [state.cov]
-    from relmap.robot.motion import _step_ats
+    from relmap.models.odometry import _step_ats
 
     kw = dict(signatures=None, landmark_signatures=None)
     for k in range(1, len(log.t)):

@@ -25,10 +25,10 @@ import numpy as np
 import pytest
 
 import relmap as rm
-from relmap import ekf, gaussian
+from relmap.filter import ekf
 from relmap.lie import se2
-from relmap.robot import DistanceNoise, increment
-from relmap.sensors import RangeBearingSensor
+from relmap.models import DistanceNoise, RangeBearingSensor, increment
+from relmap.uncertain import gaussian
 
 B, T, L = 1000, 50, 40
 SENSOR = RangeBearingSensor(

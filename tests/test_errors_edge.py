@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 
 import relmap as rm
-from relmap import gaussian, moments, propagate
 from relmap.errors import (
     ArgumentTypeError,
     CovarianceError,
@@ -27,6 +26,7 @@ from relmap.errors import (
 )
 from relmap.io import load_map, read_graph
 from relmap.io.datasets import read_mrclam, read_plaza, recognise
+from relmap.uncertain import gaussian, moments, propagate
 
 I3 = 0.01 * np.eye(3)
 NAN = float("nan")
@@ -252,7 +252,7 @@ def test_overflow_is_a_numerical_error_naming_the_operation():
 
 
 def test_dead_reckoning_with_1e300_steps_is_a_numerical_error():
-    from relmap.robot import motion
+    from relmap.models import odometry as motion
 
     noise = motion.DistanceNoise(k_s=0.01, k_theta=0.01, k_theta_s=0.001)
     steps = np.tile([1e300, 0.1], (5, 1))
@@ -475,7 +475,7 @@ def test_plaza_empty_ground_truth(tmp_path):
 
 @pytest.mark.parametrize("variance", [1e200, 1e300])
 def test_decisions_with_a_huge_covariance_fail_cleanly(variance):
-    from relmap import decisions
+    from relmap.models import decisions
 
     a = rm.AT([1.0, 0.0, 0.0], variance * np.eye(3))
     with pytest.raises(NumericalError, match="in_view"):
@@ -487,8 +487,8 @@ def test_decisions_with_a_huge_covariance_fail_cleanly(variance):
 
 
 def test_montecarlo_validates_its_inputs():
-    from relmap import montecarlo
     from relmap.lie import se2
+    from relmap.sim import montecarlo
 
     a = rm.AT([1.0, 0.0, 0.1], I3)
     with pytest.raises(ParameterError, match="seed"):

@@ -26,7 +26,7 @@ from evo.tools import file_interface as fi
 from relmap.errors import ParameterError
 from relmap.evaluate import align, ape, associate, rpe
 from relmap.io.trajectory import read_trajectory
-from relmap.trajectory import Trajectory
+from relmap.uncertain.trajectory import Trajectory
 
 RELATIONS = {
     "trans": PoseRelation.translation_part,

@@ -1,4 +1,5 @@
-"""relmap.gaussian: validation, confidence regions (Appendix A corrected), ellipses, sampling."""
+"""relmap.uncertain.gaussian: validation, confidence regions (Appendix A corrected), ellipses,
+sampling."""
 
 from __future__ import annotations
 
@@ -7,7 +8,6 @@ import math
 import numpy as np
 import pytest
 
-from relmap import gaussian
 from relmap.errors import (
     NonFiniteError,
     NotPositiveSemidefiniteError,
@@ -15,6 +15,7 @@ from relmap.errors import (
     ParameterError,
     ShapeError,
 )
+from relmap.uncertain import gaussian
 from tests.helpers import random_covs
 
 RNG = np.random.default_rng(7)

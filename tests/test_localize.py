@@ -1,7 +1,7 @@
-"""EKF localization on real data (MRCLAM 6, CMU Plaza 2), `relmap localize`, and relmap.plot.
+"""EKF localization on real data (MRCLAM 6, CMU Plaza 2), `relmap localize`, and relmap.viz.plot.
 
 Measured on this project's 2-core machine with the default noise, estimated from each run's own
-innovations (relmap.autocalibration; Plaza runs and is scored on the second half of its run):
+innovations (relmap.filter.autocalibration; Plaza runs and is scored on the second half of its run):
 
 =========  ======================  ======================  ======================
 run        signatures              Mahalanobis             JCBB
@@ -37,9 +37,10 @@ import numpy as np
 import pytest
 
 import relmap as rm
-from relmap import ekf
+from relmap import models
 from relmap.errors import NonFiniteError, ParameterError, ShapeError
-from relmap.robot import DistanceNoise, increments_from_velocities
+from relmap.filter import ekf
+from relmap.models import DistanceNoise, increments_from_velocities
 
 ROBOTS = (1, 2, 3, 4, 5)
 KEYS = {
@@ -87,7 +88,7 @@ def mrclam(mrclam_dir):
 @pytest.fixture(scope="module")
 def signature_runs(mrclam):
     """All five robots with barcodes as signatures, noise from their own innovations."""
-    from relmap.localize import localize_mrclam
+    from relmap.app.localize import localize_mrclam
 
     return {k: localize_mrclam(mrclam, k) for k in ROBOTS}
 
@@ -96,7 +97,7 @@ def signature_runs(mrclam):
 def mahalanobis_runs(mrclam):
     """Robots 1 and 4 with unknown correspondences (Mahalanobis association), each calibrated
     with its own association; run once for the tests that read them."""
-    from relmap.localize import localize_mrclam
+    from relmap.app.localize import localize_mrclam
 
     return {k: localize_mrclam(mrclam, k, associate="mahalanobis") for k in (1, 4)}
 
@@ -104,15 +105,15 @@ def mahalanobis_runs(mrclam):
 @pytest.fixture(scope="module")
 def jcbb_run(mrclam):
     """Robot 1 with JCBB association, calibrated with it; run once for the tests that read it."""
-    from relmap.localize import localize_mrclam
+    from relmap.app.localize import localize_mrclam
 
     return localize_mrclam(mrclam, 1, associate="jcbb")
 
 
 @pytest.fixture(scope="module")
 def plaza_run(plaza_dir):
+    from relmap.app.localize import localize_plaza
     from relmap.io import read_plaza
-    from relmap.localize import localize_plaza
 
     return localize_plaza(read_plaza(plaza_dir))
 
@@ -161,7 +162,7 @@ def test_noise_comes_from_the_runs_own_innovations(signature_runs):
     """No ground truth: the odometry clock offset (measured 0.2-0.25 s), a whitening factor for
     the correlated readings' update (×3.0-6.2, ρ 0.57-0.92 before it), Student-t readings
     (ν 3.0) of the fitted σ filtered by the linear filter."""
-    from relmap.autocalibration import Calibrated
+    from relmap.filter.autocalibration import Calibrated
 
     for k, run in signature_runs.items():
         cal = run.calibration
@@ -182,7 +183,7 @@ def test_mahalanobis_association_stays_near_signatures_on_robots_1_and_4(
 ):
     """Every reading offered, the other robots' too (clutter fitted): measured position RMSE
     0.538 m (robot 1) and 0.304 m (robot 4), 3.3x and 1.05x the signature filter's, coverage_90
-    0.74 and 0.76 (relmap.localize's docstring: what a moving robot near a landmark does)."""
+    0.74 and 0.76 (relmap.app.localize's docstring: what a moving robot near a landmark does)."""
     for k in (1, 4):
         sig = signature_runs[k]
         mah = mahalanobis_runs[k]
@@ -243,7 +244,7 @@ def test_log_from_velocities_merges_odometry_and_reading_times():
 
 
 def test_filter_without_readings_is_dead_reckoning():
-    """ekf.run with no readings against relmap.robot.dead_reckon (compounding in numpy)."""
+    """ekf.run with no readings against relmap.models.dead_reckon (compounding in numpy)."""
     rng = np.random.default_rng(4)
     motion = np.column_stack([rng.uniform(0, 0.01, 2000), rng.normal(0, 0.01, 2000)])
     noise = DistanceNoise(0.004, 0.02, 0.001)
@@ -251,7 +252,7 @@ def test_filter_without_readings_is_dead_reckoning():
     log = ekf.Log(np.arange(2001.0), motion, np.zeros(0, np.int64), np.zeros((0, 2)))
     params = ekf.NoiseParameters(noise.k_s, noise.k_theta, noise.k_theta_s, 0.1, 0.01)
     est = ekf.run(log, np.zeros((0, 2)), params, start=start, association="mahalanobis")
-    dr = rm.robot.dead_reckon(motion, noise, start=start)
+    dr = models.dead_reckon(motion, noise, start=start)
     np.testing.assert_allclose(est.mean, dr.mean, atol=1e-10)
     np.testing.assert_allclose(est.cov, dr.cov, rtol=1e-8, atol=1e-14)
 
@@ -261,7 +262,7 @@ def test_range_only_correction_is_the_stacked_kalman_update():
     textbook update written out here."""
     prior = rm.AT([1.0, 2.0, 0.3], np.diag([0.5, 0.3, 0.1]) + 0.05)
     beacons = np.array([[10.0, 2.0], [1.0, -8.0], [-30.0, 40.0]])
-    sensor = rm.sensors.RangeBearingSensor(0.3, 0.0)
+    sensor = models.RangeBearingSensor(0.3, 0.0)
     r_true = np.hypot(*(beacons - [1.4, 1.7]).T)
     z = r_true[[0, 1]] + [0.1, -0.2]
     kw = dict(range_only=True, associate="signatures", landmark_signatures=[0, 1, 2])
@@ -293,7 +294,7 @@ def test_range_only_correction_is_the_stacked_kalman_update():
 
 
 def test_score_of_the_truth_itself():
-    from relmap.localize import score
+    from relmap.app.localize import score
 
     truth = np.column_stack([np.arange(5.0), np.zeros(5), np.full(5, np.pi - 1e-3)])
     exact = rm.AT(truth, np.eye(3) * 1e-4)
@@ -309,7 +310,7 @@ def test_score_of_the_truth_itself():
 
 # ------------------------------------------------------------------------------- CLI
 def _cli(capsys, *args: str) -> tuple[int, str, str]:
-    from relmap.cli import main
+    from relmap.app.cli import main
 
     code = main(["localize", *map(str, args)])
     out = capsys.readouterr()
@@ -372,7 +373,7 @@ def test_cli_bad_input(capsys, tmp_path, mrclam_dir, plaza_dir):
 
 def test_cli_localize_subprocess_exit_code(tmp_path):
     out = subprocess.run(
-        [sys.executable, "-m", "relmap.cli", "localize", str(tmp_path)],
+        [sys.executable, "-m", "relmap.app.cli", "localize", str(tmp_path)],
         capture_output=True,
         text=True,
         timeout=120,
@@ -383,7 +384,7 @@ def test_cli_localize_subprocess_exit_code(tmp_path):
 
 def test_localize_and_plot_modules_stay_light():
     code = (
-        "import sys, relmap.localize, relmap.plot, relmap.localize_plot; "
+        "import sys, relmap.app.localize, relmap.viz.plot, relmap.viz.localization; "
         "print([m for m in sys.modules if m.split('.')[0] == 'matplotlib'])"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
@@ -394,7 +395,7 @@ def test_localize_and_plot_modules_stay_light():
 def test_plot_ellipse_and_trajectory():
     from matplotlib.figure import Figure
 
-    from relmap import plot
+    from relmap.viz import plot
 
     fig = Figure()
     ax = fig.add_subplot()
@@ -434,9 +435,9 @@ def test_plot_ellipse_and_trajectory():
 def test_a_plaza_run_without_range_readings_is_refused_not_calibrated_to_nan(plaza_dir):
     """No usable reading in the training half: a ParameterError naming it (before: the filter
     ran with σ range NaN and the command printed "σ range nan m")."""
+    from relmap.app.localize import calibrate_plaza
     from relmap.errors import ParameterError
     from relmap.io import read_plaza
-    from relmap.localize import calibrate_plaza
 
     data = read_plaza(plaza_dir)
     silent = data._replace(meas_beacon_index=np.full_like(data.meas_beacon_index, -1))
@@ -488,7 +489,7 @@ def test_issue_14_target_without_barcodes(signature_runs, mahalanobis_runs, jcbb
     every reading offered (the other robots' too). Measured: Mahalanobis 0.538 m (3.3x), 0.74;
     JCBB 0.489 m (3.0x), 0.70. What blocks it: a robot that moves near a landmark while the filter's
     heading is uncertain passes that landmark's gate with a high density (w = g/(g + λ) near 1)
-    and then drags the filter along (relmap.localize's docstring)."""
+    and then drags the filter along (relmap.app.localize's docstring)."""
     sig = signature_runs[1]
     for mode, run in (("mahalanobis", mahalanobis_runs[1]), ("jcbb", jcbb_run)):
         assert run.score.rmse_position <= 1.25 * sig.score.rmse_position, mode
@@ -497,7 +498,7 @@ def test_issue_14_target_without_barcodes(signature_runs, mahalanobis_runs, jcbb
 
 def test_euclidean_association_warns_when_it_goes_wrong(mrclam, signature_runs):
     """Eq. 22 on robot 3 (measured: RMSE 0.95 m, ANEES 556): the run says so."""
-    from relmap.localize import localize_mrclam
+    from relmap.app.localize import localize_mrclam
 
     run = localize_mrclam(
         mrclam, 3, associate="euclidean", calibration=signature_runs[3].calibration
@@ -534,14 +535,14 @@ def test_the_run_says_when_its_covariance_is_cautious_or_overconfident(signature
     ],
 )
 def test_covariance_side(coverage, anees, side):
-    from relmap.localize import Score, _covariance_side
+    from relmap.app.localize import Score, _covariance_side
 
     assert _covariance_side(Score(0.1, 0.01, coverage, anees, 0)) == side
 
 
 def test_calibrate_from_run(mrclam_dir, mrclam, signature_runs, capsys):
     """--calibrate from-run N: the noise of robot N's run against its ground truth."""
-    from relmap.localize import calibrate_mrclam, localize, localize_mrclam, noise_from_run
+    from relmap.app.localize import calibrate_mrclam, localize, localize_mrclam, noise_from_run
 
     run = localize(mrclam_dir, robot=1, calibrate_from=2)
     assert run.score == localize_mrclam(mrclam, 1, calibration=calibrate_mrclam(mrclam, 2)).score
@@ -564,7 +565,7 @@ def test_calibrate_from_run(mrclam_dir, mrclam, signature_runs, capsys):
 def test_bad_logs_give_clear_errors_or_counted_rejections(mrclam):
     """#16's bad input on a real log: a training robot without odometry, non-monotonic time
     stamps, NaN readings, a reading of an unknown landmark, an empty map."""
-    from relmap.localize import calibrate_mrclam, localize_mrclam
+    from relmap.app.localize import calibrate_mrclam, localize_mrclam
 
     log = mrclam.robots[1]
     empty = log._replace(odometry_t=log.odometry_t[:0], odometry_v=log.odometry_v[:0],

@@ -196,7 +196,7 @@ def test_3d_sigma_in_degrees_and_mixed_files(tmp_path):
 
 
 def test_query_command_on_a_3d_map(tmp_path, capsys):
-    from relmap.cli import main
+    from relmap.app.cli import main
 
     p = tmp_path / "m3.yaml"
     p.write_text(

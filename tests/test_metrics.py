@@ -8,7 +8,7 @@ from hypothesis import strategies as st
 
 from relmap.evaluate import associate, pairs, statistics
 from relmap.evaluate.association import _nearest
-from relmap.trajectory import Trajectory
+from relmap.uncertain.trajectory import Trajectory
 
 
 def brute_all_pairs(D, delta, tol):  # type: ignore[no-untyped-def]

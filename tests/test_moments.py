@@ -1,4 +1,5 @@
-"""Exact SE(2) moments (relmap.moments): against Monte Carlo, against brute-force quadrature,
+"""Exact SE(2) moments (relmap.uncertain.moments): against Monte Carlo, against brute-force
+quadrature,
 against first order when the uncertainty is tiny, and the laws (PSD, pair = chain of 2, batches).
 
 The exact moments are those of the heading on the real line, so Monte Carlo here sums sampled
@@ -14,10 +15,11 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 import relmap as rm
-from relmap import moments as mo
 from relmap.errors import ParameterError, ShapeError
 from relmap.lie import se2
-from relmap.propagate import EUCLIDEAN, SE2, unscented
+from relmap.sim import montecarlo
+from relmap.uncertain import moments as mo
+from relmap.uncertain.propagate import EUCLIDEAN, SE2, unscented
 from tests.helpers import (
     assert_poses_close,
     random_ats,
@@ -113,7 +115,7 @@ def test_chain_matches_monte_carlo_within_sampling_error():
     assert (np.abs(first.cov - mc_cov) / se_cov).max() > 20
     assert (np.abs(_unwrapped(first.mean, mc_mean[2]) - mc_mean) / se_mean).max() > 20
     # The sample is far from Gaussian (the crescent), which exact moments do not change.
-    report = rm.montecarlo.SampleSet.of(y[:50_000]).compare(exact)
+    report = montecarlo.SampleSet.of(y[:50_000]).compare(exact)
     assert report.skewness > 0.1
 
 
@@ -305,7 +307,7 @@ def test_linearization_error_predicts_the_first_order_error():
 @pytest.mark.parametrize("chain", [mo.chain_moments, mo.unscented_chain])
 def test_a_chains_axis_is_checked_once_for_both_chains(chain):
     """chain_moments and unscented_chain check the axis as compound_chain does
-    (relmap.uncertain.chain_batch_axis): a batch axis, an integer in range, one step."""
+    (relmap.uncertain.pose.chain_batch_axis): a batch axis, an integer in range, one step."""
     m, C = np.zeros((4, 3)), np.broadcast_to(0.01 * np.eye(3), (4, 3, 3))
     with pytest.raises(ShapeError, match="at least one batch axis"):
         chain(m[0], C[0])

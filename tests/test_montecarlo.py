@@ -1,4 +1,4 @@
-"""relmap.montecarlo: sample moments on the circle, agreement statistics, Gaussianity."""
+"""relmap.sim.montecarlo: sample moments on the circle, agreement statistics, Gaussianity."""
 
 from __future__ import annotations
 
@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 import relmap as rm
-from relmap import montecarlo
 from relmap.errors import ParameterError, ShapeError
 from relmap.lie import se2
+from relmap.sim import montecarlo
 
 
 def test_sample_moments_straddling_pi():

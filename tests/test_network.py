@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 
 import relmap as rm
-from relmap import montecarlo
 from relmap.errors import (
     DisconnectedError,
     InconsistentMapError,
@@ -21,6 +20,7 @@ from relmap.errors import (
 )
 from relmap.lie import se2
 from relmap.network.reduce import reduce_network
+from relmap.sim import montecarlo
 from tests.helpers import assert_poses_close
 
 FIG3 = [("A", "w", "t"), ("B", "w", "v"), ("C", "t", "v"), ("D", "t", "u"), ("E", "u", "v")]
@@ -96,7 +96,7 @@ def test_joint_group_and_removal():
 
 # ------------------------------------------------------------------- the paper
 def test_fig1_chain_and_sensor_is_g_merged_with_s_reversed():
-    from relmap.demo import fig1
+    from relmap.app.demo import fig1
 
     result = fig1()
     g = rm.RelationalMap.from_records(result.inputs)

@@ -171,7 +171,7 @@ def test_solve_command_writes_the_optimum(data_dir, tmp_path):
     out = tmp_path / "mit_opt.g2o"
     src = data_dir / "posegraph2d" / "MIT.g2o"
     run = subprocess.run(
-        [sys.executable, "-m", "relmap.cli", "solve", str(src), "--out", str(out), "--json"],
+        [sys.executable, "-m", "relmap.app.cli", "solve", str(src), "--out", str(out), "--json"],
         capture_output=True,
         text=True,
         timeout=120,
@@ -201,7 +201,7 @@ def test_query_command_on_files(data_dir, tmp_path):
         [
             sys.executable,
             "-m",
-            "relmap.cli",
+            "relmap.app.cli",
             "query",
             str(data_dir / "posegraph2d" / "intel.g2o"),
             "0",
@@ -227,7 +227,7 @@ def test_query_command_on_files(data_dir, tmp_path):
         [
             sys.executable,
             "-m",
-            "relmap.cli",
+            "relmap.app.cli",
             "query",
             str(data_dir / "posegraph2d" / "intel.g2o"),
             "0",

@@ -22,11 +22,11 @@ import numpy as np
 import pytest
 
 import relmap as rm
-from relmap.cli import main
-from relmap.gaussian import congruence
+from relmap.app.cli import main
 from relmap.io import read_graph, solve_graph
 from relmap.io.posegraph import _g2o3_chart
 from relmap.lie import se3, so3
+from relmap.uncertain.gaussian import congruence
 
 # ----------------------------------------------------------------------------- GTSAM helpers
 

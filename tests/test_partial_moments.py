@@ -14,10 +14,11 @@ import numpy as np
 import pytest
 
 import relmap as rm
-from relmap import montecarlo, validate
+from relmap.app import validate
 from relmap.errors import ClusterError, ParameterError
 from relmap.lie import se2
-from relmap.montecarlo import Tally
+from relmap.sim import montecarlo
+from relmap.sim.montecarlo import Tally
 from tests.test_validate import bridge_map
 
 
@@ -154,8 +155,8 @@ def test_without_dask_everything_runs_here(monkeypatch):
 
 def test_import_relmap_does_not_import_dask():
     code = (
-        "import sys, relmap, relmap.validate, relmap.montecarlo, relmap.distributed, "
-        "relmap.study\n"
+        "import sys, relmap, relmap.app.validate, relmap.sim.montecarlo, relmap.sim.distributed, "
+        "relmap.sim.study\n"
         "heavy = [m for m in sys.modules if m.split('.')[0] in ('dask', 'distributed')]\n"
         "assert not heavy, heavy"
     )

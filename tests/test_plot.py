@@ -1,4 +1,4 @@
-"""relmap.plot: every function takes and returns an Axes and draws something visible."""
+"""relmap.viz.plot: every function takes and returns an Axes and draws something visible."""
 
 from __future__ import annotations
 
@@ -6,9 +6,11 @@ import numpy as np
 import pytest
 
 import relmap as rm
-from relmap import montecarlo, plot
 from relmap.errors import ParameterError, ShapeError
 from relmap.lie import se2
+from relmap.sim import montecarlo
+from relmap.uncertain import gaussian
+from relmap.viz import plot
 from tests.helpers import fig3_bridge
 
 
@@ -70,7 +72,7 @@ def test_ellipsoid_projection_touches_the_ellipsoid(plane):
     (curve,) = ax.collections[0].get_segments()
     i, j = {"xy": (0, 1), "xz": (0, 2), "yz": (1, 2)}[plane]
     # The shadow's extent along an axis is k₃·σ along it (k₃ of the 3-D 90% ellipsoid).
-    k3 = np.sqrt(rm.gaussian.confidence_k2(0.9, 3))
+    k3 = np.sqrt(gaussian.confidence_k2(0.9, 3))
     for axis, col in ((i, 0), (j, 1)):
         half = (curve[:, col].max() - curve[:, col].min()) / 2
         np.testing.assert_allclose(half, k3 * np.sqrt(cov[axis, axis]), rtol=2e-3)

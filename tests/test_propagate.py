@@ -1,14 +1,15 @@
-"""relmap.propagate: numeric Jacobians, first-order propagation, the unscented transform."""
+"""relmap.uncertain.propagate: numeric Jacobians, first-order propagation, the unscented
+transform."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from relmap import gaussian
 from relmap.errors import ParameterError, ShapeError
 from relmap.lie import se2
-from relmap.propagate import SE2, Chart, numerical_jacobian, propagate, unscented
+from relmap.uncertain import gaussian
+from relmap.uncertain.propagate import SE2, Chart, numerical_jacobian, propagate, unscented
 from tests.helpers import random_covs, random_poses
 
 RNG = np.random.default_rng(99)

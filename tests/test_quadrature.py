@@ -1,4 +1,4 @@
-"""relmap.sensors.quadrature: the adaptive Gauss-Legendre engine against integrals known in
+"""relmap.uncertain.quadrature: the adaptive Gauss-Legendre engine against integrals known in
 closed form, many elements at once, each to its tolerance."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from relmap.errors import NumericalError, SolverError
-from relmap.sensors.quadrature import adaptive, panels, split_panels
+from relmap.uncertain.quadrature import adaptive, panels, split_panels
 
 
 def test_integrals_in_closed_form_each_to_its_tolerance():
@@ -55,7 +55,7 @@ def test_overflow_is_a_numerical_error():
 
 
 def test_no_convergence_within_the_levels_is_a_solver_error(monkeypatch):
-    from relmap.sensors import quadrature
+    from relmap.uncertain import quadrature
 
     monkeypatch.setattr(quadrature, "MAX_LEVELS", 2)  # cos(200 x) on [0, 1] needs more
     with pytest.raises(SolverError, match="did not reach tol=1e-12 after 2"):

@@ -9,13 +9,14 @@ import numpy as np
 import pytest
 
 import relmap as rm
-from relmap.cli import main
+from relmap.app.cli import main
+from relmap.app.validate import validate_query
 from relmap.errors import ParameterError
 from relmap.io import save_map
 from relmap.lie import se2
 from relmap.network.query import linearization_check
 from relmap.network.reduce import reduce_network
-from relmap.validate import validate_query
+from relmap.uncertain import moments
 
 TINY = 1e-5  # rad
 
@@ -67,7 +68,7 @@ def test_exact_reversal_and_reversed_chain_against_sampling():
     exact = g.query("F10", "F0", moments="exact").at
     assert rel(exact.cov, mc) < 0.015  # sampling error ≈ 0.5%
     assert rel(g.query("F10", "F0").at.cov, mc) > 0.2
-    one = rm.moments.reverse_moments(steps[0].mean, steps[0].cov)
+    one = moments.reverse_moments(steps[0].mean, steps[0].cov)
     assert rel(one.cov, np.cov(se2.inverse(x[:, 0]).T)) < 0.02
 
 
@@ -80,7 +81,7 @@ def test_diagnostic_is_zero_for_tiny_errors_and_matches_linearization_error():
     steps = links(20, 10.0)
     est = chain(steps).query("F0", "F20", diagnose=True)
     check = est.linearization
-    ref = rm.moments.linearization_error(steps, axis=0)
+    ref = moments.linearization_error(steps, axis=0)
     assert check.cov_rel_error > 0.10
     assert check.cov_rel_error == pytest.approx(float(ref.cov_rel_error[-1]), rel=1e-10)
     np.testing.assert_allclose(check.mean_error, ref.mean_error[-1], atol=1e-12)
@@ -208,7 +209,7 @@ def test_validate_reports_the_predicted_linearization_error(tmp_path, capsys):
     assert main(["validate", str(path), "F0", "F20", "-n", "4000", "--seed", "1", "--json"]) == 0
     s = json.loads(capsys.readouterr().out)
     lin = s["predicted_linearization"]
-    ref = rm.moments.linearization_error(links(20, 10.0), axis=0)
+    ref = moments.linearization_error(links(20, 10.0), axis=0)
     assert lin["cov_rel_error"] == pytest.approx(float(ref.cov_rel_error[-1]), rel=1e-9)
     assert s["moments"] == "first_order" and lin["mean_error_sigmas"] > 5
     # predicted beside sampled: 43% predicted, sampled within its (4000-sample) error

@@ -1,4 +1,4 @@
-"""relmap.robot: differential-drive odometry (lecture Eqs. 9-12) and the planar arm (Eqs. 1-8)."""
+"""relmap.models: differential-drive odometry (lecture Eqs. 9-12) and the planar arm (Eqs. 1-8)."""
 
 from __future__ import annotations
 
@@ -6,11 +6,9 @@ import numpy as np
 import pytest
 
 import relmap as rm
-from relmap import gaussian, montecarlo
 from relmap.errors import ParameterError, ShapeError
 from relmap.lie import se2
-from relmap.propagate import SE2, numerical_jacobian
-from relmap.robot import (
+from relmap.models import (
     AlphaNoise,
     DiffDrive,
     DistanceNoise,
@@ -21,6 +19,9 @@ from relmap.robot import (
     increments_from_velocities,
     step,
 )
+from relmap.sim import montecarlo
+from relmap.uncertain import gaussian
+from relmap.uncertain.propagate import SE2, numerical_jacobian
 from tests.helpers import assert_poses_close
 
 DRIVE = DiffDrive(0.05, 0.3)
@@ -252,7 +253,7 @@ def test_arm_errors():
 def test_distance_noise_step_covariance_is_j_sigma_jt(rng, integration):
     """The step's covariance (the core's with midpoint integration) is J diag(var Δs, var Δθ) Jᵀ
     with J = ∂Δ/∂(Δs, Δθ) (Eqs. 10-13), J taken numerically here; batched and unbatched."""
-    from relmap.robot.motion import DistanceNoise, increment
+    from relmap.models.odometry import DistanceNoise, increment
 
     noise = DistanceNoise(0.01, 0.02, 0.003)
     m = np.column_stack([rng.uniform(-1.0, 2.0, 5), rng.uniform(-0.8, 0.8, 5)])
@@ -265,10 +266,10 @@ def test_distance_noise_step_covariance_is_j_sigma_jt(rng, integration):
 
 
 def test_only_distance_noise_with_midpoint_steps_is_the_cores_model():
-    """core_params: the core's parameter row (as long as relmap.ekf.NoiseParameters) for
+    """core_params: the core's parameter row (as long as relmap.filter.ekf.NoiseParameters) for
     DistanceNoise with midpoint integration, None otherwise."""
-    from relmap.ekf import NoiseParameters
-    from relmap.robot.motion import AlphaNoise, DistanceNoise, WheelNoise
+    from relmap.filter.ekf import NoiseParameters
+    from relmap.models.odometry import AlphaNoise, DistanceNoise, WheelNoise
 
     row = DistanceNoise(0.01, 0.02, 0.003).core_params("midpoint")
     assert row.shape == (1, len(NoiseParameters._fields))

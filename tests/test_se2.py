@@ -8,7 +8,7 @@ import pytest
 
 from relmap.errors import ShapeError
 from relmap.lie import se2
-from relmap.propagate import SE2, numerical_jacobian
+from relmap.uncertain.propagate import SE2, numerical_jacobian
 from tests.helpers import assert_poses_close, random_poses
 
 RNG = np.random.default_rng(20261122)

@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from relmap.errors import ParameterError, ShapeError
 from relmap.lie import se3, so3
-from relmap.propagate import SE3, numerical_jacobian
+from relmap.uncertain.propagate import SE3, numerical_jacobian
 
 
 def random_poses(seed: int, n: int, scale: float = 2.0) -> np.ndarray:

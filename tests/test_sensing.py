@@ -12,7 +12,7 @@ from relmap.network.sensing import covariance_after, glitch_test
 
 
 def fig1_map() -> rm.RelationalMap:
-    from relmap.demo import fig1
+    from relmap.app.demo import fig1
 
     g = rm.RelationalMap()
     for r in fig1().inputs:

@@ -1,4 +1,4 @@
-"""relmap.sensors: the range-bearing model (lecture Eq. 20) and Appendix B's polar mappings."""
+"""relmap.models: the range-bearing model (lecture Eq. 20) and Appendix B's polar mappings."""
 
 from __future__ import annotations
 
@@ -6,17 +6,18 @@ import numpy as np
 import pytest
 
 import relmap as rm
-from relmap import gaussian, montecarlo
 from relmap.errors import ParameterError, ShapeError
 from relmap.lie import se2
-from relmap.propagate import SE2, numerical_jacobian
-from relmap.sensors import (
+from relmap.models import (
     POLAR,
     RangeBearingSensor,
     cartesian_to_polar,
     merge_polar,
     polar_to_cartesian,
 )
+from relmap.sim import montecarlo
+from relmap.uncertain import gaussian, propagate
+from relmap.uncertain.propagate import SE2, numerical_jacobian
 
 SENSOR = RangeBearingSensor(0.1, 0.02, mount=[0.2, -0.1, 0.3], fov=np.radians(120), max_range=8.0)
 
@@ -51,7 +52,7 @@ def test_jacobians_numeric_batched():
         out[..., 1] = se2.wrap_angle(out[..., 1])
         return out
 
-    chart = rm.propagate.Chart(lambda x, d: x + d, bearing_chart_minus)
+    chart = propagate.Chart(lambda x, d: x + d, bearing_chart_minus)
     Hp_n = numerical_jacobian(
         lambda p: SENSOR.predict(p, lms[:, None, :]), poses, chart_in=SE2, chart_out=chart
     )

@@ -1,4 +1,5 @@
-"""relmap.sensors.decisions (public name relmap.decisions): field-of-view and doorway decisions,
+"""relmap.models.decisions (public name relmap.models.decisions): field-of-view and doorway
+decisions,
 the paper's test and the probability.
 
 Every probability is checked against Monte Carlo (samples drawn with ``AT.sample``, agreement
@@ -19,8 +20,8 @@ from scipy import integrate, optimize
 from scipy.special import ndtr
 
 import relmap as rm
-from relmap.decisions import in_view, through_door
 from relmap.errors import ParameterError
+from relmap.models.decisions import in_view, through_door
 
 N_MC = 1_000_000
 
@@ -558,7 +559,7 @@ def test_door_bad_parameters():
 
 def test_import_stays_light():
     code = (
-        "import sys, relmap.decisions; "
+        "import sys, relmap.models.decisions; "
         "bad = [m for m in ('scipy.special', 'scipy.stats', 'scipy.sparse') if m in sys.modules]; "
         "assert not bad, bad"
     )

@@ -1,12 +1,13 @@
-"""relmap._sym3 (SE(2)'s fused 3×3 congruences) and relmap.gaussian.congruence against the
+"""relmap.uncertain._sym3 (SE(2)'s fused 3×3 congruences) and relmap.uncertain.gaussian.congruence
+against the
 matrix products they write out: ``K C Kᵀ``, ``H C Hᵀ``, ``J S Jᵀ``."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from relmap import _sym3 as sym3
-from relmap.gaussian import congruence
+from relmap.uncertain import _sym3 as sym3
+from relmap.uncertain.gaussian import congruence
 
 from .helpers import random_covs
 

@@ -12,7 +12,7 @@ from relmap.errors import FileFormatError, ParameterError
 from relmap.evaluate import evaluate
 from relmap.io.trajectory import read_trajectory, recognise_trajectory, write_trajectory
 from relmap.lie import so3
-from relmap.trajectory import Trajectory
+from relmap.uncertain.trajectory import Trajectory
 
 
 @pytest.mark.real_data
@@ -189,7 +189,7 @@ def test_eval_errors(tmp_path):  # type: ignore[no-untyped-def]
 
 
 def test_nothing_half_written(tmp_path):  # type: ignore[no-untyped-def]
-    from relmap.cli import main
+    from relmap.app.cli import main
 
     bad = tmp_path / "bad.txt"
     bad.write_text(GOOD.replace("2.0 1", "2.0 nan"))

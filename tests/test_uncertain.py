@@ -1,4 +1,4 @@
-"""relmap.uncertain: what AT and AT3 share (storage, stacking, indexing, sampling, the ellipse)
+"""relmap.uncertain.pose: what AT and AT3 share (storage, stacking, indexing, sampling, the ellipse)
 behaves the same for both kinds, and the free functions dispatch on the kind, not isinstance."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import pytest
 
 import relmap as rm
 from relmap.errors import ArgumentTypeError, ParameterError, ShapeError
-from relmap.uncertain import UncertainPose
+from relmap.uncertain.pose import UncertainPose
 
 
 def _planar(rng: np.random.Generator, n: int) -> rm.AT:

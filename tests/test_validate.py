@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 
 import relmap as rm
-from relmap.cli import main
+from relmap.app.cli import main
+from relmap.app.validate import validate_query
 from relmap.errors import ParameterError
 from relmap.io import save_map
-from relmap.validate import validate_query
+from relmap.sim import montecarlo
 from tests.helpers import fig3_bridge
 
 TINY = 1e-5  # rad: angular errors this small make every operation linear to ~1e-10
@@ -72,7 +73,7 @@ def test_the_batched_reduction_equals_one_query_per_sample():
     g = bridge_map(np.radians(2.0))
     n, seed = 6, 5
     v = validate_query(g, "w", "u", method="reduce", n=n, seed=seed)
-    rng = rm.montecarlo.block_rng(seed, 0)  # n < one block: every sample is in block 0
+    rng = montecarlo.block_rng(seed, 0)  # n < one block: every sample is in block 0
     draws = [g.edge(name).at.sample(n, rng) for name in v.names]
     for k in range(n):
         h = rm.RelationalMap()
@@ -130,7 +131,7 @@ def test_cli_says_the_method_why_and_how_long(tmp_path, capsys, monkeypatch):
     assert "samples in this process, about" in captured.err
     assert "method: auto chose reduce" in captured.out
 
-    from relmap import validate
+    from relmap.app import validate
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt

@@ -24,32 +24,47 @@ TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (mypy kno
 if TYPE_CHECKING:
     from typing import Any
 
-    from relmap import decisions, errors, gaussian, lie, moments, montecarlo, propagate
-    from relmap.at import AT, compound, compound_chain, merge, reverse
-    from relmap.at3 import AT3
-    from relmap.gaussian import Ellipse
+    from relmap import (
+        app,
+        errors,
+        evaluate,
+        filter,
+        io,
+        lie,
+        models,
+        network,
+        sim,
+        uncertain,
+        viz,
+    )  # fmt: skip
     from relmap.network import Estimate, RelationalMap
+    from relmap.uncertain.at import AT, compound, compound_chain, merge, reverse
+    from relmap.uncertain.at3 import AT3
+    from relmap.uncertain.gaussian import Ellipse
 
 #: The public names and the module each comes from.
 _NAMES = {
-    "AT": "relmap.at",
-    "compound": "relmap.at",
-    "compound_chain": "relmap.at",
-    "merge": "relmap.at",
-    "reverse": "relmap.at",
-    "AT3": "relmap.at3",
-    "Ellipse": "relmap.gaussian",
+    "AT": "relmap.uncertain.at",
+    "compound": "relmap.uncertain.at",
+    "compound_chain": "relmap.uncertain.at",
+    "merge": "relmap.uncertain.at",
+    "reverse": "relmap.uncertain.at",
+    "AT3": "relmap.uncertain.at3",
+    "Ellipse": "relmap.uncertain.gaussian",
     "Estimate": "relmap.network",
     "RelationalMap": "relmap.network",
 }
 #: The public submodules, available as attributes of the package.
-_MODULES = ("decisions", "errors", "gaussian", "lie", "moments", "montecarlo", "propagate")
+_MODULES = (
+    "app", "errors", "evaluate", "filter", "io", "lie", "models", "network", "sim", "uncertain",
+    "viz",
+)  # fmt: skip
 
 
 def __getattr__(name: str) -> Any:
     if name in _NAMES:
         value = getattr(importlib.import_module(_NAMES[name]), name)
-    else:  # a submodule (the public ones in _MODULES; relmap.at, relmap.io, ... too)
+    else:  # a subpackage (_MODULES) or a module of relmap's
         try:
             value = importlib.import_module(f"relmap.{name}")
         except ModuleNotFoundError as exc:
@@ -71,15 +86,19 @@ __all__ = [
     "Estimate",
     "RelationalMap",
     "__version__",
+    "app",
     "compound",
     "compound_chain",
-    "decisions",
     "errors",
-    "gaussian",
+    "evaluate",
+    "filter",
+    "io",
     "lie",
     "merge",
-    "moments",
-    "montecarlo",
-    "propagate",
+    "models",
+    "network",
     "reverse",
+    "sim",
+    "uncertain",
+    "viz",
 ]

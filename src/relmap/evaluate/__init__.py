@@ -24,7 +24,7 @@ from relmap.evaluate.metrics import (
     rpe,
     statistics,
 )
-from relmap.trajectory import Trajectory
+from relmap.uncertain.trajectory import Trajectory
 
 __all__ = [
     "ALIGNMENTS",

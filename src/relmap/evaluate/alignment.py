@@ -22,12 +22,12 @@ from typing import Literal, NamedTuple
 
 import numpy as np
 
-from relmap.at import AT
-from relmap.at3 import AT3
 from relmap.errors import ParameterError
-from relmap.gaussian import congruence
-from relmap.trajectory import Trajectory, planar_from_matrices
 from relmap.typing import FloatArray
+from relmap.uncertain.at import AT
+from relmap.uncertain.at3 import AT3
+from relmap.uncertain.gaussian import congruence
+from relmap.uncertain.trajectory import Trajectory, planar_from_matrices
 
 __all__ = ["ALIGNMENTS", "Alignment", "align", "umeyama"]
 

@@ -18,8 +18,8 @@ import numpy as np
 
 from relmap.errors import ParameterError
 from relmap.lie import se3, so3
-from relmap.trajectory import Trajectory
 from relmap.typing import FloatArray, IntArray
+from relmap.uncertain.trajectory import Trajectory
 
 __all__ = ["Association", "associate", "interpolate"]
 

@@ -6,7 +6,8 @@ At every associated time the error of the estimate is taken in the chart its cov
 its normalized estimation error squared ``NEES = δᵀ C⁻¹ δ`` (Bar-Shalom, Li & Kirubarajan 2001,
 §5.4) for the position, the orientation and the full pose. A covariance that is singular
 (an exactly planar 3-D estimate: no variance in z, roll, pitch) is inverted on its support
-(:func:`relmap.gaussian.generalized_inverse`): the NEES has as many degrees of freedom as the
+(:func:`relmap.uncertain.gaussian.generalized_inverse`): the NEES has as many degrees of freedom as
+the
 covariance has rank, and an error off the support makes it infinite. When the reference carries
 a covariance too (neither is the truth, e.g. AMCL against odometry), the covariance of the
 difference is the sum of the two (independent errors, to first order in the same chart).
@@ -27,11 +28,11 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from relmap import gaussian
 from relmap.errors import ParameterError
 from relmap.lie import se2, se3
-from relmap.trajectory import Trajectory
 from relmap.typing import FloatArray, IntArray
+from relmap.uncertain import gaussian
+from relmap.uncertain.trajectory import Trajectory
 
 __all__ = [
     "Consistency",

@@ -36,11 +36,11 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from relmap.at import AT
-from relmap.at3 import AT3
 from relmap.errors import FileFormatError, ParameterError, RelmapError, ShapeError
 from relmap.io.atomic import check_writable, write_text_atomic
 from relmap.io.textfile import read_text
+from relmap.uncertain.at import AT
+from relmap.uncertain.at3 import AT3
 
 __all__ = ["ATRecord", "read_records", "records_from_text", "write_records"]
 

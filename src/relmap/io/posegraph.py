@@ -93,9 +93,7 @@ from typing import Literal, NamedTuple, TypeVar
 import numpy as np
 import numpy.typing as npt
 
-from relmap import _core, gaussian
-from relmap.at import AT
-from relmap.at3 import AT3
+from relmap import _core
 from relmap.errors import (
     FileFormatError,
     ParameterError,
@@ -103,13 +101,16 @@ from relmap.errors import (
     ShapeError,
     UnknownFrameError,
 )
-from relmap.gaussian import DEFAULT_RTOL
 from relmap.io._parsing import fail_at, frozen, strict_float
 from relmap.io.atomic import write_text_atomic
 from relmap.io.textfile import read_text
 from relmap.lie import SE3, Group, se2, se3, so3
 from relmap.typing import ArrayLike, FloatArray, IntArray
-from relmap.uncertain import UncertainPose
+from relmap.uncertain import gaussian
+from relmap.uncertain.at import AT
+from relmap.uncertain.at3 import AT3
+from relmap.uncertain.gaussian import DEFAULT_RTOL
+from relmap.uncertain.pose import UncertainPose
 
 __all__ = ["QUATERNION_ATOL", "PoseGraph", "file_information", "read_graph", "write_graph"]
 
@@ -171,7 +172,8 @@ _KIND_OF_TAG: dict[str, tuple[GraphFormat, int | None]] = {
 }
 _INT = re.compile(r"[+-]?[0-9]+")
 # An information matrix is singular when the smallest eigenvalue of its correlation matrix is at
-# most this: relmap's rank decision elsewhere (rtol·n, :func:`relmap.gaussian.generalized_inverse`).
+# most this: relmap's rank decision elsewhere (rtol·n,
+# :func:`relmap.uncertain.gaussian.generalized_inverse`).
 _SINGULAR = 3 * DEFAULT_RTOL
 # Rotation matrices handed to write_graph must be orthonormal to this (as relmap.AT3's input).
 _ROTATION_ATOL = 1e-6
@@ -361,7 +363,7 @@ def _inverse_pd(mats: FloatArray) -> _Inverse:
     """Inverses of symmetric positive definite matrices ``(m, n, n)``, or the first that is not.
 
     The test is on the correlation matrix ``D^-1/2 A D^-1/2`` (unit-free, as in
-    :mod:`relmap.gaussian`): its smallest eigenvalue must exceed ``3·DEFAULT_RTOL``.
+    :mod:`relmap.uncertain.gaussian`): its smallest eigenvalue must exceed ``3·DEFAULT_RTOL``.
     """
     n = mats.shape[-1]
     diag = np.diagonal(mats, axis1=-2, axis2=-1)

@@ -31,8 +31,8 @@ import numpy as np
 
 from relmap.errors import FileFormatError, ParameterError, RelmapError
 from relmap.lie import se3, so3
-from relmap.trajectory import Trajectory
 from relmap.typing import FloatArray
+from relmap.uncertain.trajectory import Trajectory
 
 __all__ = ["POSE_TYPES", "bag_topics", "read_bag", "read_bag_topics"]
 

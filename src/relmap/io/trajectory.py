@@ -40,8 +40,8 @@ from relmap.errors import FileFormatError, ParameterError, RelmapError
 from relmap.io.atomic import write_text_atomic
 from relmap.io.textfile import read_text
 from relmap.lie import so3
-from relmap.trajectory import Trajectory, check_increasing, check_rotations
 from relmap.typing import FloatArray, IntArray
+from relmap.uncertain.trajectory import Trajectory, check_increasing, check_rotations
 
 __all__ = ["FORMATS", "read_trajectory", "recognise_trajectory", "write_trajectory"]
 

@@ -20,9 +20,6 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from relmap import gaussian
-from relmap.at import AT
-from relmap.at3 import AT3
 from relmap.errors import (
     ArgumentTypeError,
     DuplicateNameError,
@@ -34,7 +31,10 @@ from relmap.errors import (
 from relmap.lie import Group
 from relmap.network.parts import Edge, JointGroup
 from relmap.typing import ArrayLike, FloatArray
-from relmap.uncertain import UncertainPose
+from relmap.uncertain import gaussian
+from relmap.uncertain.at import AT
+from relmap.uncertain.at3 import AT3
+from relmap.uncertain.pose import UncertainPose
 
 if TYPE_CHECKING:
     from relmap.network.optimal import Progress, Solution

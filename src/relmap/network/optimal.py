@@ -27,14 +27,14 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 from relmap import _core
-from relmap.at import AT
-from relmap.at3 import AT3
 from relmap.errors import NumericalError, SolverError, UnknownFrameError
-from relmap.gaussian import congruence, inverse_pd
 from relmap.lie import SE2, Group
 from relmap.network.problem import Parameterization, Problem, parameterize
 from relmap.network.sparse import SymmetricFactor, SymmetricPattern, selected_inverse_blocks
 from relmap.typing import FloatArray, IntArray
+from relmap.uncertain.at import AT
+from relmap.uncertain.at3 import AT3
+from relmap.uncertain.gaussian import congruence, inverse_pd
 
 if TYPE_CHECKING:
     from relmap.network.parts import MapView
@@ -215,7 +215,7 @@ class Solution:
 def _information(cov: FloatArray, kind: IntArray) -> FloatArray:
     """W = Σ⁻¹ (k, dof, dof), symmetrized; heading-exact ATs weight their position only.
 
-    One batched inverse (:func:`relmap.gaussian.inverse_pd`: the covariances were checked
+    One batched inverse (:func:`relmap.uncertain.gaussian.inverse_pd`: the covariances were checked
     positive definite when parameterized)."""
     W = np.zeros_like(cov)
     full = kind == 0

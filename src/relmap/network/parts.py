@@ -15,9 +15,9 @@ from __future__ import annotations
 from collections.abc import Callable, Hashable, Iterator, Mapping, Sequence
 from typing import Any, NamedTuple, Protocol
 
-from relmap.at import AT
-from relmap.at3 import AT3
 from relmap.typing import FloatArray
+from relmap.uncertain.at import AT
+from relmap.uncertain.at3 import AT3
 
 __all__ = ["Edge", "EditableMap", "JointGroup", "MapView"]
 

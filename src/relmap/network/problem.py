@@ -32,9 +32,9 @@ from typing import NamedTuple
 import numpy as np
 
 from relmap.errors import InconsistentMapError, SolverError
-from relmap.gaussian import max_over_last
 from relmap.lie import SE2, Group, se2
 from relmap.typing import FloatArray, IntArray
+from relmap.uncertain.gaussian import max_over_last
 
 __all__ = ["Parameterization", "Problem", "parameterize", "standard_parameterization"]
 

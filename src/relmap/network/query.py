@@ -15,7 +15,8 @@ Only the 2-connected blocks on the way between the two frames are used (see
 
 **Beyond first order** (SE(2) maps, ``method="reduce"``): ``moments="exact"`` or
 ``"unscented"`` makes every compounding (serial chains, and the three inside Delta-Y) and
-reversal of the reduction use exact or unscented moments (:mod:`relmap.moments`); merges stay
+reversal of the reduction use exact or unscented moments (:mod:`relmap.uncertain.moments`); merges
+stay
 the Gaussian update of Eqs. (8)-(10) of the moment-matched inputs (see
 :mod:`relmap.network.reduce`). ``diagnose=True`` adds :class:`LinearizationCheck` to the
 estimate: how far the first-order reduction is from the exact-moments one, predicted without
@@ -29,13 +30,13 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
-from relmap.at import AT, compound, reverse
-from relmap.at3 import AT3
 from relmap.errors import NumericalError, ParameterError, UnknownFrameError
 from relmap.lie import se2
-from relmap.moments import check_method
 from relmap.network.blocks import blocks_between
 from relmap.network.reduce import Reduction, position_trace, reduce_network
+from relmap.uncertain.at import AT, compound, reverse
+from relmap.uncertain.at3 import AT3
+from relmap.uncertain.moments import check_method
 
 if TYPE_CHECKING:
     from relmap.network.parts import MapView
@@ -51,9 +52,10 @@ class LinearizationCheck(NamedTuple):
     the predicted error of the first-order answer, computed without sampling.
 
     Both reductions evaluate the same expression; they differ in every compounding and
-    reversal (Eqs. 1-7 versus :func:`relmap.moments.chain_moments` /
-    :func:`relmap.moments.reverse_moments`). For a chain this is exactly
-    :func:`relmap.moments.linearization_error` of its last prefix, and predicts the relative
+    reversal (Eqs. 1-7 versus :func:`relmap.uncertain.moments.chain_moments` /
+    :func:`relmap.uncertain.moments.reverse_moments`). For a chain this is exactly
+    :func:`relmap.uncertain.moments.linearization_error` of its last prefix, and predicts the
+    relative
     covariance error that Monte Carlo (``relmap validate``) measures. What it does not
     capture: how far from Gaussian the true distribution is (the crescent of Fig. 5; read
     Mardia's skewness from a sample); the error of the merge step itself (merging moment-matched

@@ -106,13 +106,15 @@ steps; Delta-Y on a triangle with one of them raises, and star-mesh does not tak
 The reduction runs on batched ATs as well (all ATs with one batch shape), which Monte Carlo
 validation uses; best deletion needs single ATs. It runs unchanged on 3-D ATs (:class:`AT3`).
 
-**Beyond first order** (``moments``, SE(2) only; :mod:`relmap.moments`). Every compounding
+**Beyond first order** (``moments``, SE(2) only; :mod:`relmap.uncertain.moments`). Every compounding
 and reversal the reduction performs can use exact or unscented moments instead of Eqs. (1)-(7):
 
 - ``"exact"``: each AT of the working network remembers the chain of Gaussian operands it
   compounds (the given ATs, merged ATs and Delta-Y star ATs, each possibly reversed), and a
-  serial chain is evaluated as one :func:`relmap.moments.chain_moments` of that whole chain,
-  with reversed operands by :func:`relmap.moments.reverse_moments`. So a chain ``A ⊕ B ⊕ …``
+  serial chain is evaluated as one :func:`relmap.uncertain.moments.chain_moments` of that whole
+  chain,
+  with reversed operands by :func:`relmap.uncertain.moments.reverse_moments`. So a chain ``A ⊕ B ⊕
+  …``
   gets the exact mean and covariance of its true distribution, exactly as
   ``compound_chain(..., moments="exact")``, not the moments of moments of pairwise steps.
   (Each reversed operand is summarized by its exact moments before entering the chain: exact
@@ -150,18 +152,18 @@ from typing import NamedTuple
 
 import numpy as np
 
-from relmap import moments as _moments
-from relmap.at import AT, compound, merge, reverse
-from relmap.at3 import AT3
 from relmap.errors import (
     IrreducibleNetworkError,
     NotPositiveSemidefiniteError,
     NumericalError,
     ParameterError,
 )
-from relmap.gaussian import congruence, difference_merge_gain, generalized_inverse
 from relmap.lie import Group
 from relmap.typing import FloatArray
+from relmap.uncertain import moments as _moments
+from relmap.uncertain.at import AT, compound, merge, reverse
+from relmap.uncertain.at3 import AT3
+from relmap.uncertain.gaussian import congruence, difference_merge_gain, generalized_inverse
 
 __all__ = ["Reduction", "reduce_network"]
 

@@ -2,7 +2,7 @@
 
 1. *Can the sensor see it?* The AT of the object seen from the sensor is predicted from the
    map; the probability that it lies in the field of view is computed
-   (:func:`relmap.decisions.in_view`).
+   (:func:`relmap.models.decisions.in_view`).
 2. *Is the reading reasonable?* The reading is compared with the prediction: its squared
    Mahalanobis distance ``d² = vᵀ (P + R)⁻¹ v`` (v the wrapped innovation) against the χ²
    quantile of the chosen probability (:func:`glitch_test`). A glitch is reported, never merged.
@@ -20,13 +20,13 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
-from relmap import gaussian
-from relmap.at import AT, merge
-from relmap.at3 import AT3
 from relmap.errors import DisconnectedError, ParameterError, ShapeError, UnknownFrameError
 from relmap.network.query import Estimate, query
 from relmap.typing import ArrayLike, FloatArray
-from relmap.uncertain import UncertainPose
+from relmap.uncertain import gaussian
+from relmap.uncertain.at import AT, merge
+from relmap.uncertain.at3 import AT3
+from relmap.uncertain.pose import UncertainPose
 
 if TYPE_CHECKING:
     from relmap.network.parts import EditableMap
@@ -194,7 +194,7 @@ def sense(
             )
         if predicted.dim != 2:
             raise ParameterError("field-of-view and range checks are planar; this map is 3-D")
-        from relmap.decisions import in_view
+        from relmap.models.decisions import in_view
 
         # Without a range limit the view is the sector alone: a range far beyond every
         # plausible position (50 σ past the mean's distance) changes nothing.

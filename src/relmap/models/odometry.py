@@ -1,0 +1,430 @@
+"""Differential-drive odometry with covariance (lecture Eqs. 9-12), batched and loop-free.
+
+A step of the robot is a small relative motion ``Δ = (Δx, Δy, Δθ)`` in the robot's own frame at
+the start of the step, made of a travelled distance ``Δs`` and a turn ``Δθ``:
+
+- midpoint integration (lecture Eq. 10): ``Δ = (Δs cos(Δθ/2), Δs sin(Δθ/2), Δθ)``;
+- exact-arc integration (constant curvature): ``Δ = Exp(Δs, 0, Δθ)``, i.e.
+  ``(Δs sin Δθ/Δθ, Δs (1 - cos Δθ)/Δθ, Δθ)``.
+
+Each step is an AT in the robot frame with covariance ``J Σ_sθ Jᵀ`` (J = ∂Δ/∂(Δs, Δθ)), so a
+whole run is the compound ``A₁ ⊕ A₂ ⊕ …`` — :func:`relmap.compound_chain`, one parallel scan,
+no Python loop per step. This equals the lecture's recursion ``Σ_{k+1} = Gx Σ_k Gxᵀ + Gu Σu Guᵀ``
+(Eq. 12) step for step (tested).
+
+Where (Δs, Δθ) come from:
+
+- wheel increments ``u = (Δφl, Δφr)`` (rad) of a :class:`DiffDrive` (wheel radius r, baseline b):
+  ``Δs = r (Δφr + Δφl)/2``, ``Δθ = r (Δφr - Δφl)/b`` (Eq. 9);
+- logged velocities ``(t, v, ω)`` (the MRCLAM format): ``Δs = v·dt``, ``Δθ = ω·dt`` with each
+  sample held until the next (:func:`increments_from_velocities`).
+
+Noise models (the covariance of one step):
+
+- :class:`WheelNoise`: ``Σu = diag(σ² + k|Δφl|, σ² + k|Δφr|)`` on the wheel increments — the
+  lecture's constant (k = 0) and proportional (σ = 0) models;
+- :class:`DistanceNoise`: ``var Δs = k_s |Δs|``, ``var Δθ = k_θ |Δθ| + k_θs |Δs|`` — errors that
+  accumulate like a random walk per metre travelled and per radian turned, so the result does
+  not depend on the logging rate (the right model for 100 Hz velocity logs);
+- :class:`AlphaNoise`: the α-model of probabilistic robotics on ``(δrot1, δtrans, δrot2)`` with
+  ``δrot1 = δrot2 = Δθ/2``, ``δtrans = Δs``: ``var δrot = α1 δrot² + α2 δtrans²``,
+  ``var δtrans = α3 δtrans² + α4 (δrot1² + δrot2²)`` (note: quadratic in the step, so its
+  accumulated variance shrinks as steps get finer).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from typing import Literal
+
+import numpy as np
+
+from relmap import _core
+from relmap._layout import components_outermost, matrix, stack_last
+from relmap.errors import ArgumentTypeError, ParameterError, ShapeError
+from relmap.lie import se2
+from relmap.typing import ArrayLike, FloatArray
+from relmap.uncertain import _sym3 as sym3
+from relmap.uncertain.at import AT, compound, compound_chain
+from relmap.uncertain.gaussian import check_finite, congruence, real_array
+from relmap.uncertain.pose import check_result
+
+__all__ = [
+    "AlphaNoise",
+    "DiffDrive",
+    "DistanceNoise",
+    "Integration",
+    "Noise",
+    "WheelNoise",
+    "dead_reckon",
+    "increment",
+    "increments_from_velocities",
+    "step",
+]
+
+Integration = Literal["midpoint", "arc"]
+Sym2 = tuple[FloatArray, FloatArray, FloatArray]
+
+
+def _sym2(e: Sym2) -> FloatArray:
+    s00, s01, s11 = e
+    return matrix([[s00, s01], [s01, s11]], np.shape(s00))
+
+
+def _number(value: object, name: str) -> float:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number)):
+        raise ParameterError(f"{name} must be a number; got {value!r}")
+    try:
+        return float(value)
+    except OverflowError:
+        raise ParameterError(f"{name} is too large for a float") from None
+
+
+def _positive(value: float, name: str) -> float:
+    v = _number(value, name)
+    if not np.isfinite(v) or v <= 0:
+        raise ParameterError(f"{name} must be a positive number; got {value}")
+    return v
+
+
+def _non_negative(value: float, name: str) -> float:
+    v = _number(value, name)
+    if not np.isfinite(v) or v < 0:
+        raise ParameterError(f"{name} must be non-negative; got {value}")
+    return v
+
+
+class DiffDrive:
+    """A differential-drive robot: wheel radius r and baseline b (between the wheels), metres."""
+
+    __slots__ = ("baseline", "wheel_radius")
+
+    def __init__(self, wheel_radius: float, baseline: float) -> None:
+        object.__setattr__(self, "wheel_radius", _positive(wheel_radius, "wheel radius"))
+        object.__setattr__(self, "baseline", _positive(baseline, "baseline"))
+
+    def __setattr__(self, name: str, value: object) -> None:
+        raise AttributeError("DiffDrive is immutable")
+
+    def __repr__(self) -> str:
+        return f"DiffDrive(wheel_radius={self.wheel_radius}, baseline={self.baseline})"
+
+    def wheel_map(self) -> FloatArray:
+        """``W`` (2, 2) with ``(Δs, Δθ) = W (Δφl, Δφr)`` (Eq. 9)."""
+        r, b = self.wheel_radius, self.baseline
+        return np.array([[r / 2, r / 2], [-r / b, r / b]])
+
+    def motion(self, u: ArrayLike) -> FloatArray:
+        """``(Δs, Δθ)`` (..., 2) from wheel increments ``u = (Δφl, Δφr)`` (..., 2), radians."""
+        u = _pairs(u, "wheel increments")
+        return u @ self.wheel_map().T
+
+
+def _pairs(u: ArrayLike, name: str, *, finite: bool = True) -> FloatArray:
+    """``u`` as a new float array (..., 2), checked (finite: unless the caller's core checks)."""
+    arr = real_array(u, name)
+    if arr.ndim == 0 or arr.shape[-1] != 2:
+        raise ShapeError(f"{name} must have shape (..., 2); got {arr.shape}")
+    if finite:
+        check_finite(arr, name)
+    return arr
+
+
+# Below this |Δθ| the arc's closed forms lose digits to cancellation; the series, kept to the
+# fifth order, are exact to float64 rounding there (the first omitted term is O(Δθ⁶)).
+_ARC_SERIES = 1e-2
+
+
+def increment(
+    motion: ArrayLike, integration: Integration = "midpoint", *, jacobian: bool = False
+) -> FloatArray | tuple[FloatArray, FloatArray]:
+    """The step ``Δ = (Δx, Δy, Δθ)`` (..., 3) in the robot frame from ``(Δs, Δθ)`` (..., 2).
+
+    With ``jacobian=True`` also returns ``∂Δ/∂(Δs, Δθ)``, (..., 3, 2).
+    """
+    m = _pairs(motion, "motion (Δs, Δθ)")
+    ds, dt = m[..., 0], m[..., 1]
+    a, b, da, db = _increment_parts(dt, integration)
+    out = stack_last([ds * a, ds * b, dt], dt.shape)
+    if not jacobian:
+        return out
+    J = matrix([[a, ds * da], [b, ds * db], [0.0, 1.0]], dt.shape)
+    return out, J
+
+
+def _increment_parts(
+    dt: FloatArray, integration: Integration
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """``(a, b, a', b')`` with ``Δ = (Δs·a(Δθ), Δs·b(Δθ), Δθ)`` and their derivatives in Δθ."""
+    if integration == "midpoint":
+        if isinstance(dt, float):  # one step: math's cos and sin (bitwise numpy's, and faster)
+            c, s = math.cos(dt / 2), math.sin(dt / 2)
+        else:
+            c, s = np.cos(dt / 2), np.sin(dt / 2)
+        return c, s, -s / 2, c / 2
+    if integration == "arc":
+        small = np.abs(dt) < _ARC_SERIES
+        t = np.where(small, 1.0, dt)
+        t2 = dt * dt
+        a = np.where(small, 1 - t2 / 6 + t2 * t2 / 120, np.sin(t) / t)
+        b = np.where(small, dt / 2 - dt * t2 / 24 + dt * t2 * t2 / 720, 2 * np.sin(t / 2) ** 2 / t)
+        da = np.where(small, -dt / 3 + dt * t2 / 30, (t * np.cos(t) - np.sin(t)) / (t * t))
+        db = np.where(
+            small, 0.5 - t2 / 8 + t2 * t2 / 144, (t * np.sin(t) - 2 * np.sin(t / 2) ** 2) / (t * t)
+        )
+        return a, b, da, db
+    raise ParameterError(f"integration must be 'midpoint' or 'arc'; got {integration!r}")
+
+
+# ------------------------------------------------------------------ noise models
+class _Noise:
+    """Base of the noise models: non-negative parameters, validated once, immutable."""
+
+    __slots__ = ()
+    _fields: tuple[str, ...] = ()
+
+    def __init__(self, *values: float, **named: float) -> None:
+        given = dict(zip(self._fields, values, strict=False)) | named
+        unknown = set(given) - set(self._fields)
+        if unknown:
+            raise ArgumentTypeError(
+                f"unknown parameter(s) {sorted(unknown)} of {type(self).__name__}"
+            )
+        for name in self._fields:
+            object.__setattr__(self, name, _non_negative(given.get(name, 0.0), name))
+
+    def __setattr__(self, name: str, value: object) -> None:
+        raise AttributeError(f"{type(self).__name__} is immutable")
+
+    def __repr__(self) -> str:
+        args = ", ".join(f"{f}={getattr(self, f)}" for f in self._fields)
+        return f"{type(self).__name__}({args})"
+
+    def entries(self, motion: FloatArray, drive: DiffDrive | None = None) -> Sym2:
+        """The distinct entries ``(s00, s01, s11)`` of the covariance of ``(Δs, Δθ)``."""
+        raise NotImplementedError
+
+    def core_params(self, integration: Integration) -> FloatArray | None:
+        """The compiled core's parameter row (1, 13) of this odometry model when the core has
+        it built in (:class:`DistanceNoise` with midpoint integration), else None."""
+        return None
+
+    def step_covariance(
+        self, motion: FloatArray, integration: Integration, drive: DiffDrive | None = None
+    ) -> FloatArray:
+        """Covariance (..., 3, 3) of the step Δ in the robot frame, ``J Σ Jᵀ`` with
+        ``J = ∂Δ/∂(Δs, Δθ)`` and Σ the covariance of ``(Δs, Δθ)`` (:meth:`entries`)."""
+        ds, dt = motion[..., 0], motion[..., 1]
+        a, b, da, db = _increment_parts(dt, integration)
+        s00, s01, s11 = self.entries(motion, drive)
+        # J's rows (a, ds·da), (b, ds·db), (0, 1)
+        return sym3.to_matrix(sym3.congruence_3x2(a, ds * da, b, ds * db, s00, s01, s11), ds.shape)
+
+
+class WheelNoise(_Noise):
+    """Independent wheel errors: ``Σu = diag(σ² + k|Δφl|, σ² + k|Δφr|)`` (rad², lecture Eq. 12).
+
+    ``sigma`` (rad) alone is the constant model, ``k`` (rad) alone the proportional one. Needs
+    the :class:`DiffDrive` to map wheel increments to the motion.
+    """
+
+    __slots__ = ("k", "sigma")
+    _fields = ("sigma", "k")
+    sigma: float
+    k: float
+
+    def entries(self, motion: FloatArray, drive: DiffDrive | None = None) -> Sym2:
+        """The distinct entries ``(s00, s01, s11)`` of the covariance of ``(Δs, Δθ)``."""
+        if drive is None:
+            raise ParameterError("WheelNoise needs the DiffDrive (wheel radius and baseline)")
+        r, b = drive.wheel_radius, drive.baseline
+        ds, dt = motion[..., 0], motion[..., 1]
+        # back to the wheel increments: Δφl = (Δs - bΔθ/2)/r, Δφr = (Δs + bΔθ/2)/r
+        vl = self.sigma**2 + self.k * np.abs((ds - b * dt / 2) / r)
+        vr = self.sigma**2 + self.k * np.abs((ds + b * dt / 2) / r)
+        # W diag(vl, vr) Wᵀ with W's columns (r/2, -r/b) and (r/2, r/b)
+        return (r * r / 4 * (vl + vr), r * r / (2 * b) * (vr - vl), (r / b) ** 2 * (vl + vr))
+
+    def covariance(self, motion: FloatArray, drive: DiffDrive | None = None) -> FloatArray:
+        """The covariance (..., 2, 2) of ``(Δs, Δθ)``."""
+        return _sym2(self.entries(np.asarray(motion, dtype=np.float64), drive))
+
+
+class DistanceNoise(_Noise):
+    """Random-walk errors: ``var Δs = k_s|Δs|`` (m²/m), ``var Δθ = k_theta|Δθ| + k_theta_s|Δs|``
+    (rad²/rad, rad²/m), independent. Independent of the logging rate."""
+
+    __slots__ = ("k_s", "k_theta", "k_theta_s")
+    _fields = ("k_s", "k_theta", "k_theta_s")
+    k_s: float
+    k_theta: float
+    k_theta_s: float
+
+    def entries(self, motion: FloatArray, drive: DiffDrive | None = None) -> Sym2:
+        """The distinct entries ``(s00, s01, s11)`` of the covariance of ``(Δs, Δθ)``."""
+        ds, dt = np.abs(motion[..., 0]), np.abs(motion[..., 1])
+        return (self.k_s * ds, np.zeros_like(ds), self.k_theta * dt + self.k_theta_s * ds)
+
+    def core_params(self, integration: Integration) -> FloatArray | None:
+        """The compiled core's parameter row (1, 13) of this model with midpoint integration
+        (the core's built-in odometry, :func:`relmap.filter.ekf.predict`), else None."""
+        if integration != "midpoint":
+            return None
+        return _odometry_params(self.k_s, self.k_theta, self.k_theta_s)
+
+    def step_covariance(
+        self, motion: FloatArray, integration: Integration, drive: DiffDrive | None = None
+    ) -> FloatArray:
+        """Covariance (..., 3, 3) of the step Δ in the robot frame, ``J Σ Jᵀ`` (Eqs. 10-13).
+
+        With midpoint integration it is the compiled core's (the EKF's built-in model, one
+        implementation): its prediction from the origin with no uncertainty, ``P⁻ = Q = J Σ Jᵀ``.
+        """
+        k = self.core_params(integration)
+        if k is None:
+            return super().step_covariance(motion, integration, drive)
+        m = np.ascontiguousarray(np.reshape(motion, (-1, 2)), dtype=np.float64)
+        B = m.shape[0]
+        _, C = _core.ekf_predict_odometry(
+            np.zeros((B, 3)), np.zeros((B, 3, 3)), m, np.repeat(k, B, axis=0)
+        )
+        return C.reshape(*np.shape(motion)[:-1], 3, 3)
+
+    def covariance(self, motion: FloatArray, drive: DiffDrive | None = None) -> FloatArray:
+        """The covariance (..., 2, 2) of ``(Δs, Δθ)``."""
+        return _sym2(self.entries(np.asarray(motion, dtype=np.float64), drive))
+
+
+#: The length of the core's parameter row (relmap.filter.ekf.NoiseParameters' fields, the core's
+# Param).
+CORE_PARAMS = 13
+
+
+@functools.lru_cache(maxsize=64)
+def _odometry_params(k_s: float, k_theta: float, k_theta_s: float) -> FloatArray:
+    """The core's parameter row (1, 13) of an odometry noise (read-only, cached): the rates
+    first, the update's σ factor (index 11) 1, no clutter."""
+    p = np.zeros((1, CORE_PARAMS))
+    p[0, :3] = (k_s, k_theta, k_theta_s)
+    p[0, 11] = 1.0
+    p.flags.writeable = False
+    return p
+
+
+class AlphaNoise(_Noise):
+    """The α-model on ``(δrot1, δtrans, δrot2)`` (Thrun et al., Probabilistic Robotics, 5.4)."""
+
+    __slots__ = ("a1", "a2", "a3", "a4")
+    _fields = ("a1", "a2", "a3", "a4")
+    a1: float
+    a2: float
+    a3: float
+    a4: float
+
+    def step_covariance(
+        self, motion: FloatArray, integration: Integration, drive: DiffDrive | None = None
+    ) -> FloatArray:
+        """Covariance (..., 3, 3) of the step Δ (midpoint integration only)."""
+        if integration != "midpoint":
+            raise ParameterError("the α-model is defined for midpoint (rot-trans-rot) steps")
+        ds, dt = motion[..., 0], motion[..., 1]
+        rot = dt / 2
+        v_rot = self.a1 * rot**2 + self.a2 * ds**2
+        v_trans = self.a3 * ds**2 + self.a4 * 2 * rot**2
+        c, s = np.cos(rot), np.sin(rot)
+        # Δ = (δtrans cos δrot1, δtrans sin δrot1, δrot1 + δrot2), on (δrot1, δtrans, δrot2)
+        J = np.zeros((*ds.shape, 3, 3))
+        J[..., 0, 0], J[..., 0, 1] = -ds * s, c
+        J[..., 1, 0], J[..., 1, 1] = ds * c, s
+        J[..., 2, 0], J[..., 2, 2] = 1.0, 1.0
+        S = np.zeros((*ds.shape, 3, 3))
+        S[..., 0, 0], S[..., 1, 1], S[..., 2, 2] = v_rot, v_trans, v_rot
+        return congruence(J, S)
+
+
+Noise = WheelNoise | DistanceNoise | AlphaNoise
+
+
+def _step_ats(
+    motion: FloatArray, noise: Noise, integration: Integration, drive: DiffDrive | None
+) -> AT:
+    """The steps as ATs (batch of the motion's leading axes), in the robot frame: the step
+    (:func:`increment`) and its covariance (the model's ``step_covariance``)."""
+    ds, dt = motion[..., 0], motion[..., 1]
+    a, b, _, _ = _increment_parts(dt, integration)
+    delta = stack_last([ds * a, ds * b, dt], motion.shape[:-1])
+    return AT._trusted(delta, noise.step_covariance(motion, integration, drive))
+
+
+def step(
+    pose: AT,
+    motion: ArrayLike,
+    noise: Noise,
+    *,
+    integration: Integration = "midpoint",
+    drive: DiffDrive | None = None,
+) -> tuple[AT, FloatArray, FloatArray]:
+    """One odometry step (lecture Eqs. 11-12): ``(new pose, Gx, Gu)``.
+
+    ``pose`` is the robot's AT in the world, ``motion`` the step ``(Δs, Δθ)`` — or wheel
+    increments ``(Δφl, Δφr)`` when ``drive`` is given, in which case ``Gu`` is ``∂g/∂(Δφl, Δφr)``
+    (3×2) as in the lecture. ``Σ' = Gx Σ Gxᵀ + Gu Σu Guᵀ``.
+    """
+    m = _pairs(motion, "motion")
+    W = np.eye(2) if drive is None else drive.wheel_map()
+    if drive is not None:
+        m = m @ W.T
+    new = compound(pose, _step_ats(m, noise, integration, drive))
+    _, Gx, K = se2.compose(pose.mean, increment(m, integration), jacobians=True)
+    _, J = increment(m, integration, jacobian=True)
+    return new, Gx, K @ J @ W
+
+
+def dead_reckon(
+    motions: ArrayLike,
+    noise: Noise,
+    *,
+    start: AT | None = None,
+    integration: Integration = "midpoint",
+    drive: DiffDrive | None = None,
+) -> AT:
+    """Every pose of a run, with covariance: an AT batch ``(N + 1,)`` from the start pose.
+
+    ``motions`` (N, 2) are steps ``(Δs, Δθ)``, or wheel increments when ``drive`` is given;
+    ``start`` the initial AT (default: exactly the identity, as odometry starts, Σ₀ = 0).
+    All N steps are compounded by one parallel scan (:func:`relmap.compound_chain`).
+    """
+    m = _pairs(motions, "motions")
+    if m.ndim != 2:
+        raise ShapeError(f"motions must have shape (N, 2); got {m.shape}")
+    if drive is not None:
+        m = drive.motion(m)
+    start = AT.identity() if start is None else start
+    steps = _step_ats(m, noise, integration, drive)
+    check_result("dead reckoning (the steps' covariance)", steps.mean, steps.cov)
+    n = len(m)
+    mean = components_outermost(np.empty((n + 1, 3)), 1)
+    cov = components_outermost(np.empty((n + 1, 3, 3)), 2)
+    mean[0], mean[1:] = start.mean, steps.mean
+    cov[0], cov[1:] = start.cov, steps.cov
+    return compound_chain(AT._trusted(mean, cov))
+
+
+def increments_from_velocities(t: ArrayLike, v: ArrayLike, w: ArrayLike) -> FloatArray:
+    """Steps ``(Δs, Δθ)`` (N-1, 2) from logged velocities: each sample ``(v, ω)`` held over
+    ``dt`` until the next time stamp (s, m/s, rad/s). Time must not go backwards."""
+    t, v, w = real_array(t, "t"), real_array(v, "v"), real_array(w, "ω")
+    if t.ndim != 1 or v.shape != t.shape or w.shape != t.shape:
+        raise ShapeError(
+            f"t, v and ω must be 1-D of one length; got {t.shape}, {v.shape}, {w.shape}"
+        )
+    for arr, name in ((t, "t"), (v, "v"), (w, "ω")):
+        check_finite(arr, name)
+    dt = np.diff(t)
+    if (dt < 0).any():
+        k = int(np.flatnonzero(dt < 0)[0])
+        raise ParameterError(f"time goes backwards at sample {k + 1}: {t[k]} → {t[k + 1]}")
+    out = np.column_stack([v[:-1] * dt, w[:-1] * dt])
+    check_result("increments_from_velocities (v·dt, ω·dt)", out)
+    return out
