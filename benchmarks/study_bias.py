@@ -686,7 +686,7 @@ def sim(seeds, steps, true: Bias, fit_k: bool) -> None:
 
     sys.path.insert(0, str(ROOT))
     from relmap.uncertain.at import AT
-    from tests.test_autocalibration import LANDMARKS, NOISE, simulate, start
+    from tests.filter.test_autocalibration import LANDMARKS, NOISE, simulate, start
 
     for seed in seeds:
         rec, truth = simulate(seed, steps=steps)

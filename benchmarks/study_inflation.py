@@ -89,7 +89,14 @@ def self_consistency(trace: ekf.Trace, windows: tuple[int, ...] = (3, 10, 30)):
 
 def sim(steps: int, seeds: list[int], gate: float) -> None:
     sys.path.insert(0, str(ROOT))
-    from tests.test_autocalibration import LANDMARKS, NOISE, SIGMA_B, SIGMA_R, simulate, start
+    from tests.filter.test_autocalibration import (
+        LANDMARKS,
+        NOISE,
+        SIGMA_B,
+        SIGMA_R,
+        simulate,
+        start,
+    )
 
     signatures = np.arange(len(LANDMARKS))
     true = ekf.NoiseParameters(NOISE.k_s, NOISE.k_theta, NOISE.k_theta_s, SIGMA_R, SIGMA_B)

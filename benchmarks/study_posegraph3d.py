@@ -28,7 +28,7 @@ import numpy as np
 from relmap.io import read_graph, solve_graph
 from relmap.lie import se3
 from tests.conftest import _data_root
-from tests.test_optimal_real3d import (
+from tests.network.test_optimal_3d import (
     _compare_relative,
     _gtsam_relative,
     _native,

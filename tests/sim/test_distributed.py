@@ -23,7 +23,7 @@ from relmap.errors import ChunkError, ClusterError, ParameterError  # noqa: E402
 from relmap.io import save_map  # noqa: E402
 from relmap.sim import montecarlo, study  # noqa: E402
 from relmap.sim.distributed import connect, local_client  # noqa: E402
-from tests.test_validate import bridge_map  # noqa: E402
+from tests.app.test_validate import bridge_map  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -10,8 +10,7 @@ import pytest
 from relmap.lie import SE2, SE3, se3, so3
 from relmap.network import optimal
 from relmap.network.problem import Problem, parameterize
-
-from .helpers import random_covs
+from tests.helpers import random_covs
 
 
 def _problem(group, seed: int, n: int = 7, m: int = 14) -> Problem:

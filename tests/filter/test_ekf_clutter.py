@@ -13,8 +13,7 @@ from relmap import models
 from relmap.filter import autocalibration as ac
 from relmap.filter import ekf
 from relmap.lie import se2
-
-from .test_autocalibration import LANDMARKS, NOISE, SIGMA_B, SIGMA_R, simulate, start
+from tests.filter.test_autocalibration import LANDMARKS, NOISE, SIGMA_B, SIGMA_R, simulate, start
 
 #: the simulated sensor's field of view: ranges 1-8 m, every bearing
 FOV = ((1.0, 8.0), (-np.pi, np.pi))

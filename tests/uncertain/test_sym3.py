@@ -8,8 +8,7 @@ import numpy as np
 
 from relmap.uncertain import _sym3 as sym3
 from relmap.uncertain.gaussian import congruence
-
-from .helpers import random_covs
+from tests.helpers import random_covs
 
 
 def test_fused_congruences_are_the_matrix_products(rng):

@@ -11,9 +11,8 @@ import pytest
 import relmap as rm
 from relmap import _core
 from relmap.uncertain import at3
-
-from .helpers import random_at3s, valid_cross_cov
-from .test_at3 import _close, _reference_compound, _reference_reverse
+from tests.helpers import random_at3s, valid_cross_cov
+from tests.uncertain.test_at3 import _close, _reference_compound, _reference_reverse
 
 
 @pytest.mark.parametrize("n", [1, 2, 15, 16, 17, 31, 32, 33, 100])

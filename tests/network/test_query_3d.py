@@ -12,8 +12,7 @@ from relmap.errors import SolverError
 from relmap.lie import SE2, SE3, se3
 from relmap.network import optimal
 from relmap.network.problem import Problem
-
-from .helpers import random_covs
+from tests.helpers import random_covs
 
 FRAMES = "abcde"
 BRIDGE = [

@@ -27,7 +27,7 @@ from relmap.lie import se2
 from relmap.models import DistanceNoise, RangeBearingSensor, increment
 from relmap.uncertain import gaussian
 from relmap.uncertain.propagate import SE2, numerical_jacobian
-from tests.test_ekf_reference import reference
+from tests.filter.test_ekf_reference import reference
 
 NOISE = DistanceNoise(0.004, 0.003, 0.001)
 SENSOR = RangeBearingSensor(0.08, 0.015, mount=[0.12, 0.04, 0.1])

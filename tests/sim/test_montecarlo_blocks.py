@@ -19,7 +19,7 @@ from relmap.errors import ClusterError, ParameterError
 from relmap.lie import se2
 from relmap.sim import montecarlo
 from relmap.sim.montecarlo import Tally
-from tests.test_validate import bridge_map
+from tests.app.test_validate import bridge_map
 
 
 def _skewed(n: int, seed: int, offset: float = 0.0, scale: float = 1.0) -> np.ndarray:

@@ -8,8 +8,7 @@ import pytest
 
 from relmap.io import load_map, read_graph
 from relmap.io.datasets import read_mrclam, read_plaza
-
-from . import fuzzing
+from tests import fuzzing
 
 TEXT_READERS = [
     ("g2o 2-D", read_graph, fuzzing.G2O_2D, ".g2o"),

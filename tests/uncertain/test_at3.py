@@ -14,8 +14,7 @@ from relmap.errors import CovarianceError, ParameterError, ShapeError
 from relmap.lie import se3, so3
 from relmap.sim import montecarlo
 from relmap.uncertain import gaussian, propagate
-
-from .helpers import random_at3s, random_covs, valid_cross_cov
+from tests.helpers import random_at3s, random_covs, valid_cross_cov
 
 
 def small_angle_at3s(seed: int, n: int, sigma_rot: float = 0.02) -> rm.AT3:
