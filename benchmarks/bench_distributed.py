@@ -8,9 +8,8 @@ method: every sample re-solves the 5 598-AT pose graph. In one run, interleaved 
    and warmed (each worker loads relmap and its kernels) before timing; the map is scattered
    to the workers inside every timed run;
 3. the two results compared bit for bit (the same seed must give the same numbers);
-4. the overhead of distribution: the chunks' own compute time on the workers (``Work``)
-   against the wall time × workers, per sample; and, with a draw that does no work, the cost
-   of one block sent, scheduled, computed and merged, and of scattering the map.
+4. the overhead of distribution: with a draw that does no work, the cost of one block sent,
+   scheduled, computed and merged (``relmap.sim.montecarlo.run``), and of scattering the map.
 
 From those figures: T(N workers) ≈ T₁ / N + overhead, so the expected speed-up on N workers.
 
@@ -60,28 +59,25 @@ def main() -> None:
         t0 = time.perf_counter()
         validate.run(p, n=validate.BLOCK["optimal"] * args.workers, seed=99, client=client)
         print(f"warm-up on {args.workers} workers: {time.perf_counter() - t0:.1f} s")
-        here, there, busy = [], [], []
+        here, there = [], []
         for r in range(args.repeat):
             t0 = time.perf_counter()
-            a = montecarlo.run(validate._draw, p.problem, p.estimate.at, n=args.samples, seed=r,
-                               block=validate.BLOCK["optimal"])  # fmt: skip
+            a = validate.run(p, n=args.samples, seed=r)
             here.append(time.perf_counter() - t0)
             t0 = time.perf_counter()
-            b = montecarlo.run(validate._draw, p.problem, p.estimate.at, n=args.samples, seed=r,
-                               block=validate.BLOCK["optimal"], client=client)  # fmt: skip
+            b = validate.run(p, n=args.samples, seed=r, client=client)
             there.append(time.perf_counter() - t0)
-            busy.append(b.work.busy_seconds)
             same = all(
                 np.array_equal(getattr(a.agreement, f), getattr(b.agreement, f))
                 for f in a.agreement._fields
             ) and np.array_equal(a.samples.cov, b.samples.cov)
             print(
                 f"run {r}: 1 process {here[-1]:.1f} s, {args.workers} workers {there[-1]:.1f} s "
-                f"({here[-1] / there[-1]:.2f}×), {b.work.chunks} chunks, bitwise equal: {same}"
+                f"({here[-1] / there[-1]:.2f}×), {b.blocks} blocks, bitwise equal: {same}"
             )
             assert same, "the same seed must give the same numbers"
 
-        # overhead of distribution, measured two ways
+        # overhead of distribution: blocks of a draw that does no work
         n_small = 2000
         t0 = time.perf_counter()
         c = montecarlo.run(_nothing, None, p.estimate.at, n=n_small, seed=0, block=1,
@@ -95,8 +91,6 @@ def main() -> None:
             client.cancel([client.scatter(p.problem, broadcast=True, hash=False)])
         scatter = (time.perf_counter() - t0) / 3
     t1, tn = min(here), min(there)
-    idle = [w * args.workers - b for w, b in zip(there, busy, strict=True)]
-    per_sample = min(idle) / args.samples
     print(
         f"\n1 process: min {t1:.1f} s, median {statistics.median(here):.1f} s "
         f"({t1 / args.samples:.2f} s per sample)"
@@ -107,12 +101,9 @@ def main() -> None:
         f"{statistics.median(here) / statistics.median(there):.2f}×"
     )
     print(
-        f"overhead: worker-seconds not spent computing {min(idle):.2f} s per run "
-        f"({per_sample * 1e3:.0f} ms per sample; includes the tail, when one worker waits for "
-        f"the other's last block); one block through the scheduler, 1 thread each: "
-        f"{per_block * 1e3:.2f} ms ({c.work.chunks} chunks; in process {per_block_here * 1e3:.2f}"
-        f" ms); scattering the map ({len(p.names)} ATs) to {args.workers} workers: "
-        f"{scatter * 1e3:.0f} ms"
+        f"overhead: one block through the scheduler, 1 thread each: {per_block * 1e3:.2f} ms "
+        f"({c.work.chunks} chunks; in process {per_block_here * 1e3:.2f} ms); scattering the map "
+        f"({len(p.names)} ATs) to {args.workers} workers: {scatter * 1e3:.0f} ms"
     )
     compute = t1 / args.samples
     for n_workers in (2, 4, 8, 16, 50):

@@ -92,7 +92,7 @@ def main() -> None:
 
     # GTSAM gets each step as a Pose2 and its body-frame covariance, prepared before timing
     motion = drive.motion(u)
-    steps_at = rm.AT._trusted(increment(motion), _step_covs(motion, noise, drive))
+    steps_at = rm.AT(increment(motion), _step_covs(motion, noise, drive))
     t0 = time.perf_counter()
     g_poses, g_covs = gtsam_loop(steps_at)
     t_gtsam = time.perf_counter() - t0

@@ -17,9 +17,8 @@
 4. One pair per call (no batch): relmap's fixed overhead against GTSAM's, for a compound and
    for a reversal.
 
-relmap compounds and reverses in its compiled core (``relmap._core.compound3``/``reverse3``,
-``src/core/se3.cpp``), one implementation for one pair and for any batch; nothing is compiled at
-run time.
+relmap compounds and reverses in its compiled core (``src/core/se3.cpp``), one implementation
+for one pair and for any batch; nothing is compiled at run time.
 
 A memory-bandwidth floor is printed with the pairs: one numpy pass that reads exactly the bytes
 a compound reads (two poses, two covariances) and writes the bytes it writes (a pose, a

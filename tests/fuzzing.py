@@ -1,7 +1,7 @@
 """Mutation fuzzing of relmap's readers: valid files, mutated at random, must be read or refused
 with a :class:`relmap.errors.RelmapError` (a FileFormatError naming the file), never another
-exception type. Used by ``tests/test_fuzz_readers.py`` (fixed seed, bounded count) and by
-``benchmarks/fuzz_readers.py`` (longer runs).
+exception type. Used by ``tests/io/test_fuzz.py`` (fixed seed; ``RELMAP_FUZZ_COUNT`` sets how
+many inputs).
 """
 
 from __future__ import annotations

@@ -376,3 +376,82 @@ def unrelated(C, b, k):
     assert set(found) == {frozenset({"a.joint", "b.Merger.weights"})}
     one = twins({"a": ast.parse(original + renamed)})
     assert set(one) == {frozenset({"a.joint", "a.Merger.weights"})}
+
+
+# ------------------------------------------------ benchmarks and studies use relmap as users do
+ROOT = SRC.parent
+#: Scripts that use relmap as a user does: the benchmarks against peers and the executable notes.
+USER_SCRIPTS = sorted(
+    [*(ROOT / "benchmarks").glob("*.py"), *(ROOT / "docs" / "studies").glob("*.py")]
+)
+#: Underscored names that are public API: a NamedTuple's methods and fields.
+NAMEDTUPLE_API = frozenset({"_replace", "_asdict", "_fields", "_make", "_field_defaults"})
+
+
+def _private(dotted: str) -> bool:
+    return any(p.startswith("_") and not p.startswith("__") for p in dotted.split("."))
+
+
+def non_user_uses(source: str) -> list[str]:
+    """What a script uses that a user of relmap cannot: a private module or name (``_core``,
+    ``_x``; a NamedTuple's ``_replace`` and its kin are public), the test suite (``tests``,
+    ``conftest``), a relative import, or ``sys.path``."""
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        modules: list[str] = []
+        if isinstance(node, ast.Import):
+            modules = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                found.append(f"line {node.lineno}: a relative import")
+            base = node.module or ""
+            modules = [base, *(f"{base}.{a.name}" for a in node.names if a.name != "*")]
+        elif isinstance(node, ast.Attribute):
+            if _private(node.attr) and node.attr not in NAMEDTUPLE_API:
+                found.append(f"line {node.lineno}: .{node.attr}")
+            if node.attr == "path" and isinstance(node.value, ast.Name) and node.value.id == "sys":
+                found.append(f"line {node.lineno}: sys.path")
+        elif isinstance(node, ast.Constant) and isinstance(node.value, str):
+            if node.value.startswith("relmap.") and node.value.isascii() and " " not in node.value:
+                modules = [node.value]  # a module named in a string, for importlib
+        found += [
+            f"line {getattr(node, 'lineno', 0)}: {m}"
+            for m in modules
+            if _private(m) or m.split(".")[0] in ("tests", "conftest")
+        ]
+    return found
+
+
+@pytest.mark.parametrize(
+    "path", USER_SCRIPTS, ids=[f"{p.parent.name}/{p.name}" for p in USER_SCRIPTS]
+)
+def test_benchmarks_and_studies_use_only_the_public_api(path):
+    assert non_user_uses(path.read_text(encoding="utf-8")) == []
+
+
+def test_the_public_api_check_finds_what_a_user_cannot_use():
+    script = """
+import sys
+sys.path.insert(0, "..")
+from tests.conftest import data_dir
+from relmap._core import compound3
+from relmap.app.localize import _start, localize
+import relmap.uncertain._sym3 as s
+from . import helper
+importlib.import_module("relmap._core")
+a = rm.AT._trusted(m, c)
+p = params._replace(k_s=1.0)._asdict()
+print("relmap.io reads a file")
+"""
+    found = {f.split(": ", 1)[1] for f in non_user_uses(script)}
+    assert found == {
+        "sys.path",
+        "tests.conftest",
+        "tests.conftest.data_dir",
+        "relmap._core",
+        "relmap._core.compound3",
+        "relmap.app.localize._start",
+        "relmap.uncertain._sym3",
+        "a relative import",
+        "._trusted",
+    }

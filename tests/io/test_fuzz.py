@@ -1,8 +1,11 @@
 """A bounded, fixed-seed fuzz run of every reader (g2o/TORO 2-D and 3-D, map files in YAML and
 JSON, MRCLAM and CMU Plaza folders): each mutated input is read or refused with a RelmapError,
-never another exception type. ``benchmarks/fuzz_readers.py`` runs the same for longer."""
+never another exception type. ``RELMAP_FUZZ_COUNT=2000 pytest -n 0 tests/io/test_fuzz.py`` runs
+it longer."""
 
 from __future__ import annotations
+
+import os
 
 import pytest
 
@@ -21,6 +24,8 @@ TEXT_READERS = [
     ("map JSON", load_map, fuzzing.MAP_JSON, ".json"),
     ("load_map of a g2o", load_map, fuzzing.G2O_2D, ".g2o"),
 ]
+#: Mutated inputs per text reader (two fifths of it per dataset folder, each a folder of files).
+COUNT = int(os.environ.get("RELMAP_FUZZ_COUNT", "100"))
 
 
 def _report(outcome: fuzzing.Outcome) -> str:
@@ -34,7 +39,7 @@ def _report(outcome: fuzzing.Outcome) -> str:
 )
 def test_text_readers_never_raise_an_unexpected_type(name, reader, base, suffix):
     reader(_write_once(base, suffix))  # the base input itself is valid
-    outcome = fuzzing.fuzz_text_reader(reader, base, suffix, count=100, seed=16)
+    outcome = fuzzing.fuzz_text_reader(reader, base, suffix, count=COUNT, seed=16)
     assert outcome.unexpected == 0, _report(outcome)
     assert outcome["refused"] > 0  # the mutations do reach the error paths
 
@@ -55,6 +60,6 @@ def _write_once(text: str, suffix: str):
 )
 def test_dataset_readers_never_raise_an_unexpected_type(tmp_path, reader, make):
     reader(make(tmp_path / "valid"))
-    outcome = fuzzing.fuzz_folder_reader(reader, make, count=40, seed=16)
+    outcome = fuzzing.fuzz_folder_reader(reader, make, count=max(1, COUNT * 2 // 5), seed=16)
     assert outcome.unexpected == 0, _report(outcome)
     assert outcome["refused"] > 0
