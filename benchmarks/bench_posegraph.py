@@ -160,16 +160,7 @@ def main() -> None:
             f" GTSAM {min(c_gt) * 1e3:.1f} ms; ratio {_ratio(c_rel, c_gt)}"
         )
 
-        cmd = [
-            sys.executable,
-            "-m",
-            "relmap.app.cli",
-            "query",
-            str(path),
-            "0",
-            str(n - 1),
-            "--json",
-        ]
+        cmd = [sys.executable, "-m", "relmap.app.cli", "query", str(path), "0", str(n - 1), "--json"]
         t_cli = []
         for _ in range(args.repeat):
             t0 = time.perf_counter()
