@@ -1,119 +1,31 @@
 """EKF localization with a known map on real logs, scored against ground truth.
 
-Two datasets (:mod:`relmap.io.datasets`): **UTIAS MRCLAM** (five robots, odometry velocities at
-~100 Hz, barcoded range-bearing readings of 15 surveyed landmarks, Vicon ground truth) and **CMU
-Plaza** (one robot, dead-reckoning steps every ~0.1 s, range-only readings of 4 radio beacons,
-GPS ground truth). :func:`localize` runs one filter and returns a :class:`Localization`: the
-estimate and dead reckoning at every filter time, and their :class:`Score` against the truth.
+Datasets (:mod:`relmap.io.datasets`): UTIAS MRCLAM (five robots, odometry velocities, barcoded
+range-bearing readings of 15 surveyed landmarks, Vicon truth) and CMU Plaza (dead-reckoning
+steps, range-only readings of 4 beacons, GPS truth). :func:`localize` runs one filter and
+returns a :class:`Localization`: the estimate and dead reckoning at every filter time, scored.
 
-**The filter** is :func:`relmap.filter.ekf.run` (lecture Eqs. 13-28); this module builds its log,
-its
-noise parameters and its start, and scores what it returns. The filter's times are the
-odometry times merged with the reading times (:meth:`relmap.filter.ekf.Log.from_velocities`);
-between
-two of them the odometry velocity (MRCLAM: each record's ``(v, ω)`` held until the next record;
-Plaza: each step's Δdistance and Δheading spread evenly over the step) gives one step
-``(Δs, Δθ)``, predicted with midpoint integration and the odometry noise; at a reading time
-all readings sharing the time stamp are corrected in one stacked update (Joseph form). The
-state at every filter time is kept (``keep="all"``).
+The filter is :func:`relmap.filter.ekf.run` (lecture Eqs. 13-28); this module builds its log
+(:meth:`relmap.filter.ekf.Log.from_velocities`: odometry times merged with reading times; MRCLAM's
+``(v, ω)`` held until the next record, a Plaza step spread evenly over its span; the readings of
+one time stamp corrected in one stacked update), its noise and its start, and scores what it
+returns. ``associate="signatures"`` pairs a reading with its landmark by barcode (beacon id) and
+offers no reading of a barcode that is no landmark; ``"mahalanobis"``, ``"euclidean"`` and
+``"jcbb"`` offer every reading, the barcodes read only afterwards, to count. The filter starts at
+the first odometry time inside the truth's span (Plaza: its second half), from the true pose with
+covariance ``diag(START_SIGMA)²``. The noise comes from the run's own innovations
+(:mod:`relmap.filter.autocalibration`, the default) or from another run against its ground truth
+(:class:`Calibration`: :func:`relmap.models.calibration.fit_distance_noise` for the odometry, the
+median absolute deviation of the readings' residuals for the sensor σ).
 
-- MRCLAM, ``associate="signatures"``: each reading's barcode names its landmark; readings of
-  barcodes that are no landmark (other robots, unknown barcodes) are not offered to the filter
-  (counted as ``ignored``). A pair whose innovation lies outside the χ²₂ gate (``gate``,
-  default 0.99) is rejected.
-- MRCLAM, ``associate="mahalanobis"``, ``"euclidean"`` or ``"jcbb"`` (unknown
-  correspondences): every reading is offered to the filter, the other robots' and the unknown
-  barcodes' too (15-23% of the readings); the barcode is used only afterwards, to count.
-  Which landmark a reading is of is left to the association (one to one with the nearest
-  landmark, Eq. 23, or Eq. 22 mixing metres and radians; or JCBB), then gated alike; a reading
-  may also be of nothing in the map: the filter's clutter hypothesis (:mod:`relmap.filter.ekf`,
-  ``NoiseParameters.clutter`` λ, fitted by the autocalibration with the rest) weighs a used
-  reading by the probability ``w = g/(g + λ)`` that it is of its landmark. MRCLAM's landmarks
-  stand in clusters 0.15-0.3 m apart, closer than a reading tells apart when the pose is
-  uncertain: a reading with several landmarks inside its gate (Mahalanobis, JCBB) enters the
-  update as the mixture of them (:func:`relmap.filter.ekf.correct_landmarks`; ``ambiguous`` counts
-  them). ``wrong`` counts the used readings whose landmark (the association's choice) is not
-  their barcode's, a used reading of no landmark included; ``not_in_map`` counts the readings of
-  no landmark offered, ``not_in_map_used`` those of them used.
-  Measured on mrclam6, robots 1-5 (autocalibrated, clutter fraction fitted 0.22-0.32):
-  position RMSE Mahalanobis 0.538, 0.514, 0.406, 0.304, 0.804 m, coverage_90 0.74, 0.75,
-  0.82, 0.76, 0.64; JCBB 0.489, 0.492, 0.573, 0.439, 0.231 m, coverage_90 0.70, 0.79, 0.80,
-  0.87, 0.97; against signatures' 0.164, 0.194, 0.155, 0.290, 0.137 m. Of the readings of no
-  landmark 50/408, 224/792, 204/1279, 29/376, 368/1139 were used (Mahalanobis). Issue 14's
-  target (1.25x the signatures' RMSE, coverage 0.8) is not met. What blocks it: such readings
-  are mostly other robots, 0.8-2 m from every landmark (by the ground truth), so a certain
-  filter gates them; but when its heading is uncertain (σθ 0.15-0.3 rad after a turn) a robot
-  moving near a landmark falls inside that landmark's gate with a high density, the update
-  follows it, and its next readings fit again while the real landmarks' are gated: the moving
-  robot drags the filter along. Robot 1 (measured with the likelihood of each reading at the
-  prior, before ``y_given``; then 0.421 m): 46 of its 50 used readings of no landmark come in one
-  such episode, t = 516-543 s, from σθ 0.25 rad, d² median 0.39, weight ``w`` 0.94-0.98; the
-  position error grows from 0.17 to 1.18 m (robots 3 and 5: 11 and 13 episodes of 6-91
-  readings). The clutter hypothesis of one reading cannot tell it from a landmark's, and the
-  parameters are not the cause: calibrated on the landmark readings alone (clutter fitted too)
-  robot 1 gives 0.196 m when offered those, 0.642 m when offered every reading. (Before the
-  clutter hypothesis the readings of no landmark were dropped by barcode in these modes too:
-  Mahalanobis gave 0.200, 0.209, 0.162, 0.278, 0.152 m.) Keeping 16 association hypotheses
-  (a Gaussian sum; ``benchmarks/study_hypotheses.py``, ``docs/consistency.md``) lowers the mean
-  RMSE by about a third but meets the target on no gate: a parked robot read 40 times
-  outweighs three landmark readings under i.i.d. clutter, and unknown-object tracks explain
-  the landmarks' repeated readings away. Plaza, whose readings are all of
-  beacons: Mahalanobis and JCBB 0.431 m, coverage 0.85, clutter fraction fitted ≈ 0 (no
-  turn-rate bias without signatures: :mod:`relmap.filter.autocalibration`).
-- Plaza: range-only readings (the first row of Eq. 20, χ²₁ gate). ``"signatures"`` pairs a
-  reading with its beacon by the beacon id; the other modes ignore the id.
-
-**Start and end.** MRCLAM: the filter starts at the first odometry time inside the ground
-truth's span, from the true pose there with covariance ``diag(σ², σ², σθ²)``,
-σ = :data:`START_SIGMA` (2 cm, 0.02 rad: Vicon is far better, but the filter should not start
-exactly certain), and stops at the last odometry time inside that span. Plaza: the same, on the
-second half of the run (below).
-
-**Noise from the run's own innovations** (the default; :mod:`relmap.filter.autocalibration`): the
-odometry and sensor noise, the odometry's clock offset, for range-only sensors the range scale,
-with signatures the odometry's turn-rate bias (Plaza's DR heading drifts by -0.0053 rad/s
-against its ground truth; fitted -0.0057 rad/s, RMSE 0.418 → 0.321 m), the σ factor for
-readings whose errors repeat from one reading to the next, and without
-signatures the clutter density of readings of nothing in the map, all estimated
-from the innovations of the very filter being run. Ground truth is used for the start pose and
-for scoring, never for the noise.
-
-**Or from another run's ground truth** (:class:`Calibration`; ``relmap localize --calibrate
-from-run N``), for comparison:
-
-- MRCLAM: noise estimated on robot N's run alone (:func:`calibrate_mrclam`). Odometry:
-  :func:`relmap.models.calibration.fit_distance_noise` on the training robot's whole run (inside
-  its ground-truth span), windows of :data:`ODOMETRY_WINDOW` seconds (10 s: longer than the
-  typical gap between readings, so the fit sees the errors that accumulate between
-  corrections; chosen once, not per robot). Sensor: residuals of the training robot's landmark
-  readings against the reading predicted from the interpolated ground truth; σ = 1.4826·MAD,
-  robust to the heavy tails. The medians (biases) are reported but not corrected.
-- Plaza (one run, API only: ``localize_plaza(data, calibration=calibrate_plaza(data))``): the
-  noise from the first half of the run against its ground truth: odometry by the same windowed
-  fit; the ranges' scale, ``median(z / r_true)`` (measured ranges are about 7% long), and the
-  range σ by MAD of ``z / scale - r_true``.
-
-Plaza runs and is scored on the second half of its ground-truth span (cut at the midpoint
-time).
-
-**Scores** (:class:`Score`), at every filter time, against the ground truth interpolated there
-(``truth_at``): RMSE of the position and of the wrapped heading; ``coverage_90``, the fraction of
-the times at which the true position lies inside the estimate's 90% position ellipse (nearly
-uniform odometry times, so it is a fraction of time); ``anees``, the average over the times of
-the NEES ``eᵀ Σ⁻¹ e`` (``e = truth ⊟ estimate``, 3 dof) divided by 3, so a consistent filter
-gives about 1; ``rejected``, readings offered to the filter and not used (gated, lost to a
-closer reading of the same landmark, or 0/0). Dead reckoning from the same start with the same
-noise and log (the same filter with no readings; its odometry corrected by the fitted clock
-and turn-rate bias) is scored the same way (rejected 0). The filter's own
-consistency check needs no truth: the NIS of its innovations, ``nis / dof`` ≈ 1 when the noise
-model is right (:attr:`Localization.anis`).
-
-**Warnings** (:attr:`Localization.warnings`, printed by the command): when the EKF ends worse
-than dead reckoning, or its ANEES is far from 1 (below 1/3 or above 3) — e.g. Euclidean
-association (Eq. 22), which mixes metres and radians. Short of that, when its covariance is
-outside the bands of a consistent filter (:data:`CONSISTENT_COVERAGE`,
-:data:`CONSISTENT_ANEES`: issue 14's): cautious (ellipses larger than the errors, as on MRCLAM
-robots 2-5 with signatures) or overconfident (as on Plaza).
+Scores (:class:`Score`) at every filter time, against the truth interpolated there: position and
+wrapped heading RMSE; ``coverage_90``, the fraction of times the true position lies in the 90%
+ellipse; ``anees``, the mean NEES ``eᵀ Σ⁻¹ e / 3`` (``e = truth ⊟ estimate``; 1 when consistent);
+``rejected``, readings offered and not used (gated, lost to a closer reading, 0/0). Dead
+reckoning (the same filter without readings) is scored alike. :attr:`Localization.warnings`
+name an EKF worse than dead reckoning, an ANEES below 1/3 or above 3, and a covariance outside
+a consistent filter's bands (:data:`CONSISTENT_COVERAGE`, :data:`CONSISTENT_ANEES`). What it
+gives on the shared logs, and why: ``docs/consistency.md``.
 """
 
 from __future__ import annotations
