@@ -288,7 +288,7 @@ def test_unscented_schemes_reduce_to_first_order_for_tiny_uncertainty():
 
 def test_linearization_error_predicts_the_first_order_error():
     # The straight chain: 20 links of 1 m, σxy 0.05 m; first order measured against
-    # 10⁶ samples is off by ≈4% at 3° and ≈44% at 10° per link (benchmarks/study_moments.py).
+    # 10⁶ samples is off by ≈4% at 3° and ≈44% at 10° per link (docs/studies/moments.py).
     def chain(sd):
         return rm.AT.from_sigmas(
             np.tile([1.0, 0.0, 0.0], (20, 1)), np.tile([0.05, 0.05, np.radians(sd)], (20, 1))

@@ -14,8 +14,7 @@ triangle to use, a star by a triangle (Y→Δ), or more generally an unmarked fr
 applied where it lets a series step follow (a corner with three ATs keeps two); Y→Δ and
 star-mesh (the fewest ATs first) each remove a frame; so ATs + frames decrease at every
 round, and the reduction ends. The candidates for every step are kept up to date through the
-frames whose ATs changed (heaps by rank), so a round costs about what it changes: on intel.g2o,
-which the steps cannot reduce, the refusal comes after 2.6 s of CPU (it took 95 s).
+frames whose ATs changed (heaps by rank), so a round costs about what it changes.
 
 **The first-order picture** (relmap's derivation; the paper has none). Express every frame f
 by a perturbation ξ_f of a common frame (the triangle's or star's first corner w): the chart
@@ -57,15 +56,8 @@ resistor-network transforms with matrices:
   would lose the information in their difference, so there (and when a triangle or star-mesh
   step takes Y or Z) the star's K is dropped first: that star becomes the independent one.
   On the bridge Y and Z meet in one merge, so the reduction is the optimal estimate to first
-  order. Measured (``benchmarks/study_delta_y.py``, ``docs/delta_y.md``): at σθ = 0.5°-10°,
-  σy 5 cm or 1 cm, the w→u covariance equals the optimal estimate's to rounding and w→u
-  equals the reversed u→w (the paper's formulas: 3%-80% off). On 300 random small maps with
-  loop-consistent means (anisotropic, rotated, σθ up to 10°) 75% match the optimal estimate
-  to 1e-9 and the 90th percentile is 2.1% (the independent star: 61%, 4.0%). Limits: it is
-  first order; as an estimator re-run on sampled maps, linearized once at the sampled
-  means, it spreads as predicted up to 3° at σy = 1 cm (2.9% ± 1.1%), but 16% more at 5°
-  (Gauss-Newton, relinearizing: 1.2% ± 3.6%); and in networks where Y and Z part, that star is
-  the independent approximation.
+  order; in networks where Y and Z part, that star is the independent approximation. How close
+  to the optimal estimate and to Monte Carlo it comes: ``docs/delta_y.md``.
 - **Delta-Y as printed (``delta_y="paper"``)**: ``A' = A ⊗ (B ⊕ Cᴿ)``,
   ``B' = B ⊗ (A ⊕ C)``, ``C' = C ⊗ (Aᴿ ⊕ B)``, X: w→o identity mean, Y: o→v mean B',
   Z: o→t mean A', ``C_X = ½(C_A' + C_B' - K C_C' Kᵀ)``, ``C_Y = ½(-C_A' + C_B' + K C_C'
@@ -131,10 +123,9 @@ and reversal the reduction performs can use exact or unscented moments instead o
   later chains as one Gaussian operand. **This need not be better than first order**: the
   moment-matched Gaussian of a crescent is broad along the crescent, while the posterior
   keeps only the part of the crescent that the other AT allows, which the tangent
-  (first-order) Gaussian at the mean often describes better. Measured
-  (tests/test_query_moments.py: 10 links of 1 m, σθ = 6°, merged with a direct AT of
-  σ 0.5 m, 10°; exact posterior by importance sampling): covariance under 1% off to first
-  order, 22% with exact moments. Exact moments are the right answer for chains (where
+  (first-order) Gaussian at the mean often describes better (10 links at σθ = 6° merged with
+  a direct AT, against the exact posterior: first order within 3%, exact moments over 15% off;
+  ``tests/network/test_query_moments.py``). Exact moments are the right answer for chains (where
   ``query(method="auto")`` uses the reduction); where merges follow, they are a sensitivity
   check (:class:`relmap.network.query.LinearizationCheck`), not a correction.
 - Delta-Y: the three compoundings inside it (``B ⊕ Cᴿ``, ``A ⊕ C``, ``Aᴿ ⊕ B``) use the same

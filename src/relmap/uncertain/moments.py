@@ -433,7 +433,7 @@ def unscented_chain(
     6n + 1 sigma points, the means and the means ± ``√(3n)`` times each column of the symmetric
     square root (one link perturbed at a time), ``Wm₀ = 0``, ``Wc₀ = 2``, ``Wᵢ = 1/(6n)``.
     Perturbing one link at a time, it never sees two heading errors together, so it misses
-    the cross-link curvature that dominates long chains (benchmarks/study_moments.py); cost
+    the cross-link curvature that dominates long chains (docs/studies/moments.py); cost
     O(n³) (the 3n × 3n output covariance).
 
     Both average the output in the SE(2) chart (heading wrapped). :func:`chain_moments` is
