@@ -15,7 +15,7 @@ and the worst 31%, and 3 are refused: where a star's Y and Z end in different me
 star is the independent one.
 
 Run: ``python docs/studies/delta_y.py [--samples 20000] [--solves 2000] [--maps 300]
-[--seed 0]`` (about 2 min, most of it the optimal solves). The table alone is also in the demo
+[--seed 0]`` (under a minute, most of it the optimal solves). The table alone is also in the demo
 report (``relmap demo``).
 """
 
@@ -73,10 +73,10 @@ def random_map(rng: np.random.Generator) -> rm.RelationalMap:
         pairs.append(tuple(int(x) for x in rng.choice(nf, 2, replace=False)))
     g = rm.RelationalMap()
     for a, b in pairs:
+        sx, sy, st = rng.uniform(0.01, 0.3), rng.uniform(0.01, 0.3), rng.uniform(0.1, 10)
         C = np.zeros((3, 3))
-        sx, sy, angle = rng.uniform(0.01, 0.3), rng.uniform(0.01, 0.3), rng.uniform(0, np.pi)
-        C[:2, :2] = rotated_covariance(sx, sy, angle)
-        C[2, 2] = np.radians(rng.uniform(0.1, 10)) ** 2
+        C[:2, :2] = rotated_covariance(sx, sy, rng.uniform(0, np.pi))
+        C[2, 2] = np.radians(st) ** 2
         g.add(f"f{a}", f"f{b}", rm.AT(se2.between(truth[a], truth[b]), C))
     return g
 
