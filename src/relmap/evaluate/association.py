@@ -7,7 +7,8 @@ of equal stamps, the last) if it lies within ``max_diff`` seconds; the other tra
 shifted by ``offset`` first (the estimate's stamps by ``+offset``). A pose of the longer trajectory
 may be taken twice. Without stamps on either side the poses pair by index and the counts must be
 equal. :func:`interpolate` is relmap's alternative: the reference interpolated at the estimate's
-stamps (positions linearly, rotations along the geodesic), for references sampled finely.
+stamps (:meth:`relmap.lie.Group.at_times`: positions linearly, rotations along the shorter
+arc), for references sampled finely.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from typing import NamedTuple
 import numpy as np
 
 from relmap.errors import ParameterError
-from relmap.lie import se3, so3
+from relmap.lie import SE2, SE3
 from relmap.typing import FloatArray, IntArray
 from relmap.uncertain.trajectory import Trajectory
 
@@ -97,21 +98,12 @@ def interpolate(ref: Trajectory, est: Trajectory, *, offset: float = 0.0) -> Ass
         )
     q = t[inside]
     if ref.is_planar:
-        from relmap.io.datasets import _interpolate_poses  # the one interpolation of planar poses
-
-        x = _interpolate_poses(ref.stamps, ref.poses.mean, q, _name(ref, "the reference"))
+        x = SE2.at_times(ref.stamps, ref.poses.mean, q)
         at = Trajectory.planar(x, est.stamps[inside], frame=ref.frame, child=ref.child)
         before = np.clip(np.searchsorted(ref.stamps, q, side="right") - 1, 0, len(ref) - 1)
         return Association(before, inside, at, est.select(inside))
-    M = ref.matrices
     i = np.clip(np.searchsorted(ref.stamps, q, side="right") - 1, 0, max(len(ref) - 2, 0))
-    j = np.minimum(i + 1, len(ref) - 1)
-    span = ref.stamps[j] - ref.stamps[i]
-    f = np.divide(q - ref.stamps[i], span, out=np.zeros_like(q), where=span > 0)
-    R0, R1 = M[i, :3, :3], M[j, :3, :3]
-    R = so3.exp(f[:, None] * so3.log(R1 @ np.swapaxes(R0, -1, -2))) @ R0
-    p = M[i, :3, 3] + f[:, None] * (M[j, :3, 3] - M[i, :3, 3])
-    at = Trajectory.from_matrices(se3.from_parts(p, R), est.stamps[inside])
+    at = Trajectory.from_matrices(SE3.at_times(ref.stamps, ref.matrices, q), est.stamps[inside])
     return Association(i, inside, at, est.select(inside))
 
 

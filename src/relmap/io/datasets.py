@@ -49,7 +49,7 @@ import numpy as np
 from relmap.errors import FileFormatError, NonFiniteError, ParameterError
 from relmap.io._parsing import fail_at, frozen, strict_float
 from relmap.io.textfile import read_text
-from relmap.lie import se2
+from relmap.lie import SE2, se2
 from relmap.typing import ArrayLike, FloatArray, IntArray
 
 __all__ = [
@@ -221,6 +221,8 @@ def _lookup(table: IntArray, keys: ArrayLike) -> IntArray:
 
 
 def _interpolate_poses(times: FloatArray, poses: FloatArray, t: ArrayLike, what: str) -> FloatArray:
+    """``poses`` (at ``times``) at times ``t``, after checking ``t`` is finite and inside their
+    span (:meth:`relmap.lie.Group.at_times` interpolates)."""
     query = np.asarray(t, dtype=np.float64)
     if not np.isfinite(query).all():
         raise NonFiniteError(f"times for {what} must be finite")
@@ -233,17 +235,7 @@ def _interpolate_poses(times: FloatArray, poses: FloatArray, t: ArrayLike, what:
             f"{int(outside.sum())} time(s) outside the span of {what} "
             f"[{times[0]!r}, {times[-1]!r}] s, e.g. {first!r}; no extrapolation"
         )
-    if len(times) == 1:
-        return np.broadcast_to(poses[0], (*query.shape, 3)).copy()
-    i = np.clip(np.searchsorted(times, query, side="right") - 1, 0, len(times) - 2)
-    t0, t1 = times[i], times[i + 1]
-    span = t1 - t0
-    f = np.divide(query - t0, span, out=np.zeros_like(query), where=span > 0)
-    p0, p1 = poses[i], poses[i + 1]
-    out = np.empty((*query.shape, 3))
-    out[..., :2] = p0[..., :2] + f[..., None] * (p1[..., :2] - p0[..., :2])
-    out[..., 2] = se2.wrap_angle(p0[..., 2] + f * se2.angle_difference(p1[..., 2], p0[..., 2]))
-    return out
+    return SE2.at_times(times, poses, query)
 
 
 # ------------------------------------------------------------------------------ tables

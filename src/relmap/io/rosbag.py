@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from relmap.errors import FileFormatError, ParameterError, RelmapError
-from relmap.lie import se3, so3
+from relmap.lie import SE3, se3, so3
 from relmap.typing import FloatArray
 from relmap.uncertain.trajectory import Trajectory
 
@@ -283,7 +283,7 @@ def _read_tf(p: Path, reader: Any, spec: str, topics: dict[str, tuple[str, int]]
         te, M = tables[id(e)]
         if e.static:
             return np.broadcast_to(M[-1], (len(t), 4, 4))
-        return _interpolate(te, M, t)
+        return SE3.at_times(te, M, t)
 
     c_in_common = np.broadcast_to(np.eye(4), (len(t), 4, 4))
     for key in reversed(down):  # common → ... → child
@@ -293,15 +293,3 @@ def _read_tf(p: Path, reader: Any, spec: str, topics: dict[str, tuple[str, int]]
         p_in_common = p_in_common @ at(edges[key])
     M = se3.inverse(p_in_common) @ c_in_common
     return Trajectory.from_matrices(M, t, frame=parent, child=child, source=f"{p}:{spec}")
-
-
-def _interpolate(te: FloatArray, M: FloatArray, t: FloatArray) -> FloatArray:
-    """Poses ``M`` at stamps ``te`` interpolated at ``t`` (inside their span)."""
-    if len(te) == 1:
-        return np.broadcast_to(M[0], (len(t), 4, 4))
-    i = np.clip(np.searchsorted(te, t, side="right") - 1, 0, len(te) - 2)
-    f = (t - te[i]) / (te[i + 1] - te[i])
-    R0, R1 = M[i, :3, :3], M[i + 1, :3, :3]
-    R = so3.exp(f[:, None] * so3.log(R1 @ np.swapaxes(R0, -1, -2))) @ R0
-    x = M[i, :3, 3] + f[:, None] * (M[i + 1, :3, 3] - M[i, :3, 3])
-    return se3.from_parts(x, R)
