@@ -261,6 +261,39 @@ def test_inverse_pd_equals_lapack_on_badly_scaled_matrices(n):
     assert gaussian.inverse_pd(C[0]).shape == (n, n)
 
 
+@pytest.mark.parametrize("n", [2, 3, 6])
+def test_not_positive_definite_against_the_eigenvalues(n):
+    """The verdict is the plain statement: a positive diagonal and every eigenvalue of the
+    correlation matrix above the margin; the offender is the first in batch order, whatever
+    the units."""
+    rng = np.random.default_rng(10 + n)
+    U = np.linalg.qr(rng.normal(size=(4, 5, n, n)))[0]
+    lam = rng.uniform(0.5, 2.0, size=(4, 5, n))
+    assert gaussian.not_positive_definite(U * lam[..., None, :] @ np.swapaxes(U, -1, -2)) is None
+    lam[2, 3, 0] = 0.0  # singular: 0 <= margin
+    C = U * lam[..., None, :] @ np.swapaxes(U, -1, -2)
+    C[3, 1] = np.eye(n)
+    C[3, 1, 0, 1] = C[3, 1, 1, 0] = 1.5  # indefinite (eigenvalue -0.5), later in batch order
+    scale = 10.0 ** rng.uniform(-4, 4, size=(4, 5, n))
+    C = C * scale[..., :, None] * scale[..., None, :]
+    index, reason = gaussian.not_positive_definite(C)
+    assert index == (2, 3) and reason.startswith(" (singular): ")
+    d = np.sqrt(np.diagonal(C[2, 3]))
+    lowest = np.linalg.eigvalsh(C[2, 3] / np.outer(d, d))[0]
+    assert f"is {lowest:.3g} (must exceed {gaussian.DEFINITE_TOL:g})" in reason
+    C[2, 3] = np.eye(n)
+    index, reason = gaussian.not_positive_definite(C)
+    assert index == (3, 1) and reason.startswith(" (indefinite): ")
+    C[0, 4, 1, 1] = 0.0
+    assert gaussian.not_positive_definite(C) == ((0, 4), ": a diagonal entry is not positive")
+    assert gaussian.not_positive_definite(np.eye(n)) is None
+    near = np.eye(n)
+    near[0, 1] = near[1, 0] = 1.0 - 0.5 * gaussian.DEFINITE_TOL  # eigenvalue 0.5·tol: refused
+    assert gaussian.not_positive_definite(near) is not None
+    near[0, 1] = near[1, 0] = 1.0 - 2.0 * gaussian.DEFINITE_TOL  # 2·tol: accepted
+    assert gaussian.not_positive_definite(near) is None
+
+
 @pytest.mark.parametrize("k", [2, 3, 4])
 def test_difference_merge_gain_is_the_generalized_least_squares_merge(rng, k):
     """x̂ = z₁ - K d and C = C₁ - K Xᵀ are the GLS estimate of one vector measured k times

@@ -109,7 +109,6 @@ from relmap.typing import ArrayLike, FloatArray, IntArray
 from relmap.uncertain import gaussian
 from relmap.uncertain.at import AT
 from relmap.uncertain.at3 import AT3
-from relmap.uncertain.gaussian import DEFAULT_RTOL
 from relmap.uncertain.pose import UncertainPose
 
 __all__ = ["QUATERNION_ATOL", "PoseGraph", "file_information", "read_graph", "write_graph"]
@@ -171,10 +170,6 @@ _KIND_OF_TAG: dict[str, tuple[GraphFormat, int | None]] = {
     "EDGE3": ("toro", 3),
 }
 _INT = re.compile(r"[+-]?[0-9]+")
-# An information matrix is singular when the smallest eigenvalue of its correlation matrix is at
-# most this: relmap's rank decision elsewhere (rtol·n,
-# :func:`relmap.uncertain.gaussian.generalized_inverse`).
-_SINGULAR = 3 * DEFAULT_RTOL
 # Rotation matrices handed to write_graph must be orthonormal to this (as relmap.AT3's input).
 _ROTATION_ATOL = 1e-6
 
@@ -353,54 +348,16 @@ def _assemble(values: FloatArray, order: tuple[tuple[int, int], ...], dof: int) 
     return out
 
 
-class _Inverse(NamedTuple):
-    inverse: FloatArray  # (m, n, n), meaningful where ``bad`` is False
-    bad: int | None  # the first matrix that is not positive definite
-    reason: str  # why it is not
-
-
-def _inverse_pd(mats: FloatArray) -> _Inverse:
-    """Inverses of symmetric positive definite matrices ``(m, n, n)``, or the first that is not.
-
-    The test is on the correlation matrix ``D^-1/2 A D^-1/2`` (unit-free, as in
-    :mod:`relmap.uncertain.gaussian`): its smallest eigenvalue must exceed ``3·DEFAULT_RTOL``.
-    """
-    n = mats.shape[-1]
-    diag = np.diagonal(mats, axis1=-2, axis2=-1)
-    nonpositive = np.flatnonzero((diag <= 0.0).any(axis=-1))
-    if nonpositive.size:
-        return _Inverse(mats, int(nonpositive[0]), "a diagonal entry is not positive")
-    s = np.sqrt(diag)
-    corr = mats / (s[:, :, None] * s[:, None, :])
-    try:
-        np.linalg.cholesky(corr - _SINGULAR * np.eye(n))
-    except np.linalg.LinAlgError:
-        lowest = np.linalg.eigvalsh(corr)[:, 0]
-        bad = np.flatnonzero(lowest <= _SINGULAR)
-        if bad.size:
-            k = int(bad[0])
-            kind = "indefinite" if lowest[k] < -_SINGULAR else "singular"
-            return _Inverse(
-                mats,
-                k,
-                f"({kind}): the smallest eigenvalue of its correlation matrix is "
-                f"{lowest[k]:.3g} (must exceed {_SINGULAR:g})",
-            )
-    return _Inverse(gaussian.inverse_pd(mats), None, "")
-
-
 def _file_covariance(path: Path, tag: str, info: FloatArray, lines: Sequence[int]) -> FloatArray:
     """``I⁻¹`` for every edge (in the file's chart), after checking each ``I`` is positive
-    definite."""
-    result = _inverse_pd(info)
-    if result.bad is not None:
-        sep = ": " if result.reason.startswith("a ") else " "
+    definite (:func:`relmap.uncertain.gaussian.not_positive_definite`)."""
+    bad = gaussian.not_positive_definite(info)
+    if bad is not None:
+        (k,), reason = bad
         raise FileFormatError(
-            path,
-            f"{tag} information matrix is not positive definite{sep}{result.reason}",
-            line=lines[result.bad],
+            path, f"{tag} information matrix is not positive definite{reason}", line=lines[k]
         )
-    return result.inverse
+    return gaussian.inverse_pd(info)
 
 
 _T = TypeVar("_T")
@@ -801,17 +758,13 @@ def file_information(measurements: AT | AT3, format: GraphFormat = "g2o") -> Flo
     cov_file = gaussian.congruence(body_to_file, measurements.to_body())
     if format not in ("g2o", "toro"):
         raise ParameterError(f"unknown pose-graph format {format!r} (expected g2o or toro)")
-    batch = cov_file.shape[:-2]
-    n = cov_file.shape[-1]
-    flat = cov_file.reshape(-1, n, n)
-    if not len(flat):
-        return np.empty((*batch, n, n))
-    result = _inverse_pd(flat)
-    if result.bad is not None:
-        where = np.unravel_index(result.bad, batch) if batch else ()
-        sep = ": " if result.reason.startswith("a ") else " "
+    if not cov_file.size:
+        return cov_file.copy()
+    bad = gaussian.not_positive_definite(cov_file)
+    if bad is not None:
+        where, reason = bad
         raise ParameterError(
-            f"measurement{list(map(int, where)) if batch else ''} has no information matrix: "
-            f"its covariance is not positive definite{sep}{result.reason}"
+            f"measurement{list(where) if where else ''} has no information matrix: "
+            f"its covariance is not positive definite{reason}"
         )
-    return result.inverse.reshape(*batch, n, n)
+    return gaussian.inverse_pd(cov_file)

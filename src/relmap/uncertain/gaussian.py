@@ -36,6 +36,7 @@ from relmap.typing import ArrayLike, FloatArray, SeedLike
 
 __all__ = [
     "DEFAULT_RTOL",
+    "DEFINITE_TOL",
     "Ellipse",
     "broadcast",
     "check_count",
@@ -49,6 +50,7 @@ __all__ = [
     "inverse_pd",
     "mahalanobis2",
     "max_over_last",
+    "not_positive_definite",
     "probability_inside",
     "real_array",
     "rotated_covariance",
@@ -168,7 +170,6 @@ def validate_covariance(
         want = f"({dim}, {dim})" if dim is not None else "(n, n)"
         raise ShapeError(f"{name} must have shape (..., {want[1:-1]}); got {arr.shape}")
     check_finite(arr, name)
-    n = arr.shape[-1]
     if arr.size == 0:
         return arr
 
@@ -197,18 +198,61 @@ def validate_covariance(
     # cross-covariance it carries still shows up as a negative eigenvalue.
     s = np.where(diag > 0.0, np.sqrt(np.abs(diag)), 1.0)
     corr = sym / (s[..., :, None] * s[..., None, :])
-    try:
-        np.linalg.cholesky(corr + rtol * np.eye(n))
-    except np.linalg.LinAlgError:
-        lowest = np.linalg.eigvalsh(corr)[..., 0]
-        bad = lowest < -rtol
-        if bad.any():
-            index = tuple(int(i) for i in np.argwhere(bad)[0])
-            raise NotPositiveSemidefiniteError(
-                f"{name}{_where(index)} is not positive semi-definite: the smallest eigenvalue "
-                f"of its correlation matrix is {lowest[index]:.3g} (tolerance -{rtol:g})"
-            ) from None
+    lowest = _lowest_eigenvalues_unless_above(corr, -rtol)
+    if lowest is not None and (lowest < -rtol).any():
+        index = tuple(int(i) for i in np.argwhere(lowest < -rtol)[0])
+        raise NotPositiveSemidefiniteError(
+            f"{name}{_where(index)} is not positive semi-definite: the smallest eigenvalue "
+            f"of its correlation matrix is {lowest[index]:.3g} (tolerance -{rtol:g})"
+        )
     return sym
+
+
+def _lowest_eigenvalues_unless_above(corr: FloatArray, floor: float) -> FloatArray | None:
+    """None when every matrix ``corr`` (..., n, n) has all its eigenvalues above ``floor`` as
+    one batched Cholesky factorization of ``corr - floor·I`` shows; else the smallest eigenvalue
+    of each (computed only then, to find and report the offender)."""
+    try:
+        np.linalg.cholesky(corr - floor * np.eye(corr.shape[-1]))
+    except np.linalg.LinAlgError:
+        return np.linalg.eigvalsh(corr)[..., 0]
+    return None
+
+
+#: Margin of :func:`not_positive_definite`: relmap's rank decision (``rtol·n``,
+#: :func:`generalized_inverse`) for n = 3.
+DEFINITE_TOL = 3 * DEFAULT_RTOL
+
+
+def not_positive_definite(
+    mats: FloatArray, *, tol: float = DEFINITE_TOL
+) -> tuple[tuple[int, ...], str] | None:
+    """The first of the symmetric matrices ``mats`` (..., n, n) that is not positive definite,
+    and why; None when all are (then :func:`inverse_pd` may invert them).
+
+    Positive definite here: a positive diagonal, and the smallest eigenvalue of the
+    correlation matrix ``D^-1/2 A D^-1/2`` above ``tol`` (unit-free, as in
+    :func:`validate_covariance`). Returns ``(index, reason)``, ``index`` the batch index of the
+    first offender, ``reason`` the words that follow "is not positive definite" (with their
+    punctuation): ``": a diagonal entry is not positive"``, or ``" (singular): …"`` /
+    ``" (indefinite): …"`` with the eigenvalue.
+    """
+    diag = np.diagonal(mats, axis1=-2, axis2=-1)
+    nonpositive = (diag <= 0.0).any(axis=-1)
+    if nonpositive.any():
+        return tuple(int(i) for i in np.argwhere(nonpositive)[0]), (
+            ": a diagonal entry is not positive"
+        )
+    s = np.sqrt(diag)
+    lowest = _lowest_eigenvalues_unless_above(mats / (s[..., :, None] * s[..., None, :]), tol)
+    if lowest is None or not (lowest <= tol).any():
+        return None
+    index = tuple(int(i) for i in np.argwhere(lowest <= tol)[0])
+    kind = "indefinite" if lowest[index] < -tol else "singular"
+    return index, (
+        f" ({kind}): the smallest eigenvalue of its correlation matrix is "
+        f"{lowest[index]:.3g} (must exceed {tol:g})"
+    )
 
 
 def inverse_pd(mats: FloatArray) -> FloatArray:
@@ -217,7 +261,7 @@ def inverse_pd(mats: FloatArray) -> FloatArray:
     Computed on the correlation matrix ``D^-1/2 A D^-1/2`` (so units and scales do not matter)
     and, for n ≤ 3, in closed form (cofactors; ten times faster than LAPACK on a large batch
     of 3×3 matrices, whose per-matrix overhead dominates). The matrices must be known positive
-    definite (e.g. checked by :func:`validate_covariance` or a Cholesky factorization).
+    definite (e.g. checked by :func:`not_positive_definite` or a Cholesky factorization).
     """
     n = mats.shape[-1]
     s = 1.0 / np.sqrt(np.diagonal(mats, axis1=-2, axis2=-1))
