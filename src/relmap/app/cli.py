@@ -294,24 +294,16 @@ def _solve(args: argparse.Namespace) -> int:
     from relmap.app.progress import TerminalProgress
     from relmap.errors import ParameterError
     from relmap.io import read_graph, solve_graph, write_graph
-    from relmap.io.posegraph import file_information
-    from relmap.lie import SE3
+    from relmap.io.posegraph import as_format
 
     for out in (args.out, args.out_trajectory):
         if out and not Path(out).resolve().parent.is_dir():
             raise ParameterError(f"cannot write {out}: its folder does not exist")
     t0 = time.perf_counter()
     graph = read_graph(args.graph)
-    out_graph = graph
-    if args.out and graph.format == "toro" and graph.group is SE3:
-        # The legacy EDGE3 format is read only: write 3-D g2o, the information converted (checked
-        # before solving, so a covariance with no information matrix fails fast).
-        out_graph = graph._replace(
-            format="g2o",
-            information=file_information(graph.measurements),
-            vertex_quaternions=None,
-            edge_quaternions=None,
-        )
+    # written in its own format, or 3-D g2o for the read-only legacy EDGE3 (the information
+    # converted before solving, so a covariance with no information matrix fails fast)
+    out_graph = as_format(graph) if args.out else graph
     bar = TerminalProgress(f"solving {args.graph}")
     try:
         sol = solve_graph(
@@ -437,14 +429,20 @@ def _localize(args: argparse.Namespace) -> int:
     r = run.readings
     print(
         f"  readings: {r['used']} used"
-        + (f" ({r['ambiguous']} ambiguous: the mixture of the landmarks in their gate)"
-           if r.get("ambiguous") else "")
+        + (
+            f" ({r['ambiguous']} ambiguous: the mixture of the landmarks in their gate)"
+            if r.get("ambiguous")
+            else ""
+        )
         + f", {run.score.rejected} rejected"
         + (f", {r['wrong']} paired with the wrong landmark" if r["wrong"] else "")
         + (f", {r['ignored']} ignored (not landmarks)" if r["ignored"] else "")
-        + (f"; of {r['not_in_map']} readings of no landmark {r['not_in_map_used']} used"
-           + (f" (clutter fitted: {cal.clutter_fraction:.0%} of the readings)" if auto else "")
-           if r.get("not_in_map") else "")
+        + (
+            f"; of {r['not_in_map']} readings of no landmark {r['not_in_map_used']} used"
+            + (f" (clutter fitted: {cal.clutter_fraction:.0%} of the readings)" if auto else "")
+            if r.get("not_in_map")
+            else ""
+        )
         + f"; NIS/dof {run.anis:.2f} (1 if consistent"
         + (
             f"; below 1 by design when correlated readings are inflated in the update, "

@@ -14,24 +14,29 @@ from relmap.errors import ParameterError
 __all__ = ["add_arguments", "write_localization", "write_solution"]
 
 
-def _read(path: str, topic: str | None, times: str | None = None) -> Any:
+def _read(source: Any, topic: str | None, times: str | None = None) -> Any:
     from relmap.io.trajectory import read_trajectory
 
-    return read_trajectory(path, topic=topic, times=times)
+    return read_trajectory(source, topic=topic, times=times)
 
 
-def _topics(args: argparse.Namespace) -> tuple[str | None, str | None]:
+def _takes_topic(source: Any) -> bool:
+    """Whether an input (read once) is in a format that reads topics (a ROS bag)."""
+    from relmap.io import formats
+
+    fmt = formats.recognise(source)
+    return fmt is not None and "topic" in fmt.options
+
+
+def _topics(args: argparse.Namespace, ref: Any, est: Any) -> tuple[str | None, str | None]:
     """``--topic`` given once serves each bag among REF and EST; twice: REF's, then EST's."""
-    from relmap.io.trajectory import recognise_trajectory
-
     topics = list(args.topic or [])
     if len(topics) > 2:
         raise ParameterError("--topic is given at most twice (REF's, then EST's)")
-    bags = [recognise_trajectory(p) == "bag" for p in (args.ref, args.est)]
     if len(topics) == 2:
         return topics[0], topics[1]
     one = topics[0] if topics else None
-    return (one if bags[0] else None, one if bags[1] else None)
+    return (one if _takes_topic(ref) else None, one if _takes_topic(est) else None)
 
 
 def _check_out(path: str | None, what: str) -> None:
@@ -41,12 +46,14 @@ def _check_out(path: str | None, what: str) -> None:
 
 def _eval(args: argparse.Namespace) -> int:
     from relmap.evaluate import evaluate
+    from relmap.io.textfile import read_input
 
     _check_out(args.plot, "plot")
     _check_out(args.report, "report")
-    ref_topic, est_topic = _topics(args)
-    ref = _read(args.ref, ref_topic, args.ref_times)
-    est = _read(args.est, est_topic, args.est_times)
+    ref_in, est_in = read_input(args.ref), read_input(args.est)  # once each: pipes too
+    ref_topic, est_topic = _topics(args, ref_in, est_in)
+    ref = _read(ref_in, ref_topic, args.ref_times)
+    est = _read(est_in, est_topic, args.est_times)
     relations = ("trans", "angle_deg") if not args.relation else tuple(args.relation)
     ev = evaluate(
         ref,
@@ -120,13 +127,14 @@ def _eval(args: argparse.Namespace) -> int:
 def _traj(args: argparse.Namespace) -> int:
     _check_out(args.plot, "plot")
     from relmap.io.rosbag import read_bag_topics
-    from relmap.io.trajectory import recognise_trajectory
+    from relmap.io.textfile import read_input
 
     topics = list(args.topic or [])
     trajs = []
     for k, path in enumerate(args.files):
-        if recognise_trajectory(path) != "bag":
-            trajs.append(_read(path, None))
+        source = read_input(path)  # once: a pipe too
+        if not _takes_topic(source):
+            trajs.append(_read(source, None))
             continue
         if not topics:
             raise ParameterError(f"{path} is a ROS bag: name its topic(s) with --topic")
@@ -136,7 +144,7 @@ def _traj(args: argparse.Namespace) -> int:
             mine = [topics[k]]
         else:
             mine = topics[:1]
-        trajs.extend(read_bag_topics(path, mine))
+        trajs.extend(read_bag_topics(source.path, mine))  # a bag's topics, opened once
     if args.plot:
         from relmap.viz.plot import save_png
         from relmap.viz.trajectory import trajectories_figure
@@ -282,9 +290,11 @@ def _convert_arguments(cv: argparse.ArgumentParser) -> None:
     )
     cv.add_argument("input", metavar="IN")
     cv.add_argument("output", metavar="OUT")
+    from relmap.io import formats
+
     cv.add_argument(
         "--format",
-        choices=("tum", "kitti", "euroc", "relmap"),
+        choices=[f.name for f in formats.formats("trajectory", writable=True)],
         help="default: euroc for .csv, else relmap (TUM when 3-D without covariance)",
     )
     cv.add_argument("--topic", metavar="T", help="bag topic or /tf:PARENT.CHILD")

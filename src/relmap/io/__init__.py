@@ -1,7 +1,12 @@
 """Files: relational-map files (JSON/YAML), pose graphs (g2o and TORO in 2-D; g2o and the legacy
-EDGE3 format in 3-D), loading either as a map, landmark-localization datasets (UTIAS MRCLAM,
-CMU Plaza)."""
+EDGE3 format in 3-D), loading either as a map, trajectories (:mod:`relmap.io.trajectory`,
+:mod:`relmap.io.rosbag`), landmark-localization datasets (UTIAS MRCLAM, CMU Plaza).
 
+Every format of maps, pose graphs and trajectories is registered once in
+:mod:`relmap.io.formats`, by the module that reads it (imported here, so the registry is whole).
+"""
+
+from relmap.io import rosbag, trajectory  # noqa: F401  (they register their formats)
 from relmap.io.datasets import (
     DatasetKind,
     Mrclam,

@@ -4,6 +4,7 @@ and the read-only arrays their results hold."""
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -12,7 +13,9 @@ import numpy as np
 from relmap.errors import FileFormatError
 from relmap.typing import ArrayLike
 
-__all__ = ["fail_at", "frozen", "strict_float"]
+__all__ = ["fail_at", "frozen", "is_number", "strict_float"]
+
+_NUMBER = re.compile(r"[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][-+]?[0-9]+)?")
 
 
 def strict_float(token: str) -> float:
@@ -21,6 +24,12 @@ def strict_float(token: str) -> float:
     if "_" in token:
         raise ValueError(token)
     return float(token)
+
+
+def is_number(token: str) -> bool:
+    """Whether ``token`` is a decimal number as tables write them (``-1.5e3``; not ``nan``,
+    ``inf``, ``0x10``, ``1_0``): how a format tells a row of numbers from a record tag."""
+    return _NUMBER.fullmatch(token) is not None
 
 
 def fail_at(path: Path, bad: ArrayLike, lines: Sequence[int] | np.ndarray, message: str) -> None:

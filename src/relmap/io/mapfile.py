@@ -37,8 +37,9 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from relmap.errors import FileFormatError, ParameterError, RelmapError, ShapeError
+from relmap.io import formats
 from relmap.io.atomic import check_writable, write_text_atomic
-from relmap.io.textfile import read_text
+from relmap.io.textfile import Input
 from relmap.uncertain.at import AT
 from relmap.uncertain.at3 import AT3
 
@@ -148,11 +149,12 @@ def _parse(path: Path, text: str) -> Any:
     return _parse_json(path, text) if _is_json(path) else _parse_yaml(path, text)
 
 
-def read_records(path: str | os.PathLike[str]) -> list[ATRecord]:
+def read_records(path: str | os.PathLike[str] | Input) -> list[ATRecord]:
     """Read a map file (``.json``, or YAML for any other suffix; gzip, a BOM, CRLF and pipes
-    accepted: :func:`relmap.io.textfile.read_text`) into :class:`ATRecord` s."""
-    p = Path(path)
-    return records_from_text(p, read_text(p))
+    accepted: :func:`relmap.io.textfile.read_input`) into :class:`ATRecord` s; a file in another
+    format is refused naming it (:func:`relmap.io.formats.read`)."""
+    records: list[ATRecord] = formats.read(path, ("map",))[1]
+    return records
 
 
 def records_from_text(p: Path, text: str) -> list[ATRecord]:
@@ -322,3 +324,30 @@ def write_records(
 
         text = yaml.safe_dump(doc, sort_keys=False, default_flow_style=None)
     write_text_atomic(p, text)
+
+
+# ----------------------------------------------------------------------------------- the format
+def _is_map(head: formats.Head) -> bool:
+    """A map file: its first record opens a YAML/JSON mapping or sequence (``{``, ``[``), a
+    YAML document (``---``, ``%``) or a quoted key, or is a key (``ats:``, ``relmap: 1``)."""
+    record = head.record
+    return bool(record) and (
+        record.startswith(("{", "[", "---", "%", '"', "'")) or record.split(None, 1)[0][-1] == ":"
+    )
+
+
+def _read(source: Input) -> list[ATRecord]:
+    assert source.text is not None  # recognised from a text record
+    return records_from_text(source.path, source.text)
+
+
+formats.register(
+    formats.Format(
+        "map",
+        "map",
+        "relmap's map file: YAML, or JSON for a .json name, with a list 'ats'",
+        _is_map,
+        _read,
+        write_records,
+    )
+)

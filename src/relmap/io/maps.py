@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import os
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 from relmap.errors import ParameterError
-from relmap.io.mapfile import ATRecord, records_from_text, write_records
-from relmap.io.posegraph import _KIND_OF_TAG, PoseGraph, graph_from_text
-from relmap.io.textfile import read_text
+from relmap.io import formats
+from relmap.io.mapfile import ATRecord
+from relmap.io.posegraph import PoseGraph
+from relmap.io.textfile import Input
 from relmap.network.graph import RelationalMap
 
 if TYPE_CHECKING:
@@ -17,30 +17,17 @@ if TYPE_CHECKING:
 
 __all__ = ["load_map", "save_map", "solve_graph"]
 
-# Every tag read_graph knows (2-D and 3-D, g2o and TORO, legacy EDGE3): its first record's tag
-# tells a pose graph from a map file.
-_GRAPH_TAGS = frozenset(_KIND_OF_TAG)
 
-
-def _is_pose_graph(text: str) -> bool:
-    """Whether the first record of ``text`` has a pose-graph tag."""
-    for line in text.split("\n"):
-        head = line.split(None, 1)
-        if head and not head[0].startswith("#"):
-            return head[0] in _GRAPH_TAGS
-    return False
-
-
-def load_map(path: str | os.PathLike[str]) -> RelationalMap:
+def load_map(path: str | os.PathLike[str] | Input) -> RelationalMap:
     """A map from a map file (JSON or YAML) or a pose graph (g2o 2-D/3-D, TORO, legacy
-    ``EDGE3``), told apart by content. Pose-graph vertex ids become integer frames, their poses
-    the initial guess; a 3-D graph gives a map of :class:`relmap.AT3`. The file is read once
-    (:func:`relmap.io.textfile.read_text`): a pipe, gzip, a BOM and CRLF are accepted."""
-    p = Path(path)
-    text = read_text(p)
-    if _is_pose_graph(text):
-        return RelationalMap.from_posegraph(graph_from_text(p, text))
-    return RelationalMap.from_records(records_from_text(p, text))
+    ``EDGE3``), told apart by content (:mod:`relmap.io.formats`). Pose-graph vertex ids become
+    integer frames, their poses the initial guess; a 3-D graph gives a map of
+    :class:`relmap.AT3`. The file is read once (:func:`relmap.io.textfile.read_input`): a pipe,
+    gzip, a BOM and CRLF are accepted."""
+    fmt, content = formats.read(path, ("map", "graph"))
+    if fmt.holds == "graph":
+        return RelationalMap.from_posegraph(content)
+    return RelationalMap.from_records(content)
 
 
 def save_map(
@@ -55,9 +42,8 @@ def save_map(
     """
     if g.groups:
         raise ParameterError("map files cannot hold dependent ATs (joint groups) yet")
-    write_records(
-        path, [ATRecord(e.name, e.src, e.dst, e.at) for e in g.edges()], description=description
-    )
+    records = [ATRecord(e.name, e.src, e.dst, e.at) for e in g.edges()]
+    formats.get("map", "map", writable=True).write(path, records, description=description)
 
 
 def solve_graph(

@@ -84,6 +84,7 @@ Malformed input raises :class:`relmap.errors.FileFormatError` naming the file an
 
 from __future__ import annotations
 
+import functools
 import os
 import re
 from collections.abc import Callable, Sequence
@@ -101,9 +102,10 @@ from relmap.errors import (
     ShapeError,
     UnknownFrameError,
 )
+from relmap.io import formats
 from relmap.io._parsing import fail_at, frozen, strict_float
 from relmap.io.atomic import write_text_atomic
-from relmap.io.textfile import read_text
+from relmap.io.textfile import Input
 from relmap.lie import SE3, Group, se2, se3, so3
 from relmap.typing import ArrayLike, FloatArray, IntArray
 from relmap.uncertain import gaussian
@@ -111,7 +113,14 @@ from relmap.uncertain.at import AT
 from relmap.uncertain.at3 import AT3
 from relmap.uncertain.pose import UncertainPose
 
-__all__ = ["QUATERNION_ATOL", "PoseGraph", "file_information", "read_graph", "write_graph"]
+__all__ = [
+    "QUATERNION_ATOL",
+    "PoseGraph",
+    "as_format",
+    "file_information",
+    "read_graph",
+    "write_graph",
+]
 
 GraphFormat = Literal["g2o", "toro"]
 
@@ -488,7 +497,7 @@ def _records(p: Path, text: str) -> tuple[_Spec, _Table, _Table, IntArray, list[
     return spec, vtx, edg, np.array(fixed, dtype=np.int64), fixed_lines
 
 
-def read_graph(path: str | os.PathLike[str]) -> PoseGraph:
+def read_graph(path: str | os.PathLike[str] | Input) -> PoseGraph:
     """Read a 2-D or 3-D pose graph in g2o or TORO format (recognised from the first record's
     tag).
 
@@ -502,15 +511,16 @@ def read_graph(path: str | os.PathLike[str]) -> PoseGraph:
     non-finite number, a quaternion that is not unit (:data:`QUATERNION_ATOL`), a duplicate
     vertex id, an edge or FIX naming a vertex with no vertex line (``EDGE3`` files without any
     ``VERTEX3`` line excepted, see the module docstring), or an information matrix that is not
-    symmetric positive definite.
+    symmetric positive definite. The file is read once (a pipe, gzip, a BOM and CRLF are
+    accepted: :func:`relmap.io.textfile.read_input`); a file in another format is refused naming
+    it (:func:`relmap.io.formats.read`).
     """
-    p = Path(path)
-    return graph_from_text(p, read_text(p))
+    graph: PoseGraph = formats.read(path, ("graph",))[1]
+    return graph
 
 
 def graph_from_text(p: Path, text: str) -> PoseGraph:
-    """:func:`read_graph` of text already read (:func:`relmap.io.textfile.read_text`) from the
-    file ``p`` (named in errors): a pipe can be read only once."""
+    """:func:`read_graph` of text already read from the file ``p`` (named in errors)."""
     spec, vtx, edg, fixed, fixed_lines = _records(p, text)
     vertex_ids, poses = vtx.ids[:, 0], vtx.values
     edge_ids, edge_values = edg.ids, edg.values
@@ -656,8 +666,41 @@ def write_graph(
     Numbers are written in their shortest round-trip decimal form (relmap's compiled core,
     ``std::to_chars``: ``1`` for 1.0), so reading the file back gives the same arrays bit for
     bit. The legacy 3-D ``EDGE3`` format is not written (:class:`ParameterError`;
-    see the module docstring). Nothing is written if anything is invalid.
+    see the module docstring). Nothing is written if anything is invalid. The writer is the
+    registered one of the graph's format (:mod:`relmap.io.formats`).
     """
+    formats.get(graph.format, "graph", writable=True).write(path, graph, poses=poses)
+
+
+def as_format(graph: PoseGraph, format: GraphFormat | None = None) -> PoseGraph:
+    """``graph`` as :func:`write_graph` writes it in ``format`` (default: its own, or 3-D g2o
+    for a graph read from the legacy ``EDGE3`` format, which is read only).
+
+    2-D g2o and TORO hold the same information matrices (in another field order): only the
+    format changes. A legacy 3-D graph written as g2o gets :func:`file_information` of its
+    measurements (:class:`ParameterError` at once if a covariance has none) and no kept
+    quaternions.
+    """
+    legacy = graph.group is SE3 and graph.format == "toro"
+    target = format or ("g2o" if legacy else graph.format)
+    if legacy and target == "g2o":
+        return graph._replace(
+            format="g2o",
+            information=file_information(graph.measurements),
+            vertex_quaternions=None,
+            edge_quaternions=None,
+        )
+    return graph._replace(format=target)
+
+
+def _write_as(
+    format: GraphFormat, path: str | os.PathLike[str], graph: PoseGraph, poses: ArrayLike | None
+) -> None:
+    """The writer registered for ``format``: :func:`write_graph` of :func:`as_format`."""
+    _write(path, as_format(graph, format), poses)
+
+
+def _write(path: str | os.PathLike[str], graph: PoseGraph, poses: ArrayLike | None) -> None:
     group = getattr(graph.measurements, "group", None)
     dim = 3 if group is SE3 else 2
     spec = _SPECS.get((graph.format, dim))
@@ -768,3 +811,53 @@ def file_information(measurements: AT | AT3, format: GraphFormat = "g2o") -> Flo
             f"its covariance is not positive definite{reason}"
         )
     return gaussian.inverse_pd(cov_file)
+
+
+# ----------------------------------------------------------------------------------- the formats
+#: A record's tag, as g2o and TORO write them (upper case, ``:`` inside: ``EDGE_SE3:QUAT``).
+_TAG = re.compile(r"[A-Z][A-Z0-9_]*(?::[A-Z0-9_]+)*")
+_TORO_TAGS = frozenset(tag for tag, (fmt, _) in _KIND_OF_TAG.items() if fmt == "toro")
+
+
+def _first_tag(head: formats.Head) -> str | None:
+    tag = head.record.split(None, 1)[0] if head.record else ""
+    return tag if _TAG.fullmatch(tag) else None
+
+
+def _is_toro(head: formats.Head) -> bool:
+    """TORO: the first record's tag is TORO's (``VERTEX2``, ``EDGE2``, ``VERTEX3``, ``EDGE3``)."""
+    return _first_tag(head) in _TORO_TAGS
+
+
+def _is_g2o(head: formats.Head) -> bool:
+    """g2o: a file of tagged records whose first tag is not TORO's (g2o's own; a tag relmap
+    does not read is refused by the reader, naming it and its line)."""
+    tag = _first_tag(head)
+    return tag is not None and tag not in _TORO_TAGS
+
+
+def _read(source: Input) -> PoseGraph:
+    assert source.text is not None  # recognised from a text record
+    return graph_from_text(source.path, source.text)
+
+
+formats.register(
+    formats.Format(
+        "g2o",
+        "graph",
+        "VERTEX_SE2/EDGE_SE2, VERTEX_SE3:QUAT/EDGE_SE3:QUAT, FIX records",
+        _is_g2o,
+        _read,
+        functools.partial(_write_as, "g2o"),
+    )
+)
+formats.register(
+    formats.Format(
+        "toro",
+        "graph",
+        "VERTEX2/EDGE2 records; VERTEX3/EDGE3 read only",
+        _is_toro,
+        _read,
+        functools.partial(_write_as, "toro"),
+    )
+)

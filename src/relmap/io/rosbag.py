@@ -30,6 +30,8 @@ from typing import Any
 import numpy as np
 
 from relmap.errors import FileFormatError, ParameterError, RelmapError
+from relmap.io import formats
+from relmap.io.textfile import Input
 from relmap.lie import SE3, se3, so3
 from relmap.typing import FloatArray
 from relmap.uncertain.trajectory import Trajectory
@@ -45,6 +47,8 @@ _TF_TYPE = "tf2_msgs/msg/TFMessage"
 
 
 def _open(path: Path):  # type: ignore[no-untyped-def]
+    if path.exists() and not (path.is_file() or path.is_dir()):
+        raise FileFormatError(path, "a ROS bag is read from its file or folder, not from a pipe")
     try:
         from rosbags.highlevel import AnyReader
     except ImportError:  # pragma: no cover - rosbags is a dependency
@@ -293,3 +297,32 @@ def _read_tf(p: Path, reader: Any, spec: str, topics: dict[str, tuple[str, int]]
         p_in_common = p_in_common @ at(edges[key])
     M = se3.inverse(p_in_common) @ c_in_common
     return Trajectory.from_matrices(M, t, frame=parent, child=child, source=f"{p}:{spec}")
+
+
+# ----------------------------------------------------------------------------------- the format
+#: The first bytes of a ROS 1 bag, an MCAP file and a SQLite database (ROS 2 ``.db3``).
+_MAGIC = (b"#ROSBAG V2.0", b"\x89MCAP", b"SQLite format 3\x00")
+
+
+def _is_bag(head: formats.Head) -> bool:
+    """A bag file by its magic number, or a ROS 2 bag folder (it holds ``metadata.yaml``)."""
+    if head.folder:
+        return (head.path / "metadata.yaml").is_file()
+    return head.magic.startswith(_MAGIC)
+
+
+def _read(source: Input, topic: str | None = None) -> Trajectory:
+    """:func:`read_bag` of a bag file or folder: from its path (rosbags seeks in it)."""
+    return read_bag(source.path, topic)
+
+
+formats.register(
+    formats.Format(
+        "bag",
+        "trajectory",
+        "ROS 1 .bag, ROS 2 .db3 or .mcap, or a ROS 2 bag folder with metadata.yaml",
+        _is_bag,
+        _read,
+        options=("topic",),
+    )
+)

@@ -1,7 +1,8 @@
 """How every relmap reader gets the text of an input file.
 
-One function, :func:`read_text`, used by the pose-graph, map-file and dataset readers, so they
-all take the same inputs alike:
+:func:`read_input` reads an input once for the format registry (:mod:`relmap.io.formats`: maps,
+pose graphs, trajectories), :func:`read_text` a file of a known format (dataset tables, a times
+file); both take the same inputs alike:
 
 - a regular file, or a pipe, FIFO or process substitution (``relmap query <(zcat g.g2o.gz)``),
   read once, front to back;
@@ -11,27 +12,52 @@ all take the same inputs alike:
   so a stray CR never shifts the line numbers of later errors (it is white space inside a line).
 
 Everything else is a :class:`relmap.errors.FileFormatError` naming the file (and, for bytes that
-are not UTF-8, the line): a missing file, a directory, no permission, a name too long, corrupt
-gzip data.
+are not UTF-8, the line): a missing file, a directory (to :func:`read_text`), no permission, a name
+too long, corrupt gzip data.
+
+:func:`read_input` also takes a folder, and leaves binary content (a NUL byte among the first
+:data:`HEAD_BYTES`, as git and grep tell binary files) unread beyond those first bytes: a folder or
+a binary file (a ROS bag) is read by its format's reader, from its path.
 """
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import NamedTuple
 
 from relmap.errors import FileFormatError
 
-__all__ = ["read_text"]
+__all__ = ["HEAD_BYTES", "Input", "read_input", "read_text"]
 
+#: How many first bytes of an input tell binary content and its magic number.
+HEAD_BYTES = 4096
 _GZIP_MAGIC = b"\x1f\x8b"
 _BOM = b"\xef\xbb\xbf"
 
 
-def _read_bytes(path: Path) -> bytes:
+class Input(NamedTuple):
+    """An input read once (:func:`read_input`): what a format is recognised from and read from."""
+
+    #: The path as given (named in errors; a pipe's is ``/dev/fd/N``).
+    path: Path
+    #: The text (gzip undone, BOM dropped, CRLF → LF); None for a folder or binary content.
+    text: str | None
+    #: The first :data:`HEAD_BYTES` bytes as stored (gzip not undone); empty for a folder.
+    head: bytes
+    #: Whether the path is a folder (nothing of it is read).
+    folder: bool = False
+
+
+def _read_bytes(path: Path, *, stop_if_binary: bool = False) -> tuple[bytes, bool]:
+    """The bytes of ``path``, and whether they are all of them: with ``stop_if_binary``, only
+    the first :data:`HEAD_BYTES` when they hold a NUL byte and no gzip magic."""
     try:
         with open(path, "rb") as fh:
-            return fh.read()
+            head = fh.read(HEAD_BYTES)
+            if stop_if_binary and head[:2] != _GZIP_MAGIC and b"\0" in head:
+                return head, False
+            return head + fh.read(), True
     except FileNotFoundError:
         raise FileFormatError(path, "cannot read: no such file") from None
     except IsADirectoryError:
@@ -52,6 +78,23 @@ def _gunzip(path: Path, data: bytes) -> bytes:
         raise FileFormatError(path, f"corrupt gzip data: {exc}") from None
 
 
+def read_input(path: str | os.PathLike[str] | Input) -> Input:
+    """``path`` read once (an :class:`Input` is returned as it is): a folder is not read, binary
+    content is read no further than its first :data:`HEAD_BYTES`, text is read whole and decoded
+    as :func:`read_text` does (with its errors)."""
+    if isinstance(path, Input):
+        return path
+    p = Path(path)
+    try:
+        if p.is_dir():
+            return Input(p, None, b"", folder=True)
+    except (OSError, ValueError):  # a name too long or holding a NUL byte: said by the read
+        pass
+    data, whole = _read_bytes(p, stop_if_binary=True)
+    head = data[:HEAD_BYTES]
+    return Input(p, _decode(p, data) if whole else None, head)
+
+
 def read_text(path: str | os.PathLike[str]) -> str:
     """The text of ``path`` as the module docstring says (gzip undone, BOM dropped, CRLF → LF).
 
@@ -59,7 +102,10 @@ def read_text(path: str | os.PathLike[str]) -> str:
     byte that is not UTF-8).
     """
     p = Path(path)
-    data = _read_bytes(p)
+    return _decode(p, _read_bytes(p)[0])
+
+
+def _decode(p: Path, data: bytes) -> str:
     if data[:2] == _GZIP_MAGIC:
         data = _gunzip(p, data)
     if data.startswith(_BOM):

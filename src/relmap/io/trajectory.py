@@ -37,15 +37,17 @@ from pathlib import Path
 import numpy as np
 
 from relmap.errors import FileFormatError, ParameterError, RelmapError
+from relmap.io import formats
+from relmap.io._parsing import is_number
 from relmap.io.atomic import write_text_atomic
-from relmap.io.textfile import read_text
+from relmap.io.posegraph import PoseGraph
+from relmap.io.textfile import Input, read_input, read_text
 from relmap.lie import so3
 from relmap.typing import FloatArray, IntArray
 from relmap.uncertain.trajectory import Trajectory, check_increasing, check_rotations
 
-__all__ = ["FORMATS", "read_trajectory", "recognise_trajectory", "write_trajectory"]
+__all__ = ["read_trajectory", "recognise_trajectory", "write_trajectory"]
 
-FORMATS: tuple[str, ...] = ("tum", "kitti", "euroc", "relmap", "g2o", "bag")
 _TRI3 = np.triu_indices(3)
 _TRI6 = np.triu_indices(6)
 _HEADER = re.compile(r"#\s*relmap trajectory\b(.*)")
@@ -53,8 +55,9 @@ _HEADER = re.compile(r"#\s*relmap trajectory\b(.*)")
 
 # ------------------------------------------------------------------------------- tables
 def _rows(text: str) -> tuple[list[str], IntArray]:
-    """The data lines (not blank, not ``#``) and their 1-based line numbers."""
-    lines = text.splitlines()
+    """The data lines (not blank, not ``#``) and their 1-based line numbers (a line ends at LF
+    only: :mod:`relmap.io.textfile`)."""
+    lines = text.split("\n")
     keep = [k for k, s in enumerate(lines) if s.strip() and not s.lstrip().startswith("#")]
     return [lines[k] for k in keep], np.asarray(keep, dtype=np.intp) + 1
 
@@ -145,7 +148,7 @@ def _build(path: Path, numbers: IntArray, make, **names: str) -> Trajectory:  # 
 
 
 def _names(text: str) -> dict[str, str]:
-    for line in text.splitlines()[:5]:
+    for line in text.split("\n", 5)[:5]:
         m = _HEADER.match(line.strip())
         if m:
             return dict(re.findall(r"\b(frame|child)=(\S+)", m.group(1)))
@@ -153,10 +156,36 @@ def _names(text: str) -> dict[str, str]:
 
 
 # ------------------------------------------------------------------------------- readers
-def _read_columns(path: Path, text: str, values: FloatArray, numbers: IntArray) -> Trajectory:
-    """TUM (8), KITTI (12), relmap 3-D (29), planar (4 or 10): by the number of columns."""
+def _numbers(source: Input, sep: str | None = None) -> tuple[Path, FloatArray, IntArray]:
+    """The input's table of numbers (:func:`_table`) and each row's line."""
+    assert source.text is not None  # recognised from a text record
+    rows, numbers = _rows(source.text)
+    return source.path, _table(source.path, rows, numbers, sep), numbers
+
+
+def _with_quaternions(
+    source: Input, path: Path, values: FloatArray, numbers: IntArray, cov: FloatArray | None
+) -> Trajectory:
+    """``t x y z qx qy qz qw`` rows (TUM; relmap 3-D with the covariance ``cov``)."""
+    t = _stamps(path, values[:, 0], numbers)
+    q = _quaternions(path, values[:, 4:8], numbers)
+    return _build(
+        path,
+        numbers,
+        lambda **kw: Trajectory.from_quaternions(values[:, 1:4], q, t, cov, **kw),
+        **_names(source.text or ""),
+    )
+
+
+def _read_tum(source: Input) -> Trajectory:
+    """TUM: ``t x y z qx qy qz qw`` (relmap 3-D without covariance is the same)."""
+    return _with_quaternions(source, *_numbers(source), None)
+
+
+def _read_relmap(source: Input) -> Trajectory:
+    """relmap's own: 3-D with covariance (29 columns), planar with (10) or without it (4)."""
+    path, values, numbers = _numbers(source)
     k = values.shape[1]
-    names = _names(text)
     if k in (10, 29):
         unknown = np.flatnonzero(values[:, 8 if k == 29 else 4] == -1.0)
         if unknown.size:
@@ -165,43 +194,39 @@ def _read_columns(path: Path, text: str, values: FloatArray, numbers: IntArray) 
                 "covariance marked unknown (first entry −1): write the pose without one",
                 line=int(numbers[unknown[0]]),
             )
-    if k in (8, 29):
-        t = _stamps(path, values[:, 0], numbers)
-        q = _quaternions(path, values[:, 4:8], numbers)
-        cov = _unpack(values[:, 8:], _TRI6, 6) if k == 29 else None
-        return _build(
-            path,
-            numbers,
-            lambda **kw: Trajectory.from_quaternions(values[:, 1:4], q, t, cov, **kw),
-            **names,
-        )
-    if k == 12:
-        M = np.zeros((len(values), 4, 4))
-        M[:, :3, :] = values.reshape(-1, 3, 4)
-        M[:, 3, 3] = 1.0
-        try:
-            check_rotations(M[:, :3, :3])
-        except RelmapError as exc:
-            raise _at_line(path, numbers, exc) from None
-        return _build(
-            path, numbers, lambda **kw: Trajectory.from_matrices(M, None, None, **kw), **names
-        )
-    if k in (4, 10):
-        t = _stamps(path, values[:, 0], numbers)
-        cov = _unpack(values[:, 4:], _TRI3, 3) if k == 10 else None
-        return _build(
-            path, numbers, lambda **kw: Trajectory.planar(values[:, 1:4], t, cov, **kw), **names
-        )
-    raise FileFormatError(
+    if k == 29:
+        return _with_quaternions(source, path, values, numbers, _unpack(values[:, 8:], _TRI6, 6))
+    t = _stamps(path, values[:, 0], numbers)
+    cov = _unpack(values[:, 4:], _TRI3, 3) if k == 10 else None
+    return _build(
         path,
-        f"{k} columns: not a trajectory format relmap knows (TUM: 8, KITTI: 12, relmap: 29, "
-        "planar: 4 or 10)",
-        line=int(numbers[0]),
+        numbers,
+        lambda **kw: Trajectory.planar(values[:, 1:4], t, cov, **kw),
+        **_names(source.text or ""),
     )
 
 
-def _read_euroc(path: Path, rows: list[str], numbers: IntArray) -> Trajectory:
-    values = _table(path, rows, numbers, ",")
+def _read_kitti(source: Input) -> Trajectory:
+    """KITTI: the 12 numbers of the row-major 3×4 ``[R t]`` a line, no stamps."""
+    path, values, numbers = _numbers(source)
+    M = np.zeros((len(values), 4, 4))
+    M[:, :3, :] = values.reshape(-1, 3, 4)
+    M[:, 3, 3] = 1.0
+    try:
+        check_rotations(M[:, :3, :3])
+    except RelmapError as exc:
+        raise _at_line(path, numbers, exc) from None
+    return _build(
+        path,
+        numbers,
+        lambda **kw: Trajectory.from_matrices(M, None, None, **kw),
+        **_names(source.text or ""),
+    )
+
+
+def _read_euroc(source: Input) -> Trajectory:
+    """EuRoC's ground-truth CSV: ``t[ns], x, y, z, qw, qx, qy, qz, ...``."""
+    path, values, numbers = _numbers(source, ",")
     if values.shape[1] < 8:
         raise FileFormatError(
             path, f"EuRoC CSV needs at least 8 columns; got {values.shape[1]}", line=int(numbers[0])
@@ -213,13 +238,11 @@ def _read_euroc(path: Path, rows: list[str], numbers: IntArray) -> Trajectory:
     )
 
 
-def _read_graph_vertices(path: Path) -> Trajectory:
-    from relmap.io.posegraph import read_graph
-
-    g = read_graph(path)
-    if g.poses.ndim == 2:
-        return Trajectory.planar(g.poses, source=str(path))
-    return Trajectory.from_matrices(g.poses, source=str(path))
+def _vertices(path: Path, graph: PoseGraph) -> Trajectory:
+    """The vertices of a pose graph, in file order, without stamps."""
+    if graph.poses.ndim == 2:
+        return Trajectory.planar(graph.poses, source=str(path))
+    return Trajectory.from_matrices(graph.poses, source=str(path))
 
 
 def _read_times(path: Path) -> FloatArray:
@@ -234,64 +257,37 @@ def _read_times(path: Path) -> FloatArray:
     return _stamps(path, values[:, 0], numbers)
 
 
-def recognise_trajectory(path: str | os.PathLike[str]) -> str:
-    """The format of ``path`` from its content: one of :data:`FORMATS` (``"relmap"`` covers
-    relmap's own and the planar forms; ``"tum"`` any 8-column table)."""
-    p = Path(path)
-    if p.is_dir():
-        if (p / "metadata.yaml").is_file():
-            return "bag"
-        raise FileFormatError(p, "a folder that is not a ROS 2 bag (no metadata.yaml)")
-    try:
-        with open(p, "rb") as fh:
-            head = fh.read(4096)
-    except FileNotFoundError:
-        raise FileFormatError(p, "no such file") from None
-    except OSError as exc:
-        raise FileFormatError(p, f"cannot read: {exc.strerror}") from None
-    if head.startswith((b"#ROSBAG V2.0", b"\x89MCAP", b"SQLite format 3\x00")):
-        return "bag"
-    text = head.removeprefix(b"\xef\xbb\xbf").decode("utf-8", errors="replace")
-    first = next(
-        (s.strip() for s in text.splitlines() if s.strip() and not s.lstrip().startswith("#")), ""
-    )
-    if re.match(r"(VERTEX|EDGE|FIX)\S*\s", first + " "):
-        return "g2o"
-    if "," in first:
-        return "euroc"
-    width = len(first.split())
-    return {8: "tum", 12: "kitti"}.get(width, "relmap")
+#: What a trajectory is read from: a trajectory format, or the vertices of a pose graph.
+_KINDS: tuple[formats.Kind, ...] = ("trajectory", "graph")
+
+
+def recognise_trajectory(path: str | os.PathLike[str] | Input) -> str:
+    """The name of the format of ``path`` (:mod:`relmap.io.formats`), recognised from its
+    content: ``tum``, ``kitti``, ``euroc``, ``relmap``, ``bag`` or a pose graph's (``g2o``,
+    ``toro``). A path is read (:func:`relmap.io.textfile.read_input`; a pipe cannot be read
+    again: give :func:`read_trajectory` the :class:`~relmap.io.textfile.Input` read here)."""
+    return formats.format_of(read_input(path), _KINDS).name
 
 
 def read_trajectory(
-    path: str | os.PathLike[str],
+    path: str | os.PathLike[str] | Input,
     *,
     times: str | os.PathLike[str] | None = None,
     topic: str | None = None,
 ) -> Trajectory:
-    """Read a trajectory, its format recognised from the content (module docstring).
+    """Read a trajectory, its format recognised from the content (module docstring); the input
+    is read once (:func:`relmap.io.textfile.read_input`: a pipe, gzip, a BOM and CRLF are
+    accepted).
 
     ``times``: a KITTI times file (one time a line, as many as poses). ``topic``: for a ROS bag,
     the topic (``PoseStamped``, ``PoseWithCovarianceStamped``, ``Odometry``) or a TF chain
     ``/tf:PARENT.CHILD`` (:func:`relmap.io.rosbag.read_bag`).
     """
-    p = Path(path)
-    fmt = recognise_trajectory(p)
-    if fmt == "bag":
-        from relmap.io.rosbag import read_bag
-
-        return read_bag(p, topic)
-    if topic is not None:
-        raise ParameterError(f"--topic is for ROS bags; {p} is a {fmt} file")
-    if fmt == "g2o":
-        traj = _read_graph_vertices(p)
-    else:
-        text = read_text(p)
-        rows, numbers = _rows(text)
-        if fmt == "euroc":
-            traj = _read_euroc(p, rows, numbers)
-        else:
-            traj = _read_columns(p, text, _table(p, rows, numbers, None), numbers)
+    source = read_input(path)
+    p = source.path
+    fmt, traj = formats.read(source, _KINDS, **({} if topic is None else {"topic": topic}))
+    if fmt.holds == "graph":
+        traj = _vertices(p, traj)
     if times is not None:
         if traj.stamps is not None:
             raise ParameterError(f"{p} has time stamps of its own; a times file is for KITTI poses")
@@ -308,10 +304,68 @@ def read_trajectory(
 
 
 # ------------------------------------------------------------------------------- writers
-def _numbers(a: FloatArray) -> str:
+def _text(a: FloatArray) -> str:
     buf = io.StringIO()
     np.savetxt(buf, a, fmt="%.17g")
     return buf.getvalue()
+
+
+def _stamped(traj: Trajectory, fmt: str) -> FloatArray:
+    """The stamps a format needs, or the error that ``traj`` has none."""
+    if traj.stamps is None:
+        raise ParameterError(
+            f"{fmt} needs time stamps and {traj.source or 'the trajectory'} has none"
+        )
+    return traj.stamps
+
+
+def _frame_names(traj: Trajectory) -> str:
+    return f" frame={traj.frame}" * bool(traj.frame) + f" child={traj.child}" * bool(traj.child)
+
+
+def _quaternion_columns(traj: Trajectory, fmt: str) -> list[FloatArray]:
+    """``t``, ``x y z``, ``qx qy qz qw`` of every pose."""
+    M = traj.matrices
+    return [_stamped(traj, fmt)[:, None], M[:, :3, 3], so3.to_quaternion(M[:, :3, :3])]
+
+
+def _write_tum(path: Path, traj: Trajectory) -> None:
+    write_text_atomic(path, _text(np.column_stack(_quaternion_columns(traj, "tum"))))
+
+
+def _write_kitti(path: Path, traj: Trajectory) -> None:
+    write_text_atomic(path, _text(traj.matrices[:, :3, :].reshape(-1, 12)))
+
+
+def _write_euroc(path: Path, traj: Trajectory) -> None:
+    M = traj.matrices
+    q = so3.to_quaternion(M[:, :3, :3])
+    stamps_ns = np.round(_stamped(traj, "euroc") * 1e9).astype(np.int64)
+    body = _text(np.column_stack([M[:, :3, 3], q[:, [3, 0, 1, 2]]])).splitlines()
+    text = "#timestamp [ns],p_x [m],p_y [m],p_z [m],q_w [],q_x [],q_y [],q_z []\n" + "".join(
+        f"{s},{b.replace(' ', ',')}\n" for s, b in zip(stamps_ns.tolist(), body, strict=True)
+    )
+    write_text_atomic(path, text)
+
+
+def _write_relmap(path: Path, traj: Trajectory) -> None:
+    if traj.is_planar:
+        cols = [_stamped(traj, "relmap")[:, None], traj.poses.mean]
+        what = "planar: t x y θ"
+        if traj.has_cov:
+            cols.append(traj.poses.cov[:, _TRI3[0], _TRI3[1]])
+            what += " + covariance xx xy xθ yy yθ θθ on (x, y, θ) in the parent frame"
+    else:
+        cols = _quaternion_columns(traj, "relmap")
+        what = "3d: t x y z qx qy qz qw"
+        if traj.has_cov:
+            cols.append(traj.poses.cov[:, _TRI6[0], _TRI6[1]])
+            what += (
+                " + covariance upper triangle row by row on (δx δy δz δφx δφy δφz), translation "
+                "in the parent frame, rotation on the left"
+            )
+    header = f"# relmap trajectory {what}{_frame_names(traj)}\n"
+    write_text_atomic(path, header + _text(np.column_stack(cols)))
 
 
 def write_trajectory(
@@ -319,54 +373,67 @@ def write_trajectory(
 ) -> str:
     """Write ``traj`` to ``path`` atomically; returns the format written.
 
-    ``format``: ``tum``, ``kitti``, ``euroc`` or ``relmap``; by default ``euroc`` for a ``.csv``
-    name, else ``relmap`` when the trajectory is planar or carries a covariance (3-D without
-    covariance: ``relmap`` is TUM). Numbers are written with 17 significant digits (they read
-    back exactly). TUM, KITTI and EuRoC drop the covariance (and KITTI the stamps); planar
-    trajectories are written as 3-D poses in those formats.
+    ``format``: a trajectory format relmap writes (``tum``, ``kitti``, ``euroc`` or ``relmap``:
+    :func:`relmap.io.formats.formats`); by default ``euroc`` for a ``.csv`` name, else
+    ``relmap`` (3-D without covariance: ``relmap`` is TUM with a header line). Numbers are
+    written with 17 significant digits (they read back exactly). TUM, KITTI and EuRoC drop the
+    covariance (and KITTI the stamps); planar trajectories are written as 3-D poses in those
+    formats.
     """
     target = Path(path)
     if not target.resolve().parent.is_dir():
         raise ParameterError(f"cannot write {target}: its folder does not exist")
-    fmt = format or ("euroc" if target.suffix.lower() == ".csv" else "relmap")
-    if fmt not in ("tum", "kitti", "euroc", "relmap"):
-        raise ParameterError(
-            f"trajectories are written as tum, kitti, euroc or relmap; got {fmt!r}"
-        )
-    if fmt != "kitti" and traj.stamps is None:
-        raise ParameterError(
-            f"{fmt} needs time stamps and {traj.source or 'the trajectory'} has none"
-        )
-    M = traj.matrices
-    t = traj.stamps
-    names = f" frame={traj.frame}" * bool(traj.frame) + f" child={traj.child}" * bool(traj.child)
-    if fmt == "kitti":
-        text = _numbers(M[:, :3, :].reshape(-1, 12))
-    elif fmt == "euroc":
-        q = so3.to_quaternion(M[:, :3, :3])
-        stamps_ns = np.round(t * 1e9).astype(np.int64)
-        body = _numbers(np.column_stack([M[:, :3, 3], q[:, [3, 0, 1, 2]]])).splitlines()
-        text = "#timestamp [ns],p_x [m],p_y [m],p_z [m],q_w [],q_x [],q_y [],q_z []\n" + "".join(
-            f"{s},{b.replace(' ', ',')}\n" for s, b in zip(stamps_ns.tolist(), body, strict=True)
-        )
-    elif traj.is_planar and fmt == "relmap":
-        cols = [t[:, None], traj.poses.mean]
-        what = "t x y θ"
-        if traj.has_cov:
-            cols.append(traj.poses.cov[:, _TRI3[0], _TRI3[1]])
-            what += " + covariance xx xy xθ yy yθ θθ on (x, y, θ) in the parent frame"
-        text = f"# relmap trajectory planar: {what}{names}\n" + _numbers(np.column_stack(cols))
-    else:
-        q = so3.to_quaternion(M[:, :3, :3])
-        cols = [t[:, None], M[:, :3, 3], q]
-        what = "t x y z qx qy qz qw"
-        if fmt == "relmap" and traj.has_cov:
-            cols.append(traj.poses.cov[:, _TRI6[0], _TRI6[1]])
-            what += (
-                " + covariance upper triangle row by row on (δx δy δz δφx δφy δφz), translation "
-                "in the parent frame, rotation on the left"
-            )
-        head = f"# relmap trajectory 3d: {what}{names}\n" if fmt == "relmap" else ""
-        text = head + _numbers(np.column_stack(cols))
-    write_text_atomic(target, text)
-    return fmt
+    name = format or ("euroc" if target.suffix.lower() == ".csv" else "relmap")
+    fmt = formats.get(name, "trajectory", writable=True)
+    assert fmt.write is not None  # writable
+    fmt.write(target, traj)
+    return fmt.name
+
+
+# ------------------------------------------------------------------------------- the formats
+def _columns(head: formats.Head) -> int:
+    """How many numbers the first record holds when it is a white-space separated row of
+    numbers (its first field a decimal number), else 0."""
+    fields = head.record.split()
+    return len(fields) if fields and "," not in head.record and is_number(fields[0]) else 0
+
+
+def _is_tum(head: formats.Head) -> bool:
+    return _columns(head) == 8
+
+
+def _is_kitti(head: formats.Head) -> bool:
+    return _columns(head) == 12
+
+
+def _is_relmap(head: formats.Head) -> bool:
+    return _columns(head) in (4, 10, 29)
+
+
+def _is_euroc(head: formats.Head) -> bool:
+    """Comma-separated, its first field a number (the time in nanoseconds)."""
+    return "," in head.record and is_number(head.record.split(",", 1)[0].strip())
+
+
+_TUM = "t x y z qx qy qz qw"
+formats.register(formats.Format("tum", "trajectory", _TUM, _is_tum, _read_tum, _write_tum))
+formats.register(
+    formats.Format(
+        "kitti", "trajectory", "3×4 [R t], 12 numbers", _is_kitti, _read_kitti, _write_kitti
+    )
+)
+formats.register(
+    formats.Format(
+        "euroc", "trajectory", "CSV t[ns],x,y,z,qw,qx,qy,qz", _is_euroc, _read_euroc, _write_euroc
+    )
+)
+formats.register(
+    formats.Format(
+        "relmap",
+        "trajectory",
+        "t x y θ [+ 6 cov.], or TUM + 21 cov.",
+        _is_relmap,
+        _read_relmap,
+        _write_relmap,
+    )
+)
