@@ -9,7 +9,9 @@ ROS bag, no further than its first bytes); each format's ``recognise`` looks at 
 only — the first bytes as stored and the first record of the text (the first line that is neither
 blank nor a ``#`` comment) — and the same :class:`~relmap.io.textfile.Input` goes on to the
 reader. Recognisers do not overlap: an input that two formats claim is an error (a bug of a
-registration), so the order of registration never decides.
+registration), so the order of registration never decides. A *fallback* format claims only what
+no other format claims (g2o: any file of tagged records, so that its reader names a tag it does
+not know, and its line).
 
 **Adding a format**: a reader ``read(source: Input, **options)`` returning what the format
 ``holds`` (a list of :class:`relmap.io.ATRecord` for ``"map"``, a :class:`relmap.io.PoseGraph` for
@@ -84,6 +86,8 @@ class Format(NamedTuple):
     write: Callable[..., None] | None = None
     #: The reader's keyword options beyond the input (a ROS bag's ``topic``).
     options: tuple[str, ...] = ()
+    #: Whether it claims an input only when no other format does (module docstring).
+    fallback: bool = False
 
 
 _REGISTRY: dict[str, Format] = {}
@@ -148,10 +152,12 @@ def _head(source: Input) -> Head:
 
 def recognise(source: str | os.PathLike[str] | Input) -> Format | None:
     """The format of an input (a path is read once, :func:`relmap.io.textfile.read_input`), or
-    None when no format claims it; :class:`FileFormatError` when two do."""
+    None when no format claims it; :class:`FileFormatError` when two do (two fallbacks, or two
+    others)."""
     source = read_input(source)
     head = _head(source)
-    found = tuple(f for f in _REGISTRY.values() if f.recognise(head))
+    claims = [f for f in _REGISTRY.values() if f.recognise(head)]
+    found = tuple(f for f in claims if not f.fallback) or tuple(claims)
     if len(found) > 1:
         raise FileFormatError(source.path, f"ambiguous: recognised as {_names(found)}")
     return found[0] if found else None

@@ -694,7 +694,10 @@ def as_format(graph: PoseGraph, format: GraphFormat | None = None) -> PoseGraph:
 
 
 def _write_as(
-    format: GraphFormat, path: str | os.PathLike[str], graph: PoseGraph, poses: ArrayLike | None
+    format: GraphFormat,
+    path: str | os.PathLike[str],
+    graph: PoseGraph,
+    poses: ArrayLike | None = None,
 ) -> None:
     """The writer registered for ``format``: :func:`write_graph` of :func:`as_format`."""
     _write(path, as_format(graph, format), poses)
@@ -830,8 +833,8 @@ def _is_toro(head: formats.Head) -> bool:
 
 
 def _is_g2o(head: formats.Head) -> bool:
-    """g2o: a file of tagged records whose first tag is not TORO's (g2o's own; a tag relmap
-    does not read is refused by the reader, naming it and its line)."""
+    """g2o, the fallback of tagged records: the first tag is not TORO's (g2o's own; a tag that
+    no format claims is refused by the reader, naming it and its line)."""
     tag = _first_tag(head)
     return tag is not None and tag not in _TORO_TAGS
 
@@ -849,6 +852,7 @@ formats.register(
         _is_g2o,
         _read,
         functools.partial(_write_as, "g2o"),
+        fallback=True,
     )
 )
 formats.register(

@@ -61,6 +61,7 @@ class Run(Protocol):
     @property
     def anis(self) -> float: ...
 
+
 #: Colours: truth, EKF, its ellipses, dead reckoning, landmarks.
 TRUTH, EKF, ELLIPSES, DEAD_RECKONING, LANDMARKS = "k", "C0", "C2", "C1", "C3"
 
