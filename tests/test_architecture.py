@@ -7,6 +7,9 @@
 - The layers: a module imports only from modules in its own layer or the layers below it,
   counting every import (module level, in functions, and under ``TYPE_CHECKING``), parsed
   with :mod:`ast`; and no import cycle joins two modules.
+- Formats have one registration point: ``relmap.io.formats.register``, at the top level of the
+  io module that defines a format's reader and writer; every entry point reads and writes
+  through the registry, and no code elsewhere branches on a format's name.
 
 Checks that the current branch still fails because another part of issue 17 has not landed yet
 are marked ``xfail(strict=False)`` module by module (see PENDING); they pass once it has, and the
@@ -455,3 +458,97 @@ print("relmap.io reads a file")
         "a relative import",
         "._trusted",
     }
+
+
+# ------------------------------------------------------------- formats: one registration point
+#: The library's entry points that read or write maps, pose graphs and trajectories: each goes
+#: through the registry (relmap.io.formats), so a format registered there serves all of them.
+FORMAT_ENTRY_POINTS = {
+    "relmap.io.maps": ("load_map", "save_map"),
+    "relmap.io.mapfile": ("read_records",),
+    "relmap.io.posegraph": ("read_graph", "write_graph"),
+    "relmap.io.trajectory": ("read_trajectory", "recognise_trajectory", "write_trajectory"),
+}
+
+
+def _registrations() -> dict[str, list[ast.Call]]:
+    """Every ``register(...)`` call of src/relmap, by module."""
+    found: dict[str, list[ast.Call]] = {}
+    for module in MODULES:
+        for node in ast.walk(tree(module)):
+            if isinstance(node, ast.Call):
+                name = getattr(node.func, "attr", getattr(node.func, "id", None))
+                if name == "register":
+                    found.setdefault(module, []).append(node)
+    return found
+
+
+def test_formats_have_one_registration_point():
+    """Formats enter the registry only by ``formats.register(formats.Format(...))``, once per
+    format, at the top level of the io module that defines its reader and writer; nothing else
+    touches the registry, and every entry point reads or writes through it."""
+    from relmap.io import formats
+
+    calls = _registrations()
+    assert set(calls) <= {m for m in MODULES if m.startswith("relmap.io.")}, set(calls)
+    top_level = {
+        id(node.value)
+        for module in calls
+        for node in tree(module).body
+        if isinstance(node, ast.Expr) and isinstance(node.value, ast.Call)
+    }
+    for module, found in calls.items():
+        for call in found:
+            assert id(call) in top_level, f"{module}:{call.lineno}: register at the top level"
+            (arg,) = call.args
+            assert isinstance(arg, ast.Call) and getattr(arg.func, "attr", None) == "Format"
+    registered = formats.formats()
+    assert len(registered) == sum(map(len, calls.values())), "a format registered twice?"
+    for fmt in registered:
+        for function in (fmt.read, fmt.write):
+            if function is None:
+                continue
+            function = getattr(function, "func", function)  # functools.partial
+            assert function.__module__ in calls, f"{fmt.name}: {function} is not its module's"
+            assert function.__name__ != "<lambda>", f"{fmt.name}: name its reader and writer"
+    for module in MODULES:
+        if module != "relmap.io.formats":
+            text = MODULES[module].read_text(encoding="utf-8")
+            assert "_REGISTRY" not in text, f"{module} reaches into the registry"
+    for module, names in FORMAT_ENTRY_POINTS.items():
+        functions = dict(_functions(tree(module), module))
+        for name in names:
+            uses = {
+                node.attr
+                for node in ast.walk(functions[f"{module}.{name}"])
+                if isinstance(node, ast.Attribute) and getattr(node.value, "id", "") == "formats"
+            }
+            assert uses, f"{module}.{name} does not go through relmap.io.formats"
+
+
+def test_no_code_branches_on_a_formats_name():
+    """No ``fmt == "tum"`` or ``fmt in ("g2o", "toro")`` outside the module that registers that
+    format (the registry dispatches; a format's own module may know its own names)."""
+    from relmap.io import formats
+
+    owner = {}
+    for fmt in formats.formats():
+        owner[fmt.name] = getattr(fmt.read, "func", fmt.read).__module__
+    found = []
+    for module in LIBRARY:
+        for node in ast.walk(tree(module)):
+            if not isinstance(node, ast.Compare):
+                continue
+            operands = [node.left, *node.comparators]
+            constants = [
+                c.value
+                for side in operands
+                for c in (side.elts if isinstance(side, (ast.Tuple, ast.List, ast.Set)) else [side])
+                if isinstance(c, ast.Constant) and isinstance(c.value, str)
+            ]
+            found += [
+                f"{module}:{node.lineno} {value!r}"
+                for value in constants
+                if value in owner and owner[value] != module
+            ]
+    assert not found, f"code branching on a format's name: {found}"
