@@ -40,12 +40,13 @@ __all__ = [
     "read",
     "recognise",
     "register",
+    "writer",
 ]
 
 #: What a format holds (what its reader returns).
 Kind = Literal["map", "graph", "trajectory"]
 #: Each kind's name in messages, singular and plural.
-_WORDS = {
+_WORDS: dict[Kind, tuple[str, str]] = {
     "map": ("map", "maps"),
     "graph": ("pose graph", "pose graphs"),
     "trajectory": ("trajectory", "trajectories"),
@@ -128,6 +129,13 @@ def get(name: str, *kinds: Kind, writable: bool = False) -> Format:
     verb = "writes" if writable else "reads"
     what = "an unknown format" if fmt is None else f"not a format relmap {verb} {word} as"
     raise ParameterError(f"{name!r} is {what}: relmap {verb} {word} as {_names(known)}")
+
+
+def writer(name: str, *kinds: Kind) -> Callable[..., None]:
+    """The writer of the format called ``name`` (:func:`get` with ``writable``)."""
+    write = get(name, *kinds, writable=True).write
+    assert write is not None  # get checked it
+    return write
 
 
 def _first_record(text: str | None) -> tuple[str, int]:

@@ -43,7 +43,7 @@ def save_map(
     if g.groups:
         raise ParameterError("map files cannot hold dependent ATs (joint groups) yet")
     records = [ATRecord(e.name, e.src, e.dst, e.at) for e in g.edges()]
-    formats.get("map", "map", writable=True).write(path, records, description=description)
+    formats.writer("map", "map")(path, records, description=description)
 
 
 def solve_graph(

@@ -669,7 +669,7 @@ def write_graph(
     see the module docstring). Nothing is written if anything is invalid. The writer is the
     registered one of the graph's format (:mod:`relmap.io.formats`).
     """
-    formats.get(graph.format, "graph", writable=True).write(path, graph, poses=poses)
+    formats.writer(graph.format, "graph")(path, graph, poses=poses)
 
 
 def as_format(graph: PoseGraph, format: GraphFormat | None = None) -> PoseGraph:

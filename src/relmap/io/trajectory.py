@@ -1,6 +1,9 @@
 """Trajectory files: TUM, KITTI (+ times file), EuRoC CSV, relmap's own format with covariance,
 g2o/TORO vertices, and ROS bags (:mod:`relmap.io.rosbag`) — read, recognised by their content,
-and written atomically.
+and written atomically. The four text formats are registered here (:mod:`relmap.io.formats`,
+recognised by the first record: commas, or how many numbers it holds), and
+:func:`read_trajectory`, :func:`recognise_trajectory` and :func:`write_trajectory` go through
+the registry for every format.
 
 Formats (one pose a line; lines starting with ``#`` and blank lines are skipped):
 
@@ -18,7 +21,8 @@ Formats (one pose a line; lines starting with ``#`` and blank lines are skipped)
   ``# relmap trajectory ... frame=F child=C`` is written and read back for the frame names.
   Without covariance the 3-D form is exactly TUM.
 - ``g2o``/``toro``: the vertices of a pose graph (``VERTEX_SE2``, ``VERTEX_SE3:QUAT``,
-  ``VERTEX2``) via :func:`relmap.io.read_graph`, in file order, without stamps.
+  ``VERTEX2``, ``VERTEX3``) as :func:`relmap.io.read_graph` reads them, in file order, without
+  stamps.
 - ROS bags (``.bag``, ``.db3`` and ``.mcap``, or a ROS 2 bag folder): :mod:`relmap.io.rosbag`.
 
 Bad input raises :class:`relmap.errors.FileFormatError` naming the file and line: wrong column
@@ -384,10 +388,8 @@ def write_trajectory(
     if not target.resolve().parent.is_dir():
         raise ParameterError(f"cannot write {target}: its folder does not exist")
     name = format or ("euroc" if target.suffix.lower() == ".csv" else "relmap")
-    fmt = formats.get(name, "trajectory", writable=True)
-    assert fmt.write is not None  # writable
-    fmt.write(target, traj)
-    return fmt.name
+    formats.writer(name, "trajectory")(target, traj)
+    return name
 
 
 # ------------------------------------------------------------------------------- the formats

@@ -208,7 +208,7 @@ def validate_covariance(
     return sym
 
 
-def _lowest_eigenvalues_unless_above(corr: FloatArray, floor: float) -> FloatArray | None:
+def _lowest_eigenvalues_unless_above(corr: FloatArray, floor: float) -> np.ndarray | None:
     """None when every matrix ``corr`` (..., n, n) has all its eigenvalues above ``floor`` as
     one batched Cholesky factorization of ``corr - floor·I`` shows; else the smallest eigenvalue
     of each (computed only then, to find and report the offender)."""
