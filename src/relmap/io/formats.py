@@ -123,8 +123,8 @@ def get(name: str, *kinds: Kind, writable: bool = False) -> Format:
     :class:`ParameterError` listing the formats that would do."""
     known = formats(*kinds, writable=writable)
     fmt = _REGISTRY.get(name)
-    if fmt in known:
-        return fmt  # type: ignore[return-value]
+    if fmt is not None and fmt in known:
+        return fmt
     word = " or ".join(_WORDS[k][1] for k in kinds) or "files"
     verb = "writes" if writable else "reads"
     what = "an unknown format" if fmt is None else f"not a format relmap {verb} {word} as"
@@ -171,8 +171,9 @@ def recognise(source: str | os.PathLike[str] | Input) -> Format | None:
     return found[0] if found else None
 
 
-def _refuse(source: Input, head: Head, kinds: tuple[Kind, ...]) -> FileFormatError:
+def _refuse(source: Input, kinds: tuple[Kind, ...]) -> FileFormatError:
     """The error for an input that no format claims: what it is, and what relmap reads."""
+    head = _head(source)
     known = f"relmap reads {_WORDS[kinds[0]][1]} from {_names(formats(*kinds))}"
     if source.folder:
         return FileFormatError(source.path, f"cannot read: it is a directory; {known}")
@@ -194,7 +195,7 @@ def format_of(source: str | os.PathLike[str] | Input, kinds: tuple[Kind, ...]) -
     source = read_input(source)
     fmt = recognise(source)
     if fmt is None:
-        raise _refuse(source, _head(source), kinds)
+        raise _refuse(source, kinds)
     if fmt.holds not in kinds:
         want, wants = _WORDS[kinds[0]]
         raise FileFormatError(
