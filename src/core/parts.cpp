@@ -1,5 +1,6 @@
 // The list of the core's parts: each part's register function is declared and called here.
 #include "core.hpp"
+#include "association.hpp"
 #include "blocks.hpp"
 #include "ekf.hpp"
 #include "graphfile.hpp"
@@ -19,6 +20,7 @@ void register_parts(nb::module_& m) {
     register_linearize(m);
     register_linearize3(m);
     register_ekf(m);
+    register_association(m);
     register_graphfile(m);
 }
 
