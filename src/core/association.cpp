@@ -32,7 +32,8 @@ void greedy_pass(int64_t m, int64_t L, const double* cost, const bool* mask, Pai
         double c = INF;
         for (int64_t l = 0; l < L; ++l) {
             if (in && !in[l]) continue;
-            const bool better = (row[l] < c) & !s.taken[l];  // (no branch: new leasts are random)
+            // (without a branch: where a new least comes is unpredictable)
+            const bool better = (row[l] < c) & !s.taken[l];
             c = better ? row[l] : c;
             b = better ? l : b;
         }
