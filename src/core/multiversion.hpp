@@ -3,8 +3,7 @@
 // when the module loads (GCC's function multiversioning, resolved by glibc's ifunc: no run-time
 // compilation, no -march=native). Elsewhere (clang, MSVC, musl, other ISAs) the baseline copy
 // alone. The copies differ only by rounding where the compiler contracts a·b + c into a fused
-// multiply-add; a source compiled with -ffp-contract=off (ekf.cpp: CMakeLists.txt) rounds the
-// same in both.
+// multiply-add.
 #pragma once
 
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__GLIBC__)

@@ -2,7 +2,6 @@
 #include "core.hpp"
 #include "association.hpp"
 #include "blocks.hpp"
-#include "ekf.hpp"
 #include "graphfile.hpp"
 #include "linearize.hpp"
 #include "linearize3.hpp"
@@ -19,7 +18,6 @@ void register_parts(nb::module_& m) {
     register_ordering(m);
     register_linearize(m);
     register_linearize3(m);
-    register_ekf(m);
     register_association(m);
     register_graphfile(m);
 }

@@ -398,13 +398,14 @@ def _localize(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(run.summary()))
         return 0
-    cal, p = run.calibration, run.calibration.parameters
+    cal = run.calibration
+    m, sn = cal.motion, cal.sensor
     who = "CMU Plaza (second half)" if run.dataset == "plaza" else f"MRCLAM robot {run.robot}"
     span = run.t[-1] - run.t[0]
     ranges_only = run.dataset == "plaza"
-    sensor = f"σ range {float(p.sigma_r):.3g} m"
+    sensor = f"σ range {float(sn.sigma_range):.3g} m"
     if not ranges_only:
-        sensor += f", σ bearing {float(p.sigma_b):.3g} rad"
+        sensor += f", σ bearing {float(sn.sigma_bearing):.3g} rad"
     if np.isfinite(cal.nu):
         sensor += f", Student-t ν {cal.nu:.3g}"
     auto = isinstance(cal, Calibrated)
@@ -423,8 +424,8 @@ def _localize(args: argparse.Namespace) -> int:
     print(f"{who}: {run.steps} filter times over {span:.1f} s, association {run.associate}")
     print(f"  noise from {source}:")
     print(
-        f"    odometry k_s={float(p.k_s):.3g} m²/m, k_θ={float(p.k_theta):.3g} rad²/rad, "
-        f"k_θs={float(p.k_theta_s):.3g} rad²/m; {sensor}"
+        f"    odometry k_s={float(m.k_s):.3g} m²/m, k_θ={float(m.k_theta):.3g} rad²/rad, "
+        f"k_θs={float(m.k_theta_s):.3g} rad²/m; {sensor}"
     )
     r = run.readings
     print(

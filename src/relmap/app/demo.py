@@ -452,10 +452,11 @@ def lecture(
     """Run the lecture's examples; with ``data`` (the shared data folder) also EKF localization
     of MRCLAM robot 1 (:func:`relmap.app.localize.localize`)."""
     from relmap.app.localize import score
-    from relmap.filter import ekf
+    from relmap import filter as ekf
     from relmap.models import (
         DiffDrive,
         DistanceNoise,
+        Odometry,
         RangeBearingSensor,
         WheelNoise,
         dead_reckon,
@@ -475,8 +476,8 @@ def lecture(
     )
 
     # EKF: a robot drives a circle among landmarks, sensing range and bearing (lecture 13-28);
-    # the simulated log is replayed by relmap.filter.ekf.run (every step predicted, every scan one
-    # stacked correction, all in the compiled core).
+    # the simulated log is replayed by relmap.filter.run (the odometry between scans composed,
+    # every scan one stacked correction).
     sensor = RangeBearingSensor(0.1, np.radians(1.0), fov=np.pi, max_range=8.0, min_range=1.0)
     noise = DistanceNoise(*EKF_NOISE)
     step_u = np.array(EKF_STEP)
@@ -488,7 +489,7 @@ def lecture(
     for k in range(1, EKF_STEPS + 1):
         moved = step_u + rng.multivariate_normal([0.0, 0.0], Su)
         truth.append(se2.compose(truth[-1], increment(moved)))
-        z = sensor.predict(truth[-1], landmarks)
+        z = sensor.h(truth[-1], landmarks)
         seen = sensor.in_view(z)
         z = z + rng.normal(size=z.shape) * [sensor.sigma_range, sensor.sigma_bearing]
         index += [k] * int(seen.sum())
@@ -498,8 +499,7 @@ def lecture(
         np.arange(EKF_STEPS + 1.0), np.tile(step_u, (EKF_STEPS, 1)), np.array(index, np.int64),
         np.concatenate(readings), np.concatenate(seen_ids),
     )  # fmt: skip
-    trace = ekf.run(log, landmarks, ekf.NoiseParameters.of(noise, sensor), start=prior,
-                    association="signatures")  # fmt: skip
+    trace = ekf.run(log, Odometry(noise), sensor, landmarks, start=prior, associate="signatures")
     truth_arr = np.array(truth)
     estimate = trace.estimate()
     dr = dead_reckon(np.tile(step_u, (EKF_STEPS, 1)), noise, start=prior)

@@ -5,8 +5,8 @@ range-bearing readings of 15 surveyed landmarks, Vicon truth) and CMU Plaza (dea
 steps, range-only readings of 4 beacons, GPS truth). :func:`localize` runs one filter and
 returns a :class:`Localization`: the estimate and dead reckoning at every filter time, scored.
 
-The filter is :func:`relmap.filter.ekf.run` (lecture Eqs. 13-28); this module builds its log
-(:meth:`relmap.filter.ekf.Log.from_velocities`: odometry times merged with reading times; MRCLAM's
+The filter is :func:`relmap.filter.run` (lecture Eqs. 13-28); this module builds its log
+(:meth:`relmap.filter.Log.from_velocities`: odometry times merged with reading times; MRCLAM's
 ``(v, ω)`` held until the next record, a Plaza step spread evenly over its span; the readings of
 one time stamp corrected in one stacked update), its noise and its start, and scores what it
 returns. ``associate="signatures"`` pairs a reading with its landmark by barcode (beacon id) and
@@ -37,7 +37,8 @@ from typing import NamedTuple
 import numpy as np
 
 from relmap.errors import ParameterError, ShapeError
-from relmap.filter import autocalibration, ekf
+from relmap import filter as ekf
+from relmap.filter import autocalibration
 from relmap.io.datasets import (
     DatasetKind,
     Mrclam,
@@ -49,8 +50,9 @@ from relmap.io.datasets import (
 )
 from relmap.lie import se2
 from relmap.models.calibration import fit_distance_noise
-from relmap.models.odometry import DistanceNoise
-from relmap.models.range_bearing import RangeBearingSensor
+from relmap.models.base import Measurement
+from relmap.models.odometry import DistanceNoise, Odometry
+from relmap.models.range_bearing import RangeBearingSensor, RangeOnly
 from relmap.typing import ArrayLike, FloatArray
 from relmap.uncertain import gaussian
 from relmap.uncertain.at import AT
@@ -72,10 +74,15 @@ __all__ = [
     "sensor_residuals",
 ]
 
-#: Ways to pair readings with landmarks (:class:`relmap.filter.ekf.Association`).
+#: Ways to pair readings with landmarks (:class:`relmap.filter.Association`).
 ASSOCIATIONS = tuple(a.value for a in ekf.Association)
 #: Standard deviations ``(σx, σy, σθ)`` (m, m, rad) of the filters' start pose.
 START_SIGMA = (0.02, 0.02, 0.02)
+#: Where autocalibration starts: the odometry's ``(k_s, k_theta, k_theta_s)`` (m²/m, rad²/rad,
+#: rad²/m) and the sensor's ``(σ range, σ bearing)`` (m, rad) — noisy, so that the first filters
+#: are cautious and the search comes down to the data.
+START_ODOMETRY = (0.05, 0.02, 0.005)
+START_SENSOR = (0.5, 0.05)
 #: Window (s) of the odometry-noise fit (:func:`relmap.models.calibration.fit_distance_noise`).
 ODOMETRY_WINDOW = 10.0
 #: σ of a normal distribution from its median absolute deviation.
@@ -116,12 +123,19 @@ class Calibration(NamedTuple):
     nu = float("inf")
 
     @property
-    def parameters(self) -> ekf.NoiseParameters:
-        """The filter's noise parameters (Gaussian readings, no bias correction, no mount)."""
-        n = self.odometry
-        return ekf.NoiseParameters(
-            n.k_s, n.k_theta, n.k_theta_s, self.sigma_range, self.sigma_bearing or 0.0
-        )
+    def motion(self) -> Odometry:
+        """The filter's motion model: the fitted odometry noise."""
+        return Odometry(self.odometry)
+
+    @property
+    def sensor(self) -> Measurement:
+        """The filter's sensor: Gaussian readings of the robust σ (no bias correction)."""
+        if self.sigma_bearing is None:
+            return RangeOnly(self.sigma_range)
+        return RangeBearingSensor(self.sigma_range, self.sigma_bearing)
+
+    #: The filter's weights: none (the readings are taken as Gaussian and white).
+    options = {"inflation": 1.0, "clutter": 0.0}
 
 
 class Score(NamedTuple):
@@ -215,7 +229,7 @@ class Localization(NamedTuple):
             "dead_reckoning": self.baseline.as_dict(),
             "nis": {"sum": float(tr.nis), "dof": int(tr.dof), "anis": _finite_or_none(self.anis)},
             "loglik": float(tr.loglik),
-            "parameters": self.calibration.parameters.as_dict(),
+            "parameters": _parameters(self.calibration),
             "calibration": _calibration_summary(self.calibration),
             "readings": {
                 "used": self.readings["used"],
@@ -226,6 +240,12 @@ class Localization(NamedTuple):
             },
             "warnings": self.warnings,
         }
+
+
+def _parameters(cal: Calibration | autocalibration.Calibrated) -> dict[str, float | None]:
+    """The filter's noise by name: the models' parameters, the readings' dof and weights."""
+    values = {k: float(getattr(m, k)) for m in (cal.motion, cal.sensor) for k in m.noise_parameters}
+    return {**values, "nu": _finite_or_none(float(cal.nu)), **cal.options}
 
 
 def _calibration_summary(cal: Calibration | autocalibration.Calibrated) -> dict[str, object]:
@@ -378,10 +398,10 @@ def calibrate_plaza(data: Plaza, *, window: float = ODOMETRY_WINDOW) -> Calibrat
     )
 
 
-def noise_from_run(data: Mrclam, robot: int) -> ekf.NoiseParameters:
-    """The noise parameters estimated on MRCLAM robot ``robot``'s run against its ground truth
+def noise_from_run(data: Mrclam, robot: int) -> Calibration:
+    """The noise estimated on MRCLAM robot ``robot``'s run against its ground truth
     (:func:`calibrate_mrclam`): ``relmap localize --calibrate from-run N``."""
-    return calibrate_mrclam(data, robot).parameters
+    return calibrate_mrclam(data, robot)
 
 
 # ------------------------------------------------------------------------------ the runs
@@ -416,7 +436,7 @@ def _localization(
     cal: Calibration | autocalibration.Calibrated | None,
     truth_at: Callable[[FloatArray], FloatArray],
     *,
-    sensor: ekf.SensorKind,
+    sensor: Measurement,
     ignored: int,
     gate: float,
     progress: Progress | None,
@@ -431,11 +451,12 @@ def _localization(
     def start(t0: float) -> AT:
         return _start(truth_at(np.array([t0]))[0])
 
-    kw = dict(sensor=sensor, gate=gate)  # landmarks named by their rows (the default)
     noise: Calibration | autocalibration.Calibrated
-    if cal is None:
-        noise = autocalibration.calibrate(recording, landmarks, start=start,
-                                          association=associate, progress=tick, **kw)  # fmt: skip
+    if cal is None:  # from the cautious start (autocalibration) to the run's own noise
+        noise = autocalibration.calibrate(
+            recording, Odometry(DistanceNoise(*START_ODOMETRY)), sensor, landmarks, start=start,
+            association=associate, gate=gate, progress=tick,
+        )  # fmt: skip
     else:
         noise = cal
     if isinstance(noise, autocalibration.Calibrated):
@@ -443,13 +464,12 @@ def _localization(
     else:
         log = recording.log(0.0, noise.range_scale)
     tick(STAGES - 1, STAGES)
-    params = noise.parameters
     landmark_map = ekf.LandmarkMap(landmarks)  # checked once for the filter and dead reckoning
-    trace = ekf.run(log, landmark_map, params, start=start(float(log.t[0])),
-                    association=associate, **kw)  # fmt: skip
+    kw = dict(start=start(float(log.t[0])), gate=gate, **noise.options)
+    trace = ekf.run(log, noise.motion, noise.sensor, landmark_map, associate=associate, **kw)
     quiet = log._replace(reading_index=log.reading_index[:0], z=log.z[:0], signature=None)
-    dr = ekf.run(quiet, landmark_map, params, start=start(float(log.t[0])),
-                 association="mahalanobis", readings=False, **kw)  # fmt: skip
+    dr = ekf.run(quiet, noise.motion, noise.sensor, landmark_map, associate="mahalanobis",
+                 readings=False, **kw)  # fmt: skip
     tick(STAGES, STAGES)
     true_landmark = log.signature
     truth = truth_at(log.t)
@@ -507,7 +527,7 @@ def localize_mrclam(
     o = slice(first, None)
     lm_of = data.landmark_index(log.meas_subject)
     # by signatures a reading of no landmark has no candidate; the other modes offer every
-    # reading: what is not in the map is the clutter's (relmap.filter.ekf, autocalibration.loglik)
+    # reading: what is not in the map is the clutter's (relmap.filter, autocalibration.loglik)
     offered = lm_of >= 0 if associate == "signatures" else np.ones(len(lm_of), bool)
     z = np.column_stack([log.meas_range[offered], log.meas_bearing[offered]])
     rec = autocalibration.Recording(
@@ -517,7 +537,7 @@ def localize_mrclam(
     in_run = (log.meas_t >= odo_t[first]) & (log.meas_t <= odo_t[end])
     return _localization(
         ("mrclam", int(robot), associate), rec, data.landmark_xy, calibration, log.truth_at,
-        sensor=ekf.SensorKind.RANGE_BEARING, ignored=int((in_run & ~offered).sum()), gate=gate,
+        sensor=RangeBearingSensor(*START_SENSOR), ignored=int((in_run & ~offered).sum()), gate=gate,
         progress=progress,
     )  # fmt: skip
 
@@ -548,7 +568,7 @@ def localize_plaza(
     )  # fmt: skip
     return _localization(
         ("plaza", None, associate), rec, data.beacon_xy, calibration, data.truth_at,
-        sensor=ekf.SensorKind.RANGE_ONLY, ignored=0, gate=gate, progress=progress,
+        sensor=RangeOnly(START_SENSOR[0]), ignored=0, gate=gate, progress=progress,
     )  # fmt: skip
 
 

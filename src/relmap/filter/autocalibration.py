@@ -2,15 +2,16 @@
 
 The paper's §8 ("revise the error models … a form of autocalibration"). A run's raw streams (a
 :class:`Recording`: odometry velocities and readings with their time stamps) are filtered with
-:func:`relmap.filter.ekf.run` under candidate noise parameters; the parameters are chosen by what
-the
+:func:`relmap.filter.run` under candidate noise parameters — of any motion and measurement
+models (:mod:`relmap.models`): their ``noise_parameters`` are what is fitted, from the values
+the models are given (give cautious, large ones) — and the parameters are chosen by what the
 innovations ``y`` (reading minus prediction) and their covariances ``S`` say. Ground truth is
 never read. Three stages, each a standard tool of filter tuning:
 
 1. **Maximum likelihood** of the innovation sequence (Mehra 1970). The readings are Student-t
    with dof ``nu`` and standard deviations ``sigma_r``, ``sigma_b`` (the t of that variance, so
    a few wild readings do not inflate the σ of all), and the filter is the linear one (``nu``
-   inf in :func:`relmap.filter.ekf.run`): the Kalman filter is the best linear estimator for any
+   inf in :func:`relmap.filter.run`): the Kalman filter is the best linear estimator for any
    noise
    of given second moments, and its ``P`` is then the covariance of its error, heavy tails or
    not. (relmap.filter.ekf's robust reweighting would instead give a reading near its prediction the
@@ -20,8 +21,8 @@ never read. Three stages, each a standard tool of filter tuning:
    (the prediction-error decomposition: the readings of one time share the pose's error).
    Every paired reading counts, the gated ones too (:func:`loglik`): a filter
    that lost its way and gates most of its readings must not look likely for having few terms.
-   Fitted: the odometry's ``k_s, k_theta, k_theta_s`` (:class:`relmap.models.DistanceNoise`),
-   the readings' ``sigma_r, sigma_b`` and ``nu``, and, when the association is not by
+   Fitted: the motion model's noise parameters (odometry: ``k_s, k_theta, k_theta_s`` of
+   :class:`relmap.models.DistanceNoise`), the sensor's (``sigma_range, sigma_bearing``) and ``nu``, and, when the association is not by
    signatures, the clutter density ``clutter`` λ of readings of nothing in the map (a reading is
    of one of the L landmarks or, with probability π, uniform over the measurement volume the
    run's readings span: :func:`loglik`, :func:`measurement_volume`; the search starts at
@@ -29,7 +30,7 @@ never read. Three stages, each a standard tool of filter tuning:
    (Reading biases are not fitted: on MRCLAM their maximum-likelihood values disagreed in sign
    with the ground-truth residuals and lowered coverage.) Found first by
    batched coordinate ascent from a cautious :data:`START` (every candidate move of every
-   parameter one filter of one batch of :func:`relmap.filter.ekf.run`; the step halves when no move
+   parameter one filter of one batch of :func:`relmap.filter.run`; the step halves when no move
    gains; coarse, to :data:`COARSE`), then, once the clock is set, refined by Newton steps
    whose gradient and Hessian come from one batch of finite differences, and polished by the
    coordinate ascent again, to :data:`FINE` (where the differences meet the likelihood's kinks).
@@ -53,17 +54,16 @@ never read. Three stages, each a standard tool of filter tuning:
    two readings apart (at most :data:`PAIR_GAP` s per reading, :func:`innovation_correlation`)
    are measured, and the filter's update counts each reading as the variance factor of the mean
    of such a sequence says (:func:`variance_factor`: ``(1 + ρ)/(1 - ρ)`` for AR(1)): its gain
-   and covariance use ``(inflation σ)²`` (:class:`relmap.filter.ekf.NoiseParameters`' ``inflation``,
+   and covariance use ``(inflation σ)²`` (:func:`relmap.filter.run`'s ``inflation``,
    the factor's square root), while association, gate and likelihood keep ``σ²``, the spread of
    one reading, which the correlation does not change (inflating ``σ`` itself made the
    Mahalanobis association pair neighbouring landmarks wrongly). Repeated
    :data:`WHITENING_PASSES` times as the factor settles. White reading errors give ``ρ ≈ 0``
    and an inflation of 1. (The correlated part modelled instead as Gauss–Markov bias states
    of the filter, their σ and τ fitted to the innovations, was measured on MRCLAM: less
-   accurate (mean RMSE 0.232 m against 0.200) and overconfident; ``docs/consistency.md``,
-   ``benchmarks/study_bias.py``.)
+   accurate (mean RMSE 0.232 m against 0.200) and overconfident; ``docs/consistency.md``.)
 
-Every constant of the method is fixed here, once, for all runs (:data:`START`, :data:`DELAYS`,
+Every constant of the method is fixed here, once, for all runs (:data:`NU_START`, :data:`DELAYS`,
 :data:`SCALES`, :data:`TURN_BIASES`, :data:`PAIR_GAP`, :data:`WHITENING_PASSES`,
 :data:`ITERATIONS`, :data:`COARSE`, :data:`REFINE_STEPS`, :data:`FINE`).
 """
@@ -76,11 +76,13 @@ from typing import NamedTuple
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from relmap import _core
 from relmap.errors import ParameterError, ShapeError
-from relmap.filter import ekf
+from relmap.filter.landmarks import Association, LandmarkMap, Status
+from relmap.filter.logs import Log, Trace, run
+from relmap.models.base import Measurement, Motion
 from relmap.typing import ArrayLike, FloatArray, IntArray
 from relmap.uncertain.at import AT
+from relmap.uncertain.gaussian import log_density
 
 __all__ = [
     "CLUTTER_START",
@@ -92,8 +94,8 @@ __all__ = [
     "NU_MIN",
     "PAIR_GAP",
     "REFINE_STEPS",
+    "NU_START",
     "SCALES",
-    "START",
     "TURN_BIASES",
     "WHITENING_PASSES",
     "Calibrated",
@@ -106,9 +108,9 @@ __all__ = [
     "variance_factor",
 ]
 
-#: Where the search starts (odometry m²/m, rad²/rad, rad²/m; σ m, rad; Student-t dof): noisy,
-#: so that the first filters are cautious and the search comes down to the data.
-START = ekf.NoiseParameters(0.05, 0.02, 0.005, 0.5, 0.05, nu=4.0)
+#: The readings' Student-t dof where the search starts (the models' own parameters start where
+#: they are given: cautious, so that the search comes down to the data).
+NU_START = 4.0
 #: The clutter fraction (readings of nothing in the map) where the search starts, when the
 #: association is not by signatures (:func:`loglik`).
 CLUTTER_START = 0.1
@@ -146,7 +148,8 @@ _MAX_STEP = 0.5
 _LINE = (0.25, 0.5, 1.0, 1.5)
 
 Progress = Callable[[int, int], None]
-Runner = Callable[..., ekf.Trace]
+Params = dict[str, float]
+Runner = Callable[[Log, Params], Trace]
 
 
 class Recording(NamedTuple):
@@ -165,10 +168,9 @@ class Recording(NamedTuple):
     signature: IntArray | None
     end: float
 
-    def log(self, delay: float = 0.0, scale: float = 1.0, turn_bias: float = 0.0) -> ekf.Log:
-        """The filter's :class:`relmap.filter.ekf.Log`, odometry stamps moved by ``delay`` (s),
-        ranges
-        divided by ``scale`` and ``turn_bias`` (rad/s) subtracted from the turn rates ``w``;
+    def log(self, delay: float = 0.0, scale: float = 1.0, turn_bias: float = 0.0) -> Log:
+        """The filter's :class:`relmap.filter.Log`, odometry stamps moved by ``delay`` (s),
+        ranges divided by ``scale`` and ``turn_bias`` (rad/s) subtracted from the turn rates ``w``;
         odometry moved past ``end`` is dropped."""
         z = np.array(self.z, dtype=np.float64)
         if z.ndim == 1:
@@ -177,31 +179,37 @@ class Recording(NamedTuple):
             z[:, 0] /= scale
         t = np.asarray(self.odometry_t, dtype=np.float64) + delay
         w = np.asarray(self.w, dtype=np.float64) - turn_bias
-        return ekf.Log.from_velocities(t, self.v, w, self.reading_t, z, self.signature,
-                                       end=self.end)  # fmt: skip
+        return Log.from_velocities(t, self.v, w, self.reading_t, z, self.signature, end=self.end)
 
 
 class Calibrated(NamedTuple):
-    """What :func:`calibrate` found."""
+    """What :func:`calibrate` found: the filter's noise, and how it was found.
 
-    #: The filter's noise, whitening included: pass it to :func:`relmap.filter.ekf.run`. Its σ are
-    #: the readings' standard deviations and its ``nu`` is inf: the filter is the linear one.
-    parameters: ekf.NoiseParameters
-    #: The readings' Student-t dof (with the σ of ``parameters`` as standard deviations).
+    Run the calibrated filter with ``relmap.filter.run(calibrated.log(recording), ...,
+    **calibrated.options)`` and the models ``motion``, ``sensor``.
+    """
+
+    #: The motion model with its fitted noise parameters.
+    motion: Motion
+    #: The sensor with its fitted σ: the readings' standard deviations.
+    sensor: Measurement
+    #: The readings' Student-t dof (of the sensor's σ as standard deviations); the filter itself
+    #: is the linear one (``nu`` inf in :func:`relmap.filter.run`).
     nu: float
+    #: The clutter density λ (0 with signatures).
+    clutter: float
     #: Odometry clock offset (s): build the log with ``recording.log(*calibrated.clock)``.
     delay: float
-    #: Range scale (1 for range-bearing sensors).
+    #: Range scale (1 unless the sensor reads ranges only).
     scale: float
-    #: The update's reading σ factor of the whiteness stage (√ of the variance factor; also
-    #: ``parameters.inflation``).
+    #: The update's reading σ factor of the whiteness stage (√ of the variance factor).
     inflation: float
     #: Lag-one correlation of consecutive range innovations, before whitening and after.
     correlation: tuple[float, float]
     #: Log-likelihood of the innovations at the stage-1/2 parameters (before whitening).
     loglik: float
     #: The final filter's trace (readings kept: innovations, S, statuses).
-    trace: ekf.Trace
+    trace: Trace
     #: The clutter's volume per landmark ``V`` (:func:`loglik`): the measurement volume
     #: (:func:`measurement_volume`) over the number of landmarks.
     volume: float = 1.0
@@ -214,23 +222,35 @@ class Calibrated(NamedTuple):
         return self.delay, self.scale, self.turn_bias
 
     @property
+    def options(self) -> dict[str, float]:
+        """The filter's weights for :func:`relmap.filter.run`: ``inflation``, ``clutter``."""
+        return {"inflation": self.inflation, "clutter": self.clutter}
+
+    @property
     def clutter_fraction(self) -> float:
         """The fitted fraction of readings of nothing in the map, ``λV/(1 + λV)``."""
-        lv = float(self.parameters.clutter) * self.volume
+        lv = self.clutter * self.volume
         return lv / (1.0 + lv)
 
     def as_dict(self) -> dict[str, object]:
-        """JSON-ready."""
+        """JSON-ready: the models' parameters by name, then how they were found."""
         c0, c1 = self.correlation
+
+        def number(v: float) -> float | None:
+            return float(v) if np.isfinite(v) else None
+
+        models = {k: number(getattr(m, k)) for m in (self.motion, self.sensor)
+                  for k in m.noise_parameters}  # fmt: skip
         return {
-            **self.parameters.as_dict(),
-            "nu": self.nu if np.isfinite(self.nu) else None,
+            **models,
+            "nu": number(self.nu),
+            "clutter": self.clutter,
             "delay": self.delay,
             "range_scale": self.scale,
             "turn_bias": self.turn_bias,
             "inflation": self.inflation,
-            "correlation_before": c0 if np.isfinite(c0) else None,
-            "correlation_after": c1 if np.isfinite(c1) else None,
+            "correlation_before": number(c0),
+            "correlation_after": number(c1),
             "loglik": self.loglik,
             "clutter_fraction": self.clutter_fraction,
             "volume": self.volume,
@@ -238,16 +258,17 @@ class Calibrated(NamedTuple):
 
 
 def innovation_correlation(
-    trace: ekf.Trace, t: ArrayLike, *, lag: int = 1, gap: float = PAIR_GAP
+    trace: Trace, t: ArrayLike, *, lag: int = 1, gap: float = PAIR_GAP
 ) -> tuple[float, int]:
-    """Correlation of the normalized range innovations ``y_r/√S_rr`` of used readings of one
+    """Correlation of the normalized innovations ``y_r/√S_rr`` (the reading's first component,
+    a range for polar sensors) of used readings of one
     landmark ``lag`` readings apart and at most ``lag × gap`` s apart (one filter's trace; ``t``
     (M,) the readings' times). Normalized innovations are clipped to ±3 robust σ
     (1.4826·MAD), so a few wild readings do not decide it. Returns the correlation and the
     number of pairs (NaN with fewer than 10 pairs)."""
     y, S = np.asarray(trace.y), np.asarray(trace.S)
     yr, sr = (y, S) if y.ndim == 1 else (y[:, 0], S[:, 0, 0])
-    idx = np.flatnonzero(np.asarray(trace.status) == ekf.Status.USED)
+    idx = np.flatnonzero(np.asarray(trace.status) == Status.USED)
     if len(idx) <= lag:
         return float("nan"), 0
     tt, lm = np.asarray(t, dtype=np.float64)[idx], np.asarray(trace.landmark)[idx]
@@ -281,19 +302,14 @@ def variance_factor(rho1: float, rho2: float, pairs: int) -> float:
 def logpdf(d2: ArrayLike, logdet: ArrayLike, d: int, nu: ArrayLike) -> FloatArray:
     """Log-density of a ``d``-dimensional reading model at an innovation with Mahalanobis
     ``d2 = yᵀS⁻¹y`` and ``logdet = log det S``: Student-t with dof ``nu`` > 2 and *covariance*
-    ``S`` (scale ``S (ν - 2)/ν``), or the normal for ``nu`` inf (all broadcast together).
-
-    The density is relmap's compiled one (the filter's likelihood, scale parametrization), at
-    the scale's Mahalanobis distance ``d2 ν/(ν - 2)`` and log-determinant
-    ``logdet + d log((ν - 2)/ν)``."""
+    ``S`` (scale ``S (ν - 2)/ν``), or the normal for ``nu`` inf (all broadcast together):
+    :func:`relmap.uncertain.gaussian.log_density` of the scale's distance and determinant."""
     d2, logdet, v = np.broadcast_arrays(
         *(np.asarray(a, dtype=np.float64) for a in (d2, logdet, nu))
     )
     with np.errstate(invalid="ignore", divide="ignore"):
         ratio = np.where(np.isinf(v), 1.0, (v - 2.0) / v)  # scale / covariance
-        args = (d2 / ratio, logdet + d * np.log(ratio), v)
-    flat = [np.ascontiguousarray(a, dtype=np.float64).ravel() for a in args]
-    return _core.log_density(*flat[:2], d, flat[2]).reshape(d2.shape)
+        return log_density(d2 / ratio, logdet + d * np.log(ratio), d, v)
 
 
 def measurement_volume(z: ArrayLike) -> float:
@@ -311,7 +327,7 @@ def measurement_volume(z: ArrayLike) -> float:
 
 
 def loglik(
-    trace: ekf.Trace, nu: ArrayLike, clutter: ArrayLike = 0.0, volume: float = 1.0
+    trace: Trace, nu: ArrayLike, clutter: ArrayLike = 0.0, volume: float = 1.0
 ) -> FloatArray:
     """Log-likelihood (*batch) of every paired reading's innovation, used or gated: Student-t
     with dof ``nu`` (*batch; inf: Gaussian) and covariance ``S``, each reading's innovation
@@ -321,8 +337,7 @@ def loglik(
     (``trace.y``, ``S``) counts that error once per reading, a composite likelihood whose
     maximum strays further than its curvature says (docs/consistency.md: a simulated robot
     reading five landmarks a scan, σ_b up to 8.5% too large where this one is within 0.5%).
-    With a clutter density ``clutter`` λ > 0 (*batch; :class:`relmap.filter.ekf.
-    NoiseParameters`) a reading is of one of the map's L landmarks, each equally likely a
+    With a clutter density ``clutter`` λ > 0 (*batch; :func:`relmap.filter.run`'s) a reading is of one of the map's L landmarks, each equally likely a
     priori (its paired landmark's density g), or, with probability π, of clutter uniform over
     the sensor's measurement volume (:func:`measurement_volume`): the density
     ``(1 - π) g / L + π / V_m`` is, up to the constant ``-log L``, ``log(g + λ) - log(1 + λV)``
@@ -335,7 +350,7 @@ def loglik(
         y, S = y[..., None], S[..., None, None]
     d = y.shape[-1]
     status = np.asarray(trace.status)
-    paired = (status == ekf.Status.USED) | (status == ekf.Status.GATED)
+    paired = (status == Status.USED) | (status == Status.GATED)
     y = np.where(paired[..., None], y, 0.0)
     S = np.where(paired[..., None, None], S, np.eye(d))
     sign, logdet = np.linalg.slogdet(S)
@@ -352,38 +367,25 @@ def loglik(
     with np.errstate(invalid="ignore"):
         mixed = np.logaddexp(each, loglam) - norm
     ok = paired & (sign > 0) & np.isfinite(mixed)
-    lost = (status == ekf.Status.LOST).sum(axis=-1)
+    lost = (status == Status.LOST).sum(axis=-1)
     withc = (np.where(ok, mixed, 0.0).sum(axis=-1) - 1e3 * (paired & ~ok).sum(axis=-1)
              + lost * (loglam - norm)[..., 0])  # fmt: skip
     return np.where(lam > 0, withc, total)
 
 
-def _free(sensor: ekf.SensorKind, association: ekf.Association) -> tuple[str, ...]:
-    free = ("k_s", "k_theta", "k_theta_s", "sigma_r", "nu")
-    free = (*free, "sigma_b") if sensor is ekf.SensorKind.RANGE_BEARING else free
-    # with signatures the signature names the landmark: no clutter
-    return free if association is ekf.Association.SIGNATURES else (*free, "clutter")
-
-
-def _moves(p: ekf.NoiseParameters, free: tuple[str, ...], step: float) -> ekf.NoiseParameters:
-    """A batch: each free field of ``p`` times ``exp(-step)``, then times ``exp(step)``."""
-    base = {k: float(v) for k, v in p._asdict().items()}
-    cols: dict[str, list[float]] = {k: [] for k in base}
+def _moves(p: Params, free: tuple[str, ...], step: float) -> dict[str, FloatArray]:
+    """A batch: each free parameter of ``p`` times ``exp(-step)``, then times ``exp(step)``."""
+    cols: dict[str, list[float]] = {k: [] for k in p}
     for name in free:
         for sign in (-1.0, 1.0):
-            for k, v in base.items():
+            for k, v in p.items():
                 cols[k].append(v * float(np.exp(sign * step)) if k == name else v)
-    return ekf.NoiseParameters(**{k: np.array(v) for k, v in cols.items()})
+    return {k: np.array(v) for k, v in cols.items()}
 
 
 def _fit(
-    log: ekf.Log,
-    p: ekf.NoiseParameters,
-    free: tuple[str, ...],
-    run: Runner,
-    step: float,
-    tolerance: float,
-) -> tuple[ekf.NoiseParameters, float]:
+    log: Log, p: Params, free: tuple[str, ...], run: Runner, step: float, tolerance: float
+) -> tuple[Params, float]:
     """Batched coordinate ascent of the innovations' log-likelihood from ``p``, log-scale
     moves of ``step`` halved whenever no move gains, until the step is below ``tolerance``."""
     best = float(run(log, p).loglik)
@@ -392,31 +394,28 @@ def _fit(
             break
         batch = _moves(p, free, step)
         ll = np.asarray(run(log, batch).loglik, dtype=np.float64)
-        nu = np.asarray(batch.nu)
+        nu = batch["nu"]
         ll = np.where(np.isfinite(ll) & (nu >= NU_MIN) & (nu <= NU_MAX), ll, -np.inf)
         moved = ll.reshape(len(free), 2)
         # every field to its better move where that gains; keep the best of that and the best move
-        combined = p._asdict()
+        combined = dict(p)
         for j, name in enumerate(free):
             if moved[j].max() > best:
-                combined[name] = float(np.asarray(getattr(batch, name))[2 * j + moved[j].argmax()])
+                combined[name] = float(batch[name][2 * j + moved[j].argmax()])
         i = int(ll.argmax())
         if ll[i] <= best + 1e-6:
             step /= 2
             continue
-        both = ekf.NoiseParameters(**combined)
-        l_both = float(run(log, both).loglik)
+        l_both = float(run(log, combined).loglik)
         if l_both >= ll[i]:
-            p, best = both, l_both
+            p, best = combined, l_both
         else:
-            p, best = ekf.NoiseParameters(*(float(np.asarray(v)[i]) for v in batch)), float(ll[i])
+            p, best = {k: float(v[i]) for k, v in batch.items()}, float(ll[i])
     return p, best
 
 
-def _refine(
-    log: ekf.Log, p: ekf.NoiseParameters, free: tuple[str, ...], run: Runner
-) -> tuple[ekf.NoiseParameters, float]:
-    """Newton ascent of the log-likelihood over the free fields' logarithms from ``p``
+def _refine(log: Log, p: Params, free: tuple[str, ...], run: Runner) -> tuple[Params, float]:
+    """Newton ascent of the log-likelihood over the free parameters' logarithms from ``p``
     (coordinate ascent stalls on the ridges where two noises trade, such as driving noise
     against range σ), at most :data:`REFINE_STEPS` steps. Each step: the gradient and the
     Hessian by finite differences of :data:`_DIFF` (central for the gradient and the diagonal,
@@ -425,7 +424,7 @@ def _refine(
     not into); the Newton step, each component within ±:data:`_MAX_STEP`, tried at the lengths
     :data:`_LINE` in a second batch. It stops when no length gains. ``nu`` stays in
     [:data:`NU_MIN`, :data:`NU_MAX`], the others within a factor 100 of ``p``."""
-    x = np.log([float(getattr(p, k)) for k in free])
+    x = np.log([p[k] for k in free])
     n, h = len(free), _DIFF
     # each field within ×/÷ 100 of where the coarse fit left it; nu in [NU_MIN, NU_MAX]
     nu = np.array([k == "nu" for k in free])
@@ -436,10 +435,10 @@ def _refine(
     eye = np.eye(n)
 
     def loglik_at(points: FloatArray) -> FloatArray:
-        cols = {k: np.full(len(points), float(v)) for k, v in p._asdict().items()}
+        cols = {k: np.full(len(points), v) for k, v in p.items()}
         for j, name in enumerate(free):
             cols[name] = np.exp(points[:, j])
-        ll = np.asarray(run(log, ekf.NoiseParameters(**cols)).loglik, dtype=np.float64)
+        ll = np.asarray(run(log, cols).loglik, dtype=np.float64)
         return np.where(np.isfinite(ll), ll, -np.inf)
 
     best = float(loglik_at(x[None])[0])
@@ -463,19 +462,15 @@ def _refine(
         if ll[k] <= best + 1e-6:
             break
         x, best = trial[k], float(ll[k])
-    return p._replace(**{k: float(np.exp(v)) for k, v in zip(free, x, strict=True)}), best
+    return {**p, **{k: float(np.exp(v)) for k, v in zip(free, x, strict=True)}}, best
 
 
 def _clock(
-    recording: Recording,
-    p: ekf.NoiseParameters,
-    run: Runner,
-    sensor: ekf.SensorKind,
-    association: ekf.Association,
+    recording: Recording, p: Params, run: Runner, ranges_only: bool, signatures: bool
 ) -> tuple[float, float, float]:
-    """The maximum-likelihood odometry delay over :data:`DELAYS` (and, for range-only sensors,
-    range scale over :data:`SCALES`), then, with association by signatures, the turn-rate bias
-    (:data:`TURN_BIASES`, refined), at the parameters ``p``: ``(delay, scale, turn_bias)``.
+    """The maximum-likelihood odometry delay over :data:`DELAYS` (and, for a sensor of ranges
+    only, range scale over :data:`SCALES`), then, with association by signatures, the turn-rate
+    bias (:data:`TURN_BIASES`, refined), at the parameters ``p``: ``(delay, scale, turn_bias)``.
     Without signatures the bias stays 0: a bias turns the robot onto other pairings, and the
     likelihood then rewards the pairings (other robots taken for landmarks) rather than the
     motion (MRCLAM, Mahalanobis: fitted biases of up to 0.004 rad/s where the runs with
@@ -484,10 +479,10 @@ def _clock(
     ll = [float(run(recording.log(d), p).loglik) for d in DELAYS]
     delay = DELAYS[int(np.nanargmax(ll))]
     scale = 1.0
-    if sensor is ekf.SensorKind.RANGE_ONLY:
+    if ranges_only:
         ll = [float(run(recording.log(delay, s), p).loglik) for s in SCALES]
         scale = SCALES[int(np.nanargmax(ll))]
-    if association is not ekf.Association.SIGNATURES:
+    if not signatures:
         return delay, scale, 0.0
 
     def cost(b: float) -> float:
@@ -505,64 +500,72 @@ def _clock(
 
 def calibrate(
     recording: Recording,
-    landmarks: ArrayLike,
+    motion: Motion,
+    sensor: Measurement,
+    landmarks: ArrayLike | LandmarkMap,
     *,
     start: Callable[[float], AT],
-    sensor: ekf.SensorKind | str = ekf.SensorKind.RANGE_BEARING,
-    association: ekf.Association | str = ekf.Association.SIGNATURES,
-    landmark_signatures: ArrayLike | None = None,
+    association: Association | str = Association.SIGNATURES,
     gate: float = 0.99,
     progress: Progress | None = None,
 ) -> Calibrated:
     """The noise of ``recording``'s filter from its own innovations (module docstring).
 
-    ``start(t0)`` gives the filter's start AT at the log's first time ``t0`` (which moves with
-    the clock offset). ``association``, ``gate`` and ``landmark_signatures`` as in
-    :func:`relmap.filter.ekf.run`: the calibration filters with the association it is for.
+    ``motion`` and ``sensor`` are the filter's models; their ``noise_parameters`` are fitted,
+    from the values given (cautious, large ones: the search comes down to the data), with the
+    readings' Student-t dof (from :data:`NU_START`) and, without signatures, the clutter
+    density. ``start(t0)`` gives the filter's start AT at the log's first time ``t0`` (which
+    moves with the clock offset). ``association`` and ``gate`` as in
+    :func:`relmap.filter.run`: the calibration filters with the association it is for.
     """
-    kind = ekf.SensorKind(sensor)
-    lm = np.asarray(landmarks, dtype=np.float64)
-    if lm.ndim != 2 or lm.shape[1] != 2 or not len(lm):
-        raise ShapeError(f"landmarks must have shape (L, 2) with L ≥ 1; got {lm.shape}")
+    assoc = Association.parse(association, "association")
+    lmap = landmarks if isinstance(landmarks, LandmarkMap) else LandmarkMap(landmarks)
     if not len(recording.reading_t):
         raise ParameterError("cannot calibrate from innovations: the run has no readings")
-    landmark_map = ekf.LandmarkMap(lm, landmark_signatures)  # checked once for every filter
+    mnames, snames = motion.noise_parameters, sensor.noise_parameters
+    if set(mnames) & set(snames) or {"nu", "clutter"} & {*mnames, *snames}:
+        raise ParameterError("the motion's and the sensor's parameters need distinct names")
 
-    def run(log: ekf.Log, p: ekf.NoiseParameters) -> ekf.Trace:
-        trace = ekf.run(
-            log, landmark_map, p._replace(nu=np.inf), start=start(float(log.t[0])),
-            keep="summary", association=association, gate=gate, sensor=kind,
-        )  # fmt: skip
-        return trace._replace(loglik=loglik(trace, p.nu, p.clutter, volume))
+    def models(p: Params | dict[str, FloatArray]) -> tuple[Motion, Measurement]:
+        return (motion.replace(**{k: p[k] for k in mnames}),
+                sensor.replace(**{k: p[k] for k in snames}))  # fmt: skip
 
-    assoc = ekf.Association(association)
-    free = _free(kind, assoc)
+    def run_filters(log: Log, p: Params | dict[str, FloatArray]) -> Trace:
+        m, s = models(p)
+        trace = run(log, m, s, lmap, start=start(float(log.t[0])), associate=assoc, gate=gate,
+                    inflation=p.get("inflation", 1.0), clutter=p["clutter"], keep="summary")  # fmt: skip
+        return trace._replace(loglik=loglik(trace, p["nu"], p["clutter"], volume))
+
+    signatures = assoc is Association.SIGNATURES
+    free = (*mnames, *snames, "nu") + (() if signatures else ("clutter",))
     # a reading is of one of the L landmarks, equally likely a priori: the clutter's volume
     # per landmark (loglik)
-    volume = measurement_volume(recording.z) / len(lm)
-    p0 = START
-    if "clutter" in free:  # λ of the clutter fraction CLUTTER_START: π = λV / (1 + λV)
-        p0 = START._replace(clutter=CLUTTER_START / ((1.0 - CLUTTER_START) * volume))
+    volume = measurement_volume(recording.z) / len(lmap)
+    p0: Params = {**{k: float(getattr(motion, k)) for k in mnames},
+                  **{k: float(getattr(sensor, k)) for k in snames}, "nu": NU_START, "clutter": 0.0}  # fmt: skip
+    if not signatures:  # λ of the clutter fraction CLUTTER_START: π = λV / (1 + λV)
+        p0["clutter"] = CLUTTER_START / ((1.0 - CLUTTER_START) * volume)
     tick = progress or (lambda k, n: None)
     tick(0, 4)
-    p, _ = _fit(recording.log(), p0, free, run, _STEP, COARSE)
+    p, _ = _fit(recording.log(), p0, free, run_filters, _STEP, COARSE)
     tick(1, 4)
-    delay, scale, turn_bias = _clock(recording, p, run, kind, assoc)
+    ranges_only = bool(sensor.ranges) and not sensor.angles
+    delay, scale, turn_bias = _clock(recording, p, run_filters, ranges_only, signatures)
     log = recording.log(delay, scale, turn_bias)
-    p, _ = _refine(log, p, free, run)
-    p, fitted = _fit(log, p, free, run, COARSE / 2, FINE)  # where Newton meets noise
+    p, _ = _refine(log, p, free, run_filters)
+    p, fitted = _fit(log, p, free, run_filters, COARSE / 2, FINE)  # where Newton meets noise
     tick(2, 4)
     t = log.t[log.reading_index]
     factor, rho0 = 1.0, float("nan")
     for k in range(WHITENING_PASSES):
-        tr = run(log, p._replace(inflation=factor))
+        tr = run_filters(log, {**p, "inflation": factor})
         (r1, n1), (r2, _) = (innovation_correlation(tr, t, lag=j) for j in (1, 2))
         rho0 = r1 if k == 0 else rho0
         factor = float(np.sqrt(variance_factor(r1, r2, n1)))
     tick(3, 4)
-    q = p._replace(inflation=factor)
-    trace = run(log, q)
+    trace = run_filters(log, {**p, "inflation": factor})
     tick(4, 4)
     rho = innovation_correlation(trace, t)[0]
-    return Calibrated(q._replace(nu=np.inf), float(p.nu), delay, scale, factor, (rho0, rho),
-                      fitted, trace, volume, turn_bias)  # fmt: skip
+    m, s = models(p)
+    return Calibrated(m, s, float(p["nu"]), float(p["clutter"]), delay, scale, factor,
+                      (rho0, rho), fitted, trace, volume, turn_bias)  # fmt: skip

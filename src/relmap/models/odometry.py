@@ -30,22 +30,25 @@ Noise models (the covariance of one step):
   ``δrot1 = δrot2 = Δθ/2``, ``δtrans = Δs``: ``var δrot = α1 δrot² + α2 δtrans²``,
   ``var δtrans = α3 δtrans² + α4 (δrot1² + δrot2²)`` (note: quadratic in the step, so its
   accumulated variance shrinks as steps get finer).
+
+:class:`Odometry` is the motion model of a filter (:mod:`relmap.models.base`): a noise model
+with its integration (and :class:`DiffDrive` for wheel increments), ``x⁻ = x ⊕ Δ(u)`` — the
+paper's compounding (Eqs. 1-4) with the step's AT — whose noise enters through the step.
 """
 
 from __future__ import annotations
 
-import functools
+import dataclasses
 import math
-from typing import Literal
+from typing import ClassVar
 
 import numpy as np
 
-from relmap import _core
 from relmap._layout import components_outermost, matrix, stack_last
-from relmap.errors import ArgumentTypeError, ParameterError, ShapeError
+from relmap.errors import ParameterError, ShapeError
 from relmap.lie import se2
-from relmap.typing import ArrayLike, FloatArray
-from relmap.uncertain import _sym3 as sym3
+from relmap.models.base import Model, RelativeMotion, positive
+from relmap.typing import ArrayLike, FloatArray, Option
 from relmap.uncertain.at import AT, compound, compound_chain
 from relmap.uncertain.gaussian import check_finite, congruence, real_array
 from relmap.uncertain.pose import check_result
@@ -56,6 +59,7 @@ __all__ = [
     "DistanceNoise",
     "Integration",
     "Noise",
+    "Odometry",
     "WheelNoise",
     "dead_reckon",
     "increment",
@@ -63,13 +67,21 @@ __all__ = [
     "step",
 ]
 
-Integration = Literal["midpoint", "arc"]
+
+
+class Integration(Option):
+    """How a step ``(Δs, Δθ)`` becomes a relative motion."""
+
+    MIDPOINT = "midpoint"  #: lecture Eq. 10: along the heading at the step's middle
+    ARC = "arc"  #: along the arc of constant curvature
+
+
 Sym2 = tuple[FloatArray, FloatArray, FloatArray]
 
 
 def _sym2(e: Sym2) -> FloatArray:
     s00, s01, s11 = e
-    return matrix([[s00, s01], [s01, s11]], np.shape(s00))
+    return matrix([[s00, s01], [s01, s11]], np.broadcast_shapes(*(np.shape(v) for v in e)))
 
 
 def _number(value: object, name: str) -> float:
@@ -137,17 +149,24 @@ _ARC_SERIES = 1e-2
 
 
 def increment(
-    motion: ArrayLike, integration: Integration = "midpoint", *, jacobian: bool = False
+    motion: ArrayLike, integration: Integration | str = "midpoint", *, jacobians: bool = False
 ) -> FloatArray | tuple[FloatArray, FloatArray]:
     """The step ``Δ = (Δx, Δy, Δθ)`` (..., 3) in the robot frame from ``(Δs, Δθ)`` (..., 2).
 
-    With ``jacobian=True`` also returns ``∂Δ/∂(Δs, Δθ)``, (..., 3, 2).
+    With ``jacobians=True`` also returns ``∂Δ/∂(Δs, Δθ)``, (..., 3, 2).
     """
     m = _pairs(motion, "motion (Δs, Δθ)")
+    return _increment(m, Integration.parse(integration, "integration"), jacobians)
+
+
+def _increment(
+    m: FloatArray, integration: Integration, jacobians: bool
+) -> FloatArray | tuple[FloatArray, FloatArray]:
+    """:func:`increment` of checked steps ``m`` (..., 2)."""
     ds, dt = m[..., 0], m[..., 1]
     a, b, da, db = _increment_parts(dt, integration)
     out = stack_last([ds * a, ds * b, dt], dt.shape)
-    if not jacobian:
+    if not jacobians:
         return out
     J = matrix([[a, ds * da], [b, ds * db], [0.0, 1.0]], dt.shape)
     return out, J
@@ -157,13 +176,13 @@ def _increment_parts(
     dt: FloatArray, integration: Integration
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """``(a, b, a', b')`` with ``Δ = (Δs·a(Δθ), Δs·b(Δθ), Δθ)`` and their derivatives in Δθ."""
-    if integration == "midpoint":
+    if integration is Integration.MIDPOINT:
         if isinstance(dt, float):  # one step: math's cos and sin (bitwise numpy's, and faster)
             c, s = math.cos(dt / 2), math.sin(dt / 2)
         else:
             c, s = np.cos(dt / 2), np.sin(dt / 2)
         return c, s, -s / 2, c / 2
-    if integration == "arc":
+    if integration is Integration.ARC:
         small = np.abs(dt) < _ARC_SERIES
         t = np.where(small, 1.0, dt)
         t2 = dt * dt
@@ -178,61 +197,25 @@ def _increment_parts(
 
 
 # ------------------------------------------------------------------ noise models
-class _Noise:
-    """Base of the noise models: non-negative parameters, validated once, immutable."""
-
-    __slots__ = ()
-    _fields: tuple[str, ...] = ()
-
-    def __init__(self, *values: float, **named: float) -> None:
-        given = dict(zip(self._fields, values, strict=False)) | named
-        unknown = set(given) - set(self._fields)
-        if unknown:
-            raise ArgumentTypeError(
-                f"unknown parameter(s) {sorted(unknown)} of {type(self).__name__}"
-            )
-        for name in self._fields:
-            object.__setattr__(self, name, _non_negative(given.get(name, 0.0), name))
-
-    def __setattr__(self, name: str, value: object) -> None:
-        raise AttributeError(f"{type(self).__name__} is immutable")
-
-    def __repr__(self) -> str:
-        args = ", ".join(f"{f}={getattr(self, f)}" for f in self._fields)
-        return f"{type(self).__name__}({args})"
-
-    def entries(self, motion: FloatArray, drive: DiffDrive | None = None) -> Sym2:
-        """The distinct entries ``(s00, s01, s11)`` of the covariance of ``(Δs, Δθ)``."""
-        raise NotImplementedError
-
-    def core_params(self, integration: Integration) -> FloatArray | None:
-        """The compiled core's parameter row (1, 13) of this odometry model when the core has
-        it built in (:class:`DistanceNoise` with midpoint integration), else None."""
-        return None
-
-    def step_covariance(
-        self, motion: FloatArray, integration: Integration, drive: DiffDrive | None = None
-    ) -> FloatArray:
-        """Covariance (..., 3, 3) of the step Δ in the robot frame, ``J Σ Jᵀ`` with
-        ``J = ∂Δ/∂(Δs, Δθ)`` and Σ the covariance of ``(Δs, Δθ)`` (:meth:`entries`)."""
-        ds, dt = motion[..., 0], motion[..., 1]
-        a, b, da, db = _increment_parts(dt, integration)
-        s00, s01, s11 = self.entries(motion, drive)
-        # J's rows (a, ds·da), (b, ds·db), (0, 1)
-        return sym3.to_matrix(sym3.congruence_3x2(a, ds * da, b, ds * db, s00, s01, s11), ds.shape)
+# Each noise model says where a step's noise enters: the Jacobian J_w of the step Δ in its noise
+# sources w and their covariance Q_w, so that the step's covariance is J_w Q_w J_wᵀ.
 
 
-class WheelNoise(_Noise):
+@dataclasses.dataclass(frozen=True)
+class WheelNoise(Model):
     """Independent wheel errors: ``Σu = diag(σ² + k|Δφl|, σ² + k|Δφr|)`` (rad², lecture Eq. 12).
 
     ``sigma`` (rad) alone is the constant model, ``k`` (rad) alone the proportional one. Needs
     the :class:`DiffDrive` to map wheel increments to the motion.
     """
 
-    __slots__ = ("k", "sigma")
-    _fields = ("sigma", "k")
-    sigma: float
-    k: float
+    sigma: float | FloatArray = 0.0
+    k: float | FloatArray = 0.0
+    noise_parameters: ClassVar[tuple[str, ...]] = ("sigma", "k")
+
+    def __post_init__(self) -> None:
+        for name in self.noise_parameters:
+            object.__setattr__(self, name, positive(getattr(self, name), name))
 
     def entries(self, motion: FloatArray, drive: DiffDrive | None = None) -> Sym2:
         """The distinct entries ``(s00, s01, s11)`` of the covariance of ``(Δs, Δθ)``."""
@@ -246,115 +229,136 @@ class WheelNoise(_Noise):
         # W diag(vl, vr) Wᵀ with W's columns (r/2, -r/b) and (r/2, r/b)
         return (r * r / 4 * (vl + vr), r * r / (2 * b) * (vr - vl), (r / b) ** 2 * (vl + vr))
 
-    def covariance(self, motion: FloatArray, drive: DiffDrive | None = None) -> FloatArray:
+    def covariance(self, motion: ArrayLike, drive: DiffDrive | None = None) -> FloatArray:
         """The covariance (..., 2, 2) of ``(Δs, Δθ)``."""
         return _sym2(self.entries(np.asarray(motion, dtype=np.float64), drive))
 
+    def sources(
+        self, motion: FloatArray, integration: Integration, drive: DiffDrive | None
+    ) -> tuple[FloatArray, FloatArray]:
+        """``(J_w, Q_w)``: the noise enters through ``(Δs, Δθ)``, ``J_w = ∂Δ/∂(Δs, Δθ)``."""
+        return _increment(motion, integration, True)[1], self.covariance(motion, drive)
 
-class DistanceNoise(_Noise):
+
+@dataclasses.dataclass(frozen=True)
+class DistanceNoise(Model):
     """Random-walk errors: ``var Δs = k_s|Δs|`` (m²/m), ``var Δθ = k_theta|Δθ| + k_theta_s|Δs|``
     (rad²/rad, rad²/m), independent. Independent of the logging rate."""
 
-    __slots__ = ("k_s", "k_theta", "k_theta_s")
-    _fields = ("k_s", "k_theta", "k_theta_s")
-    k_s: float
-    k_theta: float
-    k_theta_s: float
+    k_s: float | FloatArray = 0.0
+    k_theta: float | FloatArray = 0.0
+    k_theta_s: float | FloatArray = 0.0
+    noise_parameters: ClassVar[tuple[str, ...]] = ("k_s", "k_theta", "k_theta_s")
+
+    def __post_init__(self) -> None:
+        for name in self.noise_parameters:
+            object.__setattr__(self, name, positive(getattr(self, name), name))
 
     def entries(self, motion: FloatArray, drive: DiffDrive | None = None) -> Sym2:
         """The distinct entries ``(s00, s01, s11)`` of the covariance of ``(Δs, Δθ)``."""
         ds, dt = np.abs(motion[..., 0]), np.abs(motion[..., 1])
-        return (self.k_s * ds, np.zeros_like(ds), self.k_theta * dt + self.k_theta_s * ds)
+        s11 = self.k_theta * dt + self.k_theta_s * ds
+        return (self.k_s * ds, np.zeros(np.shape(s11)), s11)
 
-    def core_params(self, integration: Integration) -> FloatArray | None:
-        """The compiled core's parameter row (1, 13) of this model with midpoint integration
-        (the core's built-in odometry, :func:`relmap.filter.ekf.predict`), else None."""
-        if integration != "midpoint":
-            return None
-        return _odometry_params(self.k_s, self.k_theta, self.k_theta_s)
-
-    def step_covariance(
-        self, motion: FloatArray, integration: Integration, drive: DiffDrive | None = None
-    ) -> FloatArray:
-        """Covariance (..., 3, 3) of the step Δ in the robot frame, ``J Σ Jᵀ`` (Eqs. 10-13).
-
-        With midpoint integration it is the compiled core's (the EKF's built-in model, one
-        implementation): its prediction from the origin with no uncertainty, ``P⁻ = Q = J Σ Jᵀ``.
-        """
-        k = self.core_params(integration)
-        if k is None:
-            return super().step_covariance(motion, integration, drive)
-        m = np.ascontiguousarray(np.reshape(motion, (-1, 2)), dtype=np.float64)
-        B = m.shape[0]
-        _, C = _core.ekf_predict_odometry(
-            np.zeros((B, 3)), np.zeros((B, 3, 3)), m, np.repeat(k, B, axis=0)
-        )
-        return C.reshape(*np.shape(motion)[:-1], 3, 3)
-
-    def covariance(self, motion: FloatArray, drive: DiffDrive | None = None) -> FloatArray:
+    def covariance(self, motion: ArrayLike, drive: DiffDrive | None = None) -> FloatArray:
         """The covariance (..., 2, 2) of ``(Δs, Δθ)``."""
         return _sym2(self.entries(np.asarray(motion, dtype=np.float64), drive))
 
-
-#: The length of the core's parameter row (relmap.filter.ekf.NoiseParameters' fields, the core's
-# Param).
-CORE_PARAMS = 13
-
-
-@functools.lru_cache(maxsize=64)
-def _odometry_params(k_s: float, k_theta: float, k_theta_s: float) -> FloatArray:
-    """The core's parameter row (1, 13) of an odometry noise (read-only, cached): the rates
-    first, the update's σ factor (index 11) 1, no clutter."""
-    p = np.zeros((1, CORE_PARAMS))
-    p[0, :3] = (k_s, k_theta, k_theta_s)
-    p[0, 11] = 1.0
-    p.flags.writeable = False
-    return p
+    def sources(
+        self, motion: FloatArray, integration: Integration, drive: DiffDrive | None
+    ) -> tuple[FloatArray, FloatArray]:
+        """``(J_w, Q_w)``: the noise enters through ``(Δs, Δθ)``, ``J_w = ∂Δ/∂(Δs, Δθ)``."""
+        return _increment(motion, integration, True)[1], self.covariance(motion, drive)
 
 
-class AlphaNoise(_Noise):
+@dataclasses.dataclass(frozen=True)
+class AlphaNoise(Model):
     """The α-model on ``(δrot1, δtrans, δrot2)`` (Thrun et al., Probabilistic Robotics, 5.4)."""
 
-    __slots__ = ("a1", "a2", "a3", "a4")
-    _fields = ("a1", "a2", "a3", "a4")
-    a1: float
-    a2: float
-    a3: float
-    a4: float
+    a1: float | FloatArray = 0.0
+    a2: float | FloatArray = 0.0
+    a3: float | FloatArray = 0.0
+    a4: float | FloatArray = 0.0
+    noise_parameters: ClassVar[tuple[str, ...]] = ("a1", "a2", "a3", "a4")
 
-    def step_covariance(
-        self, motion: FloatArray, integration: Integration, drive: DiffDrive | None = None
-    ) -> FloatArray:
-        """Covariance (..., 3, 3) of the step Δ (midpoint integration only)."""
-        if integration != "midpoint":
+    def __post_init__(self) -> None:
+        for name in self.noise_parameters:
+            object.__setattr__(self, name, positive(getattr(self, name), name))
+
+    def sources(
+        self, motion: FloatArray, integration: Integration, drive: DiffDrive | None
+    ) -> tuple[FloatArray, FloatArray]:
+        """``(J_w, Q_w)`` on ``w = (δrot1, δtrans, δrot2)``, ``δrot1 = δrot2 = Δθ/2`` and
+        ``δtrans = Δs``: ``Δ = (δtrans cos δrot1, δtrans sin δrot1, δrot1 + δrot2)``
+        (midpoint integration only)."""
+        if integration is not Integration.MIDPOINT:
             raise ParameterError("the α-model is defined for midpoint (rot-trans-rot) steps")
         ds, dt = motion[..., 0], motion[..., 1]
         rot = dt / 2
         v_rot = self.a1 * rot**2 + self.a2 * ds**2
         v_trans = self.a3 * ds**2 + self.a4 * 2 * rot**2
         c, s = np.cos(rot), np.sin(rot)
-        # Δ = (δtrans cos δrot1, δtrans sin δrot1, δrot1 + δrot2), on (δrot1, δtrans, δrot2)
-        J = np.zeros((*ds.shape, 3, 3))
-        J[..., 0, 0], J[..., 0, 1] = -ds * s, c
-        J[..., 1, 0], J[..., 1, 1] = ds * c, s
-        J[..., 2, 0], J[..., 2, 2] = 1.0, 1.0
-        S = np.zeros((*ds.shape, 3, 3))
-        S[..., 0, 0], S[..., 1, 1], S[..., 2, 2] = v_rot, v_trans, v_rot
-        return congruence(J, S)
+        J = matrix([[-ds * s, c, 0.0], [ds * c, s, 0.0], [1.0, 0.0, 1.0]], ds.shape)
+        zero = np.zeros(np.broadcast_shapes(np.shape(v_rot), np.shape(v_trans)))
+        Q = matrix([[v_rot, zero, zero], [zero, v_trans, zero], [zero, zero, v_rot]], zero.shape)
+        return J, Q
 
 
 Noise = WheelNoise | DistanceNoise | AlphaNoise
 
 
-def _step_ats(
-    motion: FloatArray, noise: Noise, integration: Integration, drive: DiffDrive | None
-) -> AT:
-    """The steps as ATs (batch of the motion's leading axes), in the robot frame: the step
-    (:func:`increment`) and its covariance (the model's ``step_covariance``)."""
-    ds, dt = motion[..., 0], motion[..., 1]
-    a, b, _, _ = _increment_parts(dt, integration)
-    delta = stack_last([ds * a, ds * b, dt], motion.shape[:-1])
-    return AT._trusted(delta, noise.step_covariance(motion, integration, drive))
+# ------------------------------------------------------------------ the motion model
+@dataclasses.dataclass(frozen=True)
+class Odometry(RelativeMotion):
+    """Odometry as a filter's motion model: ``x⁻ = x ⊕ Δ(u)``, the pose compounded with the
+    step's AT (Eqs. 1-4; lecture Eqs. 10-13).
+
+    The input ``u`` is ``(Δs, Δθ)`` (..., 2), or wheel increments ``(Δφl, Δφr)`` with a
+    :class:`DiffDrive`; ``noise`` says how the step's noise enters (its sources w, with
+    ``Q = G Q_w Gᵀ`` and ``G = ∂(x ⊕ Δ)/∂Δ · ∂Δ/∂w``). The noise model's parameters are this
+    model's (``noise_parameters``, :meth:`replace`).
+    """
+
+    noise: Noise
+    integration: Integration = Integration.MIDPOINT
+    drive: DiffDrive | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(
+            self, "integration", Integration.parse(self.integration, "integration")
+        )
+
+    @property
+    def noise_parameters(self) -> tuple[str, ...]:  # type: ignore[override]
+        return self.noise.noise_parameters
+
+    def __getattr__(self, name: str) -> object:  # the noise's parameters read as the model's
+        if name != "noise" and name in type(self.__dict__["noise"]).noise_parameters:
+            return getattr(self.__dict__["noise"], name)
+        raise AttributeError(name)
+
+    def replace(self, **values: ArrayLike) -> Odometry:
+        """The model with other noise parameters."""
+        return dataclasses.replace(self, noise=self.noise.replace(**values))
+
+    def batched(self, axes: int) -> Odometry:
+        return dataclasses.replace(self, noise=self.noise.batched(axes))
+
+    def step(self, u: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """``(Δ, J_w, Q_w)``: the step ``(..., 3)`` in the robot frame, its Jacobian in its noise
+        sources and their covariance (the step's covariance is ``J_w Q_w J_wᵀ``)."""
+        m = _pairs(u, "motion")
+        if self.drive is not None:
+            m = self.drive.motion(m)
+        delta = _increment(m, self.integration, False)
+        J, Q = self.noise.sources(m, self.integration, self.drive)
+        return delta, J, Q  # type: ignore[return-value]
+
+    def increment(self, u: ArrayLike) -> AT:
+        """The step as an AT in the robot frame (batch of the inputs' and the noise's axes)."""
+        delta, J, Q = self.step(u)
+        C = congruence(J, Q)
+        return AT._trusted(np.broadcast_to(delta, (*C.shape[:-2], 3)), C)
 
 
 def step(
@@ -362,7 +366,7 @@ def step(
     motion: ArrayLike,
     noise: Noise,
     *,
-    integration: Integration = "midpoint",
+    integration: Integration | str = "midpoint",
     drive: DiffDrive | None = None,
 ) -> tuple[AT, FloatArray, FloatArray]:
     """One odometry step (lecture Eqs. 11-12): ``(new pose, Gx, Gu)``.
@@ -371,13 +375,14 @@ def step(
     increments ``(Δφl, Δφr)`` when ``drive`` is given, in which case ``Gu`` is ``∂g/∂(Δφl, Δφr)``
     (3×2) as in the lecture. ``Σ' = Gx Σ Gxᵀ + Gu Σu Guᵀ``.
     """
+    model = Odometry(noise, Integration.parse(integration, "integration"), drive)
     m = _pairs(motion, "motion")
+    new = compound(pose, model.increment(m))
     W = np.eye(2) if drive is None else drive.wheel_map()
     if drive is not None:
         m = m @ W.T
-    new = compound(pose, _step_ats(m, noise, integration, drive))
-    _, Gx, K = se2.compose(pose.mean, increment(m, integration), jacobians=True)
-    _, J = increment(m, integration, jacobian=True)
+    delta, J = _increment(m, model.integration, True)
+    _, Gx, K = se2.compose(pose.mean, delta, jacobians=True)
     return new, Gx, K @ J @ W
 
 
@@ -386,7 +391,7 @@ def dead_reckon(
     noise: Noise,
     *,
     start: AT | None = None,
-    integration: Integration = "midpoint",
+    integration: Integration | str = "midpoint",
     drive: DiffDrive | None = None,
 ) -> AT:
     """Every pose of a run, with covariance: an AT batch ``(N + 1,)`` from the start pose.
@@ -398,10 +403,8 @@ def dead_reckon(
     m = _pairs(motions, "motions")
     if m.ndim != 2:
         raise ShapeError(f"motions must have shape (N, 2); got {m.shape}")
-    if drive is not None:
-        m = drive.motion(m)
     start = AT.identity() if start is None else start
-    steps = _step_ats(m, noise, integration, drive)
+    steps = Odometry(noise, Integration.parse(integration, "integration"), drive).increment(m)
     check_result("dead reckoning (the steps' covariance)", steps.mean, steps.cov)
     n = len(m)
     mean = components_outermost(np.empty((n + 1, 3)), 1)

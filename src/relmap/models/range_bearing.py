@@ -1,11 +1,12 @@
-"""Polar (range-bearing) sensing: the observation model, its noise, and Appendix B's mappings.
+"""Polar sensing of point landmarks — range-bearing, range only, bearing only — and Appendix B.
 
-**Range-bearing sensor** (lecture Eq. 20). A sensor mounted at pose ``mount = (x, y, θ)`` on the
-robot observes a point landmark ``l = (lx, ly)`` (world frame) from robot pose ``p``:
-``z = (r, φ)`` with r the distance from the sensor and φ the bearing from the sensor's x axis
-(radians in [-π, π)). Its noise is ``R = diag(σr², σφ²)`` where σr and σφ are constant, grow
-∝ r, or ∝ r² (``noise_model``). It sees the landmark when ``min_range ≤ r ≤ max_range`` and
-``|φ| ≤ fov/2``.
+**Range-bearing** (lecture Eq. 20). A sensor mounted at pose ``mount = (x, y, θ)`` on the robot
+reads a point landmark ``l = (lx, ly)`` (world frame) from robot pose ``p``: ``z = (r, φ)``, r the
+distance from the sensor and φ the bearing from the sensor's x axis (radians in [-π, π)). Its
+noise is ``R = diag(σr², σφ²)``, σr and σφ constant, ∝ r or ∝ r² (``noise_model``); it sees the
+landmark when ``min_range ≤ r ≤ max_range`` and ``|φ| ≤ fov/2``. :class:`RangeOnly` reads the
+first row (radio beacons), :class:`BearingOnly` the second (a camera without depth). The three
+are :class:`relmap.models.base.Measurement` models of one geometry, with analytic Jacobians.
 
 **Appendix B.** A polar AT ``(r, φ, θ)`` — the position of a frame at range r and bearing φ,
 its orientation θ — and its Cartesian AT ``(r cos φ, r sin φ, θ)``: the mean and covariance map
@@ -17,13 +18,15 @@ and merged in Cartesian coordinates.
 
 from __future__ import annotations
 
-from typing import Literal, overload
+import dataclasses
+from typing import ClassVar
 
 import numpy as np
 
 from relmap.errors import ParameterError, ShapeError
 from relmap.lie import se2
-from relmap.typing import ArrayLike, FloatArray
+from relmap.models.base import Measurement, positive
+from relmap.typing import ArrayLike, FloatArray, Option
 from relmap.uncertain import gaussian
 from relmap.uncertain.at import AT
 from relmap.uncertain.pose import check_result
@@ -31,14 +34,30 @@ from relmap.uncertain.propagate import SE2, Chart, propagate, unscented
 
 __all__ = [
     "POLAR",
+    "BearingOnly",
+    "Method",
+    "NoiseModel",
     "RangeBearingSensor",
+    "RangeOnly",
     "cartesian_to_polar",
     "merge_polar",
     "polar_to_cartesian",
 ]
 
-NoiseModel = Literal["constant", "proportional", "quadratic"]
-Method = Literal["linear", "unscented"]
+
+class NoiseModel(Option):
+    """How a polar sensor's σ grows with the range r (σ₁: the σ at 1 m)."""
+
+    CONSTANT = "constant"  #: σ
+    PROPORTIONAL = "proportional"  #: σ₁ r
+    QUADRATIC = "quadratic"  #: σ₁ r²
+
+
+class Method(Option):
+    """How Appendix B maps a mean and covariance between polar and Cartesian coordinates."""
+
+    LINEAR = "linear"  #: first order, ``R C Rᵀ``
+    UNSCENTED = "unscented"  #: the unscented transform
 
 
 def _polar_plus(x: FloatArray, d: FloatArray) -> FloatArray:
@@ -57,128 +76,151 @@ def _polar_minus(a: FloatArray, b: FloatArray) -> FloatArray:
 POLAR = Chart(_polar_plus, _polar_minus)
 
 
-class RangeBearingSensor:
-    """A range-bearing sensor on a robot (lecture Eq. 20); see the module docstring.
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class _Polar(Measurement):
+    """The geometry the three polar sensors share: the mount, the field of view, the noise's
+    growth with range. ``rows`` picks the reading's components of ``(r, φ)``."""
+
+    mount: ArrayLike = (0.0, 0.0, 0.0)
+    fov: float = 2 * np.pi
+    max_range: float = np.inf
+    min_range: float = 0.0
+    noise_model: NoiseModel | str = NoiseModel.CONSTANT
+    landmark_dim: ClassVar[int] = 2
+    rows: ClassVar[slice] = slice(0, 2)
+
+    def __post_init__(self) -> None:
+        if not 0 < self.fov <= 2 * np.pi:
+            raise ParameterError(f"field of view must be in (0, 2π]; got {self.fov}")
+        if not self.max_range > 0:
+            raise ParameterError(f"max_range must be positive; got {self.max_range}")
+        if not 0 <= self.min_range < self.max_range:
+            raise ParameterError(f"min_range must be in [0, max_range); got {self.min_range}")
+        m = np.array(self.mount, dtype=np.float64)
+        if m.shape != (3,):
+            raise ShapeError(f"mount must be a pose (x, y, θ); got shape {m.shape}")
+        m.flags.writeable = False
+        object.__setattr__(self, "mount", m)
+        object.__setattr__(self, "noise_model", NoiseModel.parse(self.noise_model, "noise_model"))
+        for name in self.noise_parameters:
+            object.__setattr__(self, name, positive(getattr(self, name), name))
+
+    def _geometry(self, x: FloatArray, landmark: ArrayLike) -> tuple[FloatArray, ...]:
+        """``(dx, dy, q, z, ox, oy)``: the landmark relative to the sensor (world axes), its
+        squared range, the reading ``(r, φ)`` and the mount's offset in world axes."""
+        p = np.asarray(x, dtype=np.float64)
+        lm = np.asarray(landmark, dtype=np.float64)
+        if lm.shape[-1:] != (2,):
+            raise ShapeError(f"landmark must have shape (..., 2); got {lm.shape}")
+        c, s = np.cos(p[..., 2]), np.sin(p[..., 2])
+        mx, my, mt = self.mount
+        ox, oy = c * mx - s * my, s * mx + c * my
+        dx, dy = lm[..., 0] - (p[..., 0] + ox), lm[..., 1] - (p[..., 1] + oy)
+        q = dx * dx + dy * dy
+        r = np.sqrt(q)
+        phi = se2.angle_difference(np.arctan2(dy, dx), p[..., 2] + mt)
+        return dx, dy, q, np.stack(np.broadcast_arrays(r, phi), axis=-1), ox, oy
+
+    def h(self, x: FloatArray, landmark: FloatArray | None = None) -> FloatArray:
+        """The reading of ``landmark`` (..., 2) from robot pose ``x`` (..., 3)."""
+        return self._geometry(x, landmark)[3][..., self.rows]
+
+    def linearize(
+        self, x: FloatArray, landmark: FloatArray | None = None
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """The reading, ``H = ∂z/∂x`` (..., d, 3) in relmap's chart of the robot pose (through
+        the mount: the sensor sits at ``p ⊕ mount``) and ``∂z/∂l`` (..., d, 2) (lecture Eq. 24's
+        H); a landmark at the sensor gives NaN (no bearing)."""
+        dx, dy, q, z, ox, oy = self._geometry(x, landmark)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = np.sqrt(q)
+            H_l = np.stack([np.stack([dx / r, dy / r], -1), np.stack([-dy / q, dx / q], -1)], -2)
+            # ∂z/∂p = -∂z/∂l on the position; the heading turns the mount's offset (-oy, ox)
+            # and, for the bearing, the sensor's axis
+            turn = np.stack([(dx * oy - dy * ox) / r, -(dy * oy + dx * ox) / q - 1.0], -1)
+        H = np.concatenate([-H_l, turn[..., None]], axis=-1)
+        return z[..., self.rows], H[..., self.rows, :], H_l[..., self.rows, :]
+
+    def jacobians(
+        self, x: FloatArray, landmark: FloatArray | None = None
+    ) -> tuple[FloatArray, FloatArray | None]:
+        return self.linearize(x, landmark)[1:]
+
+    def _scale(self, r: FloatArray) -> FloatArray | float:
+        if self.noise_model is NoiseModel.CONSTANT:
+            return 1.0
+        return r if self.noise_model is NoiseModel.PROPORTIONAL else r * r
+
+    def usable(self, z: FloatArray) -> np.ndarray:
+        """Finite readings, with a positive range where they have one."""
+        ok = np.isfinite(z).all(axis=-1)
+        if self.rows.start == 0:
+            with np.errstate(invalid="ignore"):
+                ok &= z[..., 0] > 0
+        return ok
+
+    def in_view(self, z: ArrayLike) -> np.ndarray:
+        """Whether range-bearing readings ``(r, φ)`` (..., 2) lie in the field of view and
+        range."""
+        z = np.asarray(z, dtype=np.float64)
+        r, b = z[..., 0], se2.wrap_angle(z[..., 1])
+        return (r >= self.min_range) & (r <= self.max_range) & (np.abs(b) <= self.fov / 2 + 1e-12)
+
+
+@dataclasses.dataclass(frozen=True)
+class RangeBearingSensor(_Polar):
+    """A range-bearing sensor on a robot (lecture Eq. 20; module docstring).
 
     ``sigma_range`` (m) and ``sigma_bearing`` (rad) are the noise at range 1 m for the
     proportional and quadratic models (σ = σ₁·r or σ₁·r²), and everywhere for the constant one.
     """
 
-    __slots__ = (
-        "fov",
-        "max_range",
-        "min_range",
-        "mount",
-        "noise_model",
-        "sigma_bearing",
-        "sigma_range",
-    )
+    sigma_range: float | FloatArray = 0.0
+    sigma_bearing: float | FloatArray = 0.0
+    noise_parameters: ClassVar[tuple[str, ...]] = ("sigma_range", "sigma_bearing")
+    dim: ClassVar[int] = 2
+    angles: ClassVar[tuple[int, ...]] = (1,)
+    ranges: ClassVar[tuple[int, ...]] = (0,)
 
-    def __init__(
-        self,
-        sigma_range: float,
-        sigma_bearing: float,
-        *,
-        mount: ArrayLike = (0.0, 0.0, 0.0),
-        fov: float = 2 * np.pi,
-        max_range: float = np.inf,
-        min_range: float = 0.0,
-        noise_model: NoiseModel = "constant",
-    ) -> None:
-        for name, v in (("sigma_range", sigma_range), ("sigma_bearing", sigma_bearing)):
-            if not np.isfinite(v) or v < 0:
-                raise ParameterError(f"{name} must be non-negative; got {v}")
-        if not 0 < fov <= 2 * np.pi:
-            raise ParameterError(f"field of view must be in (0, 2π]; got {fov}")
-        if not max_range > 0:
-            raise ParameterError(f"max_range must be positive; got {max_range}")
-        if not 0 <= min_range < max_range:
-            raise ParameterError(f"min_range must be in [0, max_range); got {min_range}")
-        if noise_model not in ("constant", "proportional", "quadratic"):
-            raise ParameterError(
-                f"noise_model must be constant, proportional or quadratic; got {noise_model!r}"
-            )
-        m = np.asarray(mount, dtype=np.float64)
-        if m.shape != (3,):
-            raise ShapeError(f"mount must be a pose (x, y, θ); got shape {m.shape}")
-        values = {
-            "sigma_range": float(sigma_range),
-            "sigma_bearing": float(sigma_bearing),
-            "mount": m,
-            "fov": float(fov),
-            "max_range": float(max_range),
-            "min_range": float(min_range),
-            "noise_model": noise_model,
-        }
-        for name, v in values.items():
-            object.__setattr__(self, name, v)
-
-    def __setattr__(self, name: str, value: object) -> None:
-        raise AttributeError("RangeBearingSensor is immutable")
-
-    @overload
-    def predict(
-        self, robot: ArrayLike, landmark: ArrayLike, *, jacobians: Literal[False] = ...
-    ) -> FloatArray: ...
-    @overload
-    def predict(
-        self, robot: ArrayLike, landmark: ArrayLike, *, jacobians: Literal[True]
-    ) -> tuple[FloatArray, FloatArray, FloatArray]: ...
-    def predict(
-        self, robot: ArrayLike, landmark: ArrayLike, *, jacobians: bool = False
-    ) -> FloatArray | tuple[FloatArray, FloatArray, FloatArray]:
-        """The reading ``z = (r, φ)`` (..., 2) of ``landmark`` (..., 2) from robot pose (..., 3).
-
-        With ``jacobians=True`` also ``H_robot = ∂z/∂p`` (..., 2, 3) — in relmap's chart of the
-        robot pose — and ``H_landmark = ∂z/∂l`` (..., 2, 2) (lecture Eq. 24's H).
-        """
-        p = np.asarray(robot, dtype=np.float64)
-        lm = np.asarray(landmark, dtype=np.float64)
-        if lm.shape[-1:] != (2,):
-            raise ShapeError(f"landmark must have shape (..., 2); got {lm.shape}")
-        sensor, J_s_p, _ = se2.compose(p, self.mount, jacobians=True)
-        dx, dy = lm[..., 0] - sensor[..., 0], lm[..., 1] - sensor[..., 1]
-        q = dx * dx + dy * dy
-        r = np.sqrt(q)
-        z = np.stack(
-            np.broadcast_arrays(r, se2.angle_difference(np.arctan2(dy, dx), sensor[..., 2])),
-            axis=-1,
-        )
-        if not jacobians:
-            return z
-        if np.any(r == 0):
-            raise ParameterError("a landmark at the sensor's own position has no bearing")
-        # ∂z/∂(sensor pose) and ∂z/∂l, then the chain rule through the mount
-        H_s = np.zeros((*z.shape[:-1], 2, 3))
-        H_s[..., 0, 0], H_s[..., 0, 1] = -dx / r, -dy / r
-        H_s[..., 1, 0], H_s[..., 1, 1], H_s[..., 1, 2] = dy / q, -dx / q, -1.0
-        H_l = np.zeros((*z.shape[:-1], 2, 2))
-        H_l[..., 0, 0], H_l[..., 0, 1] = dx / r, dy / r
-        H_l[..., 1, 0], H_l[..., 1, 1] = -dy / q, dx / q
-        return z, H_s @ J_s_p, H_l
-
-    def noise(self, r: ArrayLike) -> FloatArray:
-        """The reading's covariance ``R`` (..., 2, 2) at range r (m)."""
-        r = np.asarray(r, dtype=np.float64)
-        if (r <= 0).any():
-            raise ParameterError(f"range must be positive; got {r.min()}")
-        R = np.zeros((*r.shape, 2, 2))
-        R[..., 0, 0], R[..., 1, 1] = self._variances(r)
-        return R
-
-    def _variances(self, r: FloatArray) -> tuple[FloatArray | float, FloatArray | float]:
-        """``(σr², σφ²)``, the diagonal of :meth:`noise` at ranges r > 0 (unchecked): plain
-        floats for the constant model, arrays shaped like r otherwise."""
-        if self.noise_model == "constant":
-            return self.sigma_range**2, self.sigma_bearing**2
-        scale = r if self.noise_model == "proportional" else r * r
-        return (self.sigma_range * scale) ** 2, (self.sigma_bearing * scale) ** 2
-
-    def in_view(self, z: ArrayLike) -> np.ndarray:
-        """Whether readings ``(r, φ)`` (..., 2) lie in the field of view and range."""
+    def noise(self, z: FloatArray) -> FloatArray:
+        """``R = diag(σr², σφ²)`` (..., 2, 2) at readings ``z`` (..., 2) (their ranges)."""
         z = np.asarray(z, dtype=np.float64)
-        r, b = z[..., 0], se2.wrap_angle(z[..., 1])
-        return (r >= self.min_range) & (r <= self.max_range) & (np.abs(b) <= self.fov / 2 + 1e-12)
+        k = self._scale(z[..., 0])
+        vr, vb = (self.sigma_range * k) ** 2, (self.sigma_bearing * k) ** 2
+        zero = np.zeros(np.broadcast_shapes(np.shape(vr), np.shape(vb), z.shape[:-1]))
+        return np.stack([np.stack([vr + zero, zero], -1), np.stack([zero, vb + zero], -1)], -2)
+
+
+@dataclasses.dataclass(frozen=True)
+class RangeOnly(_Polar):
+    """A range sensor (radio beacons): Eq. 20's first row, ``z = (r,)``, σ ``sigma_range``."""
+
+    sigma_range: float | FloatArray = 0.0
+    noise_parameters: ClassVar[tuple[str, ...]] = ("sigma_range",)
+    dim: ClassVar[int] = 1
+    ranges: ClassVar[tuple[int, ...]] = (0,)
+    rows: ClassVar[slice] = slice(0, 1)
+
+    def noise(self, z: FloatArray) -> FloatArray:
+        """``R = (σr²,)`` (..., 1, 1) at readings ``z`` (..., 1)."""
+        k = self._scale(np.asarray(z, dtype=np.float64)[..., 0])
+        return ((self.sigma_range * k) ** 2 + np.zeros(np.shape(z)[:-1]))[..., None, None]
+
+
+@dataclasses.dataclass(frozen=True)
+class BearingOnly(_Polar):
+    """A bearing sensor (a camera without depth): Eq. 20's second row, ``z = (φ,)``, σ
+    ``sigma_bearing`` (constant: a bearing-only sensor knows no range to scale it by)."""
+
+    sigma_bearing: float | FloatArray = 0.0
+    noise_parameters: ClassVar[tuple[str, ...]] = ("sigma_bearing",)
+    dim: ClassVar[int] = 1
+    angles: ClassVar[tuple[int, ...]] = (0,)
+    rows: ClassVar[slice] = slice(1, 2)
+
+    def noise(self, z: FloatArray) -> FloatArray:
+        """``R = (σφ²,)`` (..., 1, 1)."""
+        return (self.sigma_bearing**2 + np.zeros(np.shape(z)[:-1]))[..., None, None]
 
 
 # ------------------------------------------------------------------- Appendix B
@@ -212,7 +254,7 @@ def _triples(mean: ArrayLike, cov: ArrayLike, what: str) -> tuple[FloatArray, Fl
     return m, gaussian.validate_covariance(cov, dim=3, name=f"{what} cov")
 
 
-def polar_to_cartesian(mean: ArrayLike, cov: ArrayLike, method: Method = "linear") -> AT:
+def polar_to_cartesian(mean: ArrayLike, cov: ArrayLike, method: Method | str = "linear") -> AT:
     """The Cartesian AT of a polar ``(r, φ, θ)`` mean and covariance (Appendix B).
 
     ``"linear"``: ``C = R C_polar Rᵀ`` with R the Jacobian at the mean (Appendix B);
@@ -221,33 +263,31 @@ def polar_to_cartesian(mean: ArrayLike, cov: ArrayLike, method: Method = "linear
     m, C = _triples(mean, cov, "polar")
     if (m[..., 0] < 0).any():
         raise ParameterError("range must be non-negative")
-    if method == "linear":
+    if Method.parse(method, "method") is Method.LINEAR:
         out = propagate(
             _to_cartesian, m, C, jacobian=_to_cartesian_jacobian, chart_in=POLAR, chart_out=SE2
         )
-    elif method == "unscented":
-        out = unscented(_to_cartesian, m, C, chart_in=POLAR, chart_out=SE2)
     else:
-        raise ParameterError(f"method must be 'linear' or 'unscented'; got {method!r}")
+        out = unscented(_to_cartesian, m, C, chart_in=POLAR, chart_out=SE2)
     check_result("polar_to_cartesian", out.mean, out.cov)
     return AT._trusted(out.mean, out.cov)
 
 
-def cartesian_to_polar(at: AT, method: Method = "linear") -> tuple[FloatArray, FloatArray]:
+def cartesian_to_polar(
+    at: AT, method: Method | str = "linear"
+) -> tuple[FloatArray, FloatArray]:
     """The polar ``(r, φ, θ)`` mean and covariance of a Cartesian AT (inverse of the above)."""
     if (np.hypot(at.mean[..., 0], at.mean[..., 1]) == 0).any():
         raise ParameterError("the bearing of a frame at the origin is undefined")
-    if method == "linear":
+    if Method.parse(method, "method") is Method.LINEAR:
         out = propagate(_to_polar, at.mean, at.cov, chart_in=SE2, chart_out=POLAR)
-    elif method == "unscented":
-        out = unscented(_to_polar, at.mean, at.cov, chart_in=SE2, chart_out=POLAR)
     else:
-        raise ParameterError(f"method must be 'linear' or 'unscented'; got {method!r}")
+        out = unscented(_to_polar, at.mean, at.cov, chart_in=SE2, chart_out=POLAR)
     return out.mean, out.cov
 
 
 def merge_polar(
-    means: ArrayLike, covs: ArrayLike, *, method: Method = "linear"
+    means: ArrayLike, covs: ArrayLike, *, method: Method | str = "linear"
 ) -> tuple[AT, tuple[FloatArray, FloatArray]]:
     """Merge k polar sensings ``(r, φ, θ)`` (k, ..., 3) of one object in polar coordinates, then
     map the merged estimate to a Cartesian AT once (§6.2 step 3).

@@ -48,6 +48,7 @@ __all__ = [
     "fuse",
     "generalized_inverse",
     "inverse_pd",
+    "log_density",
     "mahalanobis2",
     "max_over_last",
     "not_positive_definite",
@@ -500,6 +501,23 @@ def confidence_k2(probability: ArrayLike, dof: int) -> FloatArray:
     from scipy.special import gammaincinv
 
     return 2.0 * gammaincinv(0.5 * dof, p)
+
+
+def log_density(d2: ArrayLike, logdet: ArrayLike, dim: ArrayLike, nu: ArrayLike) -> FloatArray:
+    """Log-density of a ``dim``-dimensional zero-mean model at a point of squared Mahalanobis
+    distance ``d2 = yᵀ S⁻¹ y`` with ``logdet = log det S`` (all broadcast together): the normal
+    ``N(0, S)`` where ``nu`` is inf, else the Student-t with ``nu`` degrees of freedom and
+    *scale* ``S`` (its covariance is ``S ν/(ν - 2)``)."""
+    from scipy.special import gammaln
+
+    d2, logdet, dim, nu = (np.asarray(a, dtype=np.float64) for a in (d2, logdet, dim, nu))
+    normal = -0.5 * (d2 + logdet + dim * np.log(2.0 * np.pi))
+    if np.isinf(nu).all():
+        return normal
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t = (gammaln(0.5 * (nu + dim)) - gammaln(0.5 * nu) - 0.5 * dim * np.log(nu * np.pi)
+             - 0.5 * logdet - 0.5 * (nu + dim) * np.log1p(d2 / nu))  # fmt: skip
+    return np.where(np.isinf(nu), normal, t)
 
 
 def probability_inside(k: ArrayLike, dof: int) -> FloatArray:

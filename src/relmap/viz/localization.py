@@ -17,7 +17,8 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from relmap.filter import autocalibration, ekf
+from relmap import filter as ekf
+from relmap.filter import autocalibration
 from relmap.lie import se2
 from relmap.typing import FloatArray
 from relmap.uncertain import gaussian

@@ -1,0 +1,366 @@
+"""Filters over whole logs: one filter, or a batch of them with their own noise.
+
+:func:`run` replays a time-ordered :class:`Log` — the motion model's inputs between the filter's
+times, the readings at some of them — through the filter of :mod:`relmap.filter.ekf`: predict,
+and at every time with readings correct with all of them in one stacked update
+(:func:`relmap.filter.landmarks.correct_landmarks`: association, gating, weights). The batch is
+the broadcast of the models' parameters, of ``nu``, ``inflation`` and ``clutter``, and of the
+start: a batch of candidate noise parameters is one call. It returns a :class:`Trace`: states at
+the kept times, every reading's innovation, S, status and landmark, and per filter the
+log-likelihood of the innovations, the NIS and the counts.
+
+A :class:`relmap.models.RelativeMotion` (odometry) needs no Python per step: the steps between two
+reading times are compounded first (:mod:`relmap.filter.segments`), and the filter predicts once
+per reading time; any other motion model is stepped.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from relmap.errors import NonFiniteError, NumericalError, ParameterError, ShapeError
+from relmap.filter.ekf import predict
+from relmap.filter.landmarks import (
+    Association,
+    LandmarkMap,
+    Pairing,
+    Status,
+    _candidates,
+    _correct,
+    _landmark_map,
+    _setup,
+)
+from relmap.filter.segments import chains
+from relmap.models.base import Measurement, Motion, RelativeMotion
+from relmap.typing import ArrayLike, FloatArray, IntArray, Option
+from relmap.uncertain.at import AT, compound
+from relmap.uncertain.propagate import SE2
+
+__all__ = ["Keep", "Log", "Trace", "run"]
+
+
+class Keep(Option):
+    """Which states :func:`run` returns."""
+
+    ALL = "all"  #: at every filter time (after the correction at that time)
+    EVENTS = "events"  #: at the start and after each correction
+    SUMMARY = "summary"  #: the final state only (large calibration batches)
+
+
+class Log(NamedTuple):
+    """A time-ordered log for :func:`run`.
+
+    ``t`` (T,) the filter's times, strictly increasing; ``motion`` (T-1, k) the motion model's
+    input from ``t[j]`` to ``t[j+1]`` (odometry: the step ``(Δs, Δθ)``); ``reading_index`` (M,)
+    the time index of each reading (non-decreasing; readings of one index form one stacked
+    update); ``z`` (M, d) the readings ((M,) for d = 1); ``signature`` (M,) integers (e.g.
+    barcodes) or None.
+    """
+
+    t: FloatArray
+    motion: FloatArray
+    reading_index: IntArray
+    z: FloatArray
+    signature: IntArray | None = None
+
+    @classmethod
+    def from_velocities(
+        cls,
+        odometry_t: ArrayLike,
+        v: ArrayLike,
+        w: ArrayLike,
+        reading_t: ArrayLike,
+        z: ArrayLike,
+        signature: ArrayLike | None = None,
+        *,
+        end: float | None = None,
+    ) -> Log:
+        """A log from odometry velocities ``(v, ω)`` at times ``odometry_t`` (each held until
+        the next record) and readings at times ``reading_t``: the filter's times are the
+        odometry times up to ``end`` (default the last) merged with the reading times in
+        ``[odometry_t[0], end]`` (readings outside are dropped); the steps ``(v dt, ω dt)``."""
+        ot = np.asarray(odometry_t, dtype=np.float64)
+        rt = np.asarray(reading_t, dtype=np.float64)
+        vv, ww = np.asarray(v, dtype=np.float64), np.asarray(w, dtype=np.float64)
+        zz = np.asarray(z, dtype=np.float64)
+        if ot.ndim != 1 or not len(ot):
+            raise ParameterError("the log has no odometry")
+        if vv.shape != ot.shape or ww.shape != ot.shape:
+            raise ShapeError("odometry times, v and ω must have the same length")
+        if len(rt) != len(zz) or (signature is not None and np.shape(signature) != rt.shape):
+            raise ShapeError("reading times, readings and signatures must have the same length")
+        for name, a in (("odometry", ot), ("reading", rt)):
+            if not np.isfinite(a).all():
+                raise NonFiniteError(f"{name} time stamps must be finite")
+            if (np.diff(a) < 0).any():
+                k = int(np.flatnonzero(np.diff(a) < 0)[0])
+                raise ParameterError(
+                    f"{name} time stamps must not decrease: t[{k + 1}] = {a[k + 1]} < "
+                    f"t[{k}] = {a[k]}"
+                )
+        if not (np.isfinite(vv).all() and np.isfinite(ww).all()):
+            raise NonFiniteError("odometry velocities must be finite")
+        stop = float(ot[-1]) if end is None else float(end)
+        keep = (rt >= ot[0]) & (rt <= stop)
+        t = np.unique(np.concatenate([ot[ot <= stop], rt[keep]]))
+        k = np.searchsorted(ot, t, side="right") - 1  # last record at or before each time
+        dt = np.diff(t)
+        motion = np.column_stack([vv[k[:-1]] * dt, ww[k[:-1]] * dt])
+        index = np.searchsorted(t, rt[keep])
+        sig = None if signature is None else np.asarray(signature, dtype=np.int64)[keep]
+        return cls(t, motion, index, zz[keep], sig)
+
+
+class Trace(NamedTuple):
+    """What :func:`run` returns; ``batch`` is the filters' batch shape.
+
+    States at times ``t`` (see :class:`Keep`): ``mean`` (*batch, T, n), ``cov``
+    (*batch, T, n, n). Per reading (*batch, M, …): innovation ``y`` (M, d) and its ``S``
+    (M, d, d) for the reading's pair (NaN: none), ``mahalanobis2``, ``status`` (a
+    :class:`Status`), ``landmark`` (row, -1: none), and ``y_given`` (M, d), ``S_given``
+    (M, d, d): the innovation and its covariance given the used readings before it in its
+    time's stacked update (a gated one: given all of them; R itself): the prediction-error
+    decomposition, whose densities multiply to the stacked likelihood. Per filter (*batch):
+    ``loglik`` the sum of the log-likelihoods of the stacked innovations (Gaussian, or Student-t
+    of scale S), ``nis`` the sum of their ``yᵀS⁻¹y`` over ``dof`` components (NIS/dof ≈ 1 when
+    consistent), ``updates`` the times corrected, ``counts`` (*batch, 7) readings per status,
+    ``ambiguous`` used readings that entered as a mixture of landmarks. For d = 1 the reading
+    axes of ``y`` and ``S`` are dropped.
+    """
+
+    t: FloatArray
+    mean: FloatArray
+    cov: FloatArray
+    y: FloatArray
+    S: FloatArray
+    mahalanobis2: FloatArray
+    status: IntArray
+    landmark: IntArray
+    loglik: FloatArray
+    nis: FloatArray
+    dof: IntArray
+    updates: IntArray
+    counts: IntArray
+    ambiguous: IntArray
+    y_given: FloatArray
+    S_given: FloatArray
+
+    def estimate(self) -> AT:
+        """The kept states as an AT batch (*batch, T)."""
+        return AT._trusted(self.mean, self.cov)
+
+    def count(self, status: Status) -> IntArray:
+        """Readings of ``status`` per filter (*batch)."""
+        return self.counts[..., int(status)]
+
+
+def _checked(log: Log, sensor: Measurement) -> tuple[FloatArray, FloatArray, IntArray, FloatArray]:
+    t = np.asarray(log.t, dtype=np.float64)
+    if t.ndim != 1 or not len(t):
+        raise ParameterError("the log is empty: it needs at least its start time")
+    if not np.isfinite(t).all() or (np.diff(t) <= 0).any():
+        raise ParameterError("the log's times must be finite and strictly increasing")
+    u = np.asarray(log.motion, dtype=np.float64)
+    if u.ndim != 2 or len(u) != len(t) - 1:
+        raise ShapeError(f"motion must have shape ({len(t) - 1}, k); got {u.shape}")
+    if not np.isfinite(u).all():
+        raise NonFiniteError("the motion inputs must be finite")
+    d = sensor.dim
+    z = np.asarray(log.z, dtype=np.float64)
+    z = z[:, None] if d == 1 and z.ndim == 1 else z
+    M = len(z)
+    if z.shape != (M, d):
+        raise ShapeError(f"readings must have shape (M, {d}) for this sensor; got {z.shape}")
+    index = np.asarray(log.reading_index, dtype=np.int64)
+    if index.shape != (M,):
+        raise ShapeError(f"reading_index must have shape ({M},); got {index.shape}")
+    if M and (index[0] < 0 or index[-1] >= len(t) or (np.diff(index) < 0).any()):
+        raise ParameterError("reading_index must be non-decreasing time indices of the log")
+    return t, u, index, z
+
+
+def run(
+    log: Log,
+    motion: Motion,
+    sensor: Measurement,
+    landmarks: LandmarkMap | ArrayLike,
+    *,
+    start: AT,
+    associate: Association | str = Association.SIGNATURES,
+    pairing: Pairing | str = Pairing.ONE_TO_ONE,
+    gate: float = 0.99,
+    nu: ArrayLike = np.inf,
+    inflation: ArrayLike = 1.0,
+    clutter: ArrayLike = 0.0,
+    keep: Keep | str = Keep.ALL,
+    readings: bool = True,
+) -> Trace:
+    """Run filters over ``log`` with the map ``landmarks`` (L, p) or a :class:`LandmarkMap`,
+    from ``start`` (an AT, broadcast to the batch); association, gate and weights as in
+    :func:`relmap.filter.landmarks.correct_landmarks` (the log's signatures restrict the
+    candidates when ``associate`` is ``"signatures"``; otherwise they only label the readings).
+    ``readings=False`` skips the per-reading arrays (then empty). The filters of a batch are
+    independent: each gives what it gives alone."""
+    kp = Keep.parse(keep, "keep")
+    a = Association.parse(associate, "associate")
+    t, u, index, z = _checked(log, sensor)
+    if a is Association.SIGNATURES and log.signature is None:
+        raise ParameterError("signature association needs the signatures of the readings")
+    lmap = _landmark_map(landmarks)
+    shapes = [motion.batch_shape, sensor.batch_shape, start.batch_shape]
+    batch = np.broadcast_shapes(*shapes, *(np.shape(v) for v in (nu, inflation, clutter)))
+    B, M, d, T = int(np.prod(batch, dtype=np.int64)), len(z), sensor.dim, len(t)
+    motion_b = motion.replace(**_flat_params(motion, batch, B))
+    x = AT._trusted(
+        np.broadcast_to(start.mean, (*batch, 3)).reshape(B, 3),
+        np.broadcast_to(start.cov, (*batch, 3, 3)).reshape(B, 3, 3),
+    )
+    times, first = np.unique(index, return_index=True)  # the time stamps with readings
+    bounds = np.append(first, M)
+    Mo = M if readings else 0
+    out_f = {"y": np.full((B, Mo, d), np.nan), "S": np.full((B, Mo, d, d), np.nan),
+             "y_given": np.full((B, Mo, d), np.nan), "S_given": np.full((B, Mo, d, d), np.nan),
+             "d2": np.full((B, Mo), np.inf)}  # fmt: skip
+    status = np.full((B, M), int(Status.ABSENT), np.int8)
+    landmark = np.full((B, Mo), -1, np.int64)
+    loglik, nis = np.zeros(B), np.zeros(B)
+    dof, updates, ambiguous = (np.zeros(B, np.int64) for _ in range(3))
+    cut = np.zeros(T, bool)
+    cut[0] = cut[times] = True
+    ends = np.unique(np.append(times, T - 1))
+    moves = _Prediction(motion_b, u, cut, ends[ends > 0], kp is Keep.ALL)
+    most = int(np.diff(bounds).max()) if M else 0
+    setup = _setup(sensor, lmap, batch, a, pairing, gate, nu, inflation, clutter, readings, most)
+    usable = sensor.usable(z)
+    sig = None if log.signature is None else np.asarray(log.signature, dtype=np.int64)
+    if a is not Association.SIGNATURES:
+        sig = None  # (the signatures label the readings only)
+    posteriors: list[AT] = []
+    done = 0  # the time index the filters are at
+    for e, k in enumerate(times):
+        x = moves.advance(x, done, int(k))
+        done = int(k)
+        _check_finite(x, t, done)
+        sl = slice(bounds[e], bounds[e + 1])
+        rows, cand = _candidates(setup, None if sig is None else sig[sl][None], sl.stop - sl.start)
+        up = _correct(setup, SE2, x.mean, x.cov, z[None, sl], usable[None, sl], rows, cand)
+        x = AT._trusted(up.x, up.P)
+        _check_finite(x, t, done)
+        status[:, sl] = up.status
+        used = up.dof > 0
+        loglik += up.loglik
+        nis += np.where(used, up.nis, 0.0)
+        dof += up.dof
+        updates += used
+        ambiguous += up.ambiguous
+        if readings:
+            out_f["y"][:, sl], out_f["S"][:, sl], out_f["d2"][:, sl] = up.y, up.S, up.d2
+            out_f["y_given"][:, sl], out_f["S_given"][:, sl] = up.y_given, up.S_given
+            landmark[:, sl] = up.landmark
+        posteriors.append(x)
+    x_end = moves.advance(x, done, T - 1)
+    _check_finite(x_end, t, T - 1)
+    mean, cov, kept_t = _kept(kp, t, times, x_end, posteriors, moves, start, batch, B, u, cut)
+    counts = np.stack([(status == s).sum(axis=-1) for s in Status], axis=-1)
+    y, S, yg, Sg = out_f["y"], out_f["S"], out_f["y_given"], out_f["S_given"]
+    if d == 1:
+        y, S, yg, Sg = y[..., 0], S[..., 0, 0], yg[..., 0], Sg[..., 0, 0]
+    n = mean.shape[-1]
+    rs = (*batch, Mo)
+    return Trace(
+        kept_t, mean.reshape(*batch, -1, n), cov.reshape(*batch, -1, n, n),
+        y.reshape(*rs, *y.shape[2:]), S.reshape(*rs, *S.shape[2:]), out_f["d2"].reshape(rs),
+        (status if readings else status[:, :0]).reshape(rs), landmark.reshape(rs),
+        loglik.reshape(batch), nis.reshape(batch), dof.reshape(batch), updates.reshape(batch),
+        counts.reshape(*batch, len(Status)), ambiguous.reshape(batch),
+        yg.reshape(*rs, *yg.shape[2:]), Sg.reshape(*rs, *Sg.shape[2:]),
+    )  # fmt: skip
+
+
+def _flat_params(model: Motion | Measurement, batch: tuple[int, ...], B: int) -> dict:
+    """The model's noise parameters broadcast to the batch and flattened to (B,)."""
+    return {k: np.broadcast_to(np.asarray(getattr(model, k), float), batch).reshape(B)
+            for k in model.noise_parameters}  # fmt: skip
+
+
+def _check_finite(x: AT, t: FloatArray, k: int) -> None:
+    bad = ~(np.isfinite(x.mean).all(axis=-1) & np.isfinite(x.cov).all(axis=(-2, -1)))
+    if bad.any():
+        f = int(np.flatnonzero(bad)[0])
+        raise NumericalError(
+            f"the filter overflowed the floating-point range at time {t[k]} (index {k}, filter "
+            f"{f}): inputs too large (motion, readings or noise)"
+        )
+
+
+class _Prediction:
+    """How the filters move from one time index to another: by the compounded steps of a
+    relative motion (the chains ending at the times with readings and at the last time), or
+    by stepping any motion model, keeping the states on the way when asked."""
+
+    def __init__(self, motion: Motion, u: FloatArray, cut: np.ndarray, ends: IntArray,
+                 keep_all: bool) -> None:  # fmt: skip
+        self.motion, self.u, self.keep_all = motion, u, keep_all
+        self.relative = isinstance(motion, RelativeMotion)
+        self.ends = ends
+        self.steps: dict[int, AT] = {}  # stepped states by time index (keep_all)
+        if self.relative and len(ends):
+            self.seg = chains(motion.batched(1), u, cut, ends)
+
+    def advance(self, x: AT, done: int, k: int) -> AT:
+        """The filters at time ``done`` moved to time ``k``."""
+        if k == done:
+            return x
+        if self.relative:
+            row = int(np.searchsorted(self.ends, k))
+            step = AT._trusted(self.seg.mean[row], self.seg.cov[..., row, :, :])
+            return compound(x, step)
+        for j in range(done, k):
+            x = predict(x, self.u[j], self.motion)
+            if self.keep_all:
+                self.steps[j + 1] = x
+        return x
+
+
+def _kept(
+    kp: Keep, t: FloatArray, times: IntArray, x_end: AT, posteriors: list[AT],
+    moves: _Prediction, start: AT, batch: tuple[int, ...], B: int, u: FloatArray,
+    cut: np.ndarray,
+) -> tuple[FloatArray, FloatArray, FloatArray]:  # fmt: skip
+    """The kept states ``(mean (B, K, 3), cov (B, K, 3, 3), times (K,))``."""
+    x0 = AT._trusted(np.broadcast_to(start.mean, (*batch, 3)).reshape(B, 3),
+                     np.broadcast_to(start.cov, (*batch, 3, 3)).reshape(B, 3, 3))  # fmt: skip
+    if kp is Keep.SUMMARY:
+        return x_end.mean[:, None], x_end.cov[:, None], t[-1:]
+    if kp is Keep.EVENTS:
+        states = [x0, *posteriors]
+        mean = np.stack([s.mean for s in states], axis=1)
+        cov = np.stack([s.cov for s in states], axis=1)
+        return mean, cov, np.concatenate([t[:1], t[times]])
+    T = len(t)
+    # each time's anchor: the state after the last time with readings before it (or the start)
+    anchors = [x0, *posteriors]
+    a_mean = np.stack([s.mean for s in anchors], axis=1)  # (B, E + 1, 3)
+    a_cov = np.stack([s.cov for s in anchors], axis=1)
+    at_reading = np.zeros(T, bool)
+    at_reading[times] = True
+    last = np.searchsorted(times, np.arange(T), side="left")  # readings strictly before k
+    if moves.relative:
+        ch = chains(moves.motion.batched(1), u, cut)  # the chain from the last cut before k
+        moved = compound(AT._trusted(a_mean[:, last], a_cov[:, last]),
+                         AT._trusted(ch.mean, ch.cov))  # fmt: skip
+        mean, cov = np.array(moved.mean), np.array(moved.cov)
+    else:
+        mean = np.empty((B, T, 3))
+        cov = np.empty((B, T, 3, 3))
+        mean[:, 0], cov[:, 0] = x0.mean, x0.cov
+        for k, s in moves.steps.items():
+            mean[:, k], cov[:, k] = s.mean, s.cov
+    # at a time with readings: the state after them (its posterior)
+    mean[:, at_reading] = a_mean[:, 1:]
+    cov[:, at_reading] = a_cov[:, 1:]
+    if not at_reading[0]:
+        mean[:, 0], cov[:, 0] = x0.mean, x0.cov
+    return mean, cov, t
