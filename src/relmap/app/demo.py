@@ -35,7 +35,8 @@ from relmap.models.decisions import DoorDecision, ViewDecision
 from relmap.network.graph import RelationalMap
 from relmap.sim import montecarlo
 from relmap.uncertain import gaussian
-from relmap.uncertain.at import AT, compound_chain, merge
+from relmap.uncertain.algebra import compound_chain, merge
+from relmap.uncertain.at import AT
 from relmap.uncertain.propagate import Moments
 
 if TYPE_CHECKING:  # pragma: no cover

@@ -45,8 +45,8 @@ from relmap._layout import components_outermost, matrix, stack_last
 from relmap.errors import ArgumentTypeError, ParameterError, ShapeError
 from relmap.lie import se2
 from relmap.typing import ArrayLike, FloatArray
-from relmap.uncertain import _sym3 as sym3
-from relmap.uncertain.at import AT, compound, compound_chain
+from relmap.uncertain.algebra import compound, compound_chain
+from relmap.uncertain.at import AT, congruence_3x2, to_matrix
 from relmap.uncertain.gaussian import check_finite, congruence, real_array
 from relmap.uncertain.pose import check_result
 
@@ -219,7 +219,7 @@ class _Noise:
         a, b, da, db = _increment_parts(dt, integration)
         s00, s01, s11 = self.entries(motion, drive)
         # J's rows (a, ds·da), (b, ds·db), (0, 1)
-        return sym3.to_matrix(sym3.congruence_3x2(a, ds * da, b, ds * db, s00, s01, s11), ds.shape)
+        return to_matrix(congruence_3x2(a, ds * da, b, ds * db, s00, s01, s11), ds.shape)
 
 
 class WheelNoise(_Noise):

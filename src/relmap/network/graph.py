@@ -41,7 +41,7 @@ if TYPE_CHECKING:
     from relmap.network.query import Estimate
     from relmap.network.sensing import SensingDecision, SensingForecast
 
-__all__ = ["Edge", "JointGroup", "RelationalMap"]
+__all__ = ["RelationalMap"]
 
 Frame = Hashable
 

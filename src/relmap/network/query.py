@@ -34,7 +34,8 @@ from relmap.errors import NumericalError, ParameterError, UnknownFrameError
 from relmap.lie import se2
 from relmap.network.blocks import blocks_between
 from relmap.network.reduce import Reduction, position_trace, reduce_network
-from relmap.uncertain.at import AT, compound, reverse
+from relmap.uncertain.algebra import compound, reverse
+from relmap.uncertain.at import AT
 from relmap.uncertain.at3 import AT3
 from relmap.uncertain.moments import check_method
 

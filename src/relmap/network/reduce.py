@@ -152,7 +152,8 @@ from relmap.errors import (
 from relmap.lie import Group
 from relmap.typing import FloatArray
 from relmap.uncertain import moments as _moments
-from relmap.uncertain.at import AT, compound, merge, reverse
+from relmap.uncertain.algebra import compound, merge, reverse
+from relmap.uncertain.at import AT
 from relmap.uncertain.at3 import AT3
 from relmap.uncertain.gaussian import congruence, difference_merge_gain, generalized_inverse
 

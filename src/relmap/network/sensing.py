@@ -24,7 +24,8 @@ from relmap.errors import DisconnectedError, ParameterError, ShapeError, Unknown
 from relmap.network.query import Estimate, query
 from relmap.typing import ArrayLike, FloatArray
 from relmap.uncertain import gaussian
-from relmap.uncertain.at import AT, merge
+from relmap.uncertain.algebra import merge
+from relmap.uncertain.at import AT
 from relmap.uncertain.at3 import AT3
 from relmap.uncertain.pose import UncertainPose
 

@@ -29,7 +29,8 @@ from relmap.errors import ArgumentTypeError, ChunkError, ParameterError, ShapeEr
 from relmap.lie import SE2, Group
 from relmap.typing import FloatArray, SeedLike
 from relmap.uncertain import gaussian
-from relmap.uncertain.at import AT, merge
+from relmap.uncertain.algebra import merge
+from relmap.uncertain.at import AT
 from relmap.uncertain.at3 import AT3
 from relmap.uncertain.pose import UncertainPose
 
