@@ -243,7 +243,7 @@ def delta_y_study(seed: int = 0, n: int = DELTA_Y_SAMPLES) -> list[DeltaYRow]:
     (default), by the paper's formulas, and optimally; each reduction also re-run on ``n``
     sampled maps (:func:`relmap.network.reduce.reduce_network`, batched) against the truth
     taken as the file's means of the loop-free part (the optimal estimate's mean)."""
-    from relmap.network.reduce import reduce_network
+    from relmap.network.reduce import DeltaY, reduce_network
 
     rng = np.random.default_rng(seed)
     records = _shipped("fig3.json")
@@ -262,7 +262,7 @@ def delta_y_study(seed: int = 0, n: int = DELTA_Y_SAMPLES) -> list[DeltaYRow]:
                 h.add(e.src, e.dst, AT(se2.between(sol.pose(e.src), sol.pose(e.dst)), e.at.cov))
             truth = se2.between(sol.pose("w"), sol.pose("u"))
             out = {}
-            for how in ("consistent", "paper"):
+            for how in DeltaY:
                 est = h.query("w", "u", method="reduce", delta_y=how).at
                 try:
                     back = h.query("u", "w", method="reduce", delta_y=how).at.reverse()
@@ -284,7 +284,7 @@ def delta_y_study(seed: int = 0, n: int = DELTA_Y_SAMPLES) -> list[DeltaYRow]:
             def rel(a: np.ndarray | None, b: np.ndarray) -> float:
                 return np.nan if a is None else float(np.linalg.norm(a - b) / np.linalg.norm(b))
 
-            c, p = out["consistent"], out["paper"]
+            c, p = out[DeltaY.CONSISTENT], out[DeltaY.PAPER]
             del opt
             rows.append(
                 DeltaYRow(
