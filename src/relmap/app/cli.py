@@ -55,7 +55,7 @@ def _validate(args: argparse.Namespace) -> int:
     from relmap.app import validate
     from relmap.app.progress import TerminalProgress
     from relmap.errors import ParameterError
-    from relmap.io import load_map
+    from relmap.io.maps import load_map
 
     if args.workers is not None and args.workers < 1:
         raise ParameterError(f"--workers must be a positive integer; got {args.workers}")
@@ -169,7 +169,7 @@ def _query(args: argparse.Namespace) -> int:
 
     from relmap.app.progress import TerminalProgress
     from relmap.errors import ParameterError
-    from relmap.io import load_map
+    from relmap.io.maps import load_map
 
     frames = [args.src, args.dst, *args.more]
     if len(frames) % 2:
@@ -293,8 +293,8 @@ def _solve(args: argparse.Namespace) -> int:
 
     from relmap.app.progress import TerminalProgress
     from relmap.errors import ParameterError
-    from relmap.io import read_graph, solve_graph, write_graph
-    from relmap.io.posegraph import as_format
+    from relmap.io.maps import solve_graph
+    from relmap.io.posegraph import as_format, read_graph, write_graph
 
     for out in (args.out, args.out_trajectory):
         if out and not Path(out).resolve().parent.is_dir():

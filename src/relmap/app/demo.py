@@ -30,7 +30,7 @@ import numpy as np
 from relmap.errors import IrreducibleNetworkError
 from relmap.io.mapfile import ATRecord, read_records
 from relmap.lie import se2
-from relmap.models import PlanarArm
+from relmap.models.arm import PlanarArm
 from relmap.models.decisions import DoorDecision, ViewDecision
 from relmap.network.graph import RelationalMap
 from relmap.sim import montecarlo
@@ -454,14 +454,14 @@ def lecture(
     of MRCLAM robot 1 (:func:`relmap.app.localize.localize`)."""
     from relmap.app.localize import score
     from relmap.filter import ekf
-    from relmap.models import (
+    from relmap.models.odometry import (
         DiffDrive,
         DistanceNoise,
-        RangeBearingSensor,
         WheelNoise,
         dead_reckon,
         increment,
     )
+    from relmap.models.range_bearing import RangeBearingSensor
 
     rng = np.random.default_rng(seed)
     arm = PlanarArm(*ARM)

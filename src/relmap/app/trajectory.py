@@ -215,7 +215,8 @@ def add_arguments(command: str, parser: argparse.ArgumentParser) -> None:
 
 
 def _eval_arguments(ev: argparse.ArgumentParser) -> None:
-    from relmap.evaluate import AlignMode, DeltaUnit, Relation
+    from relmap.evaluate.alignment import AlignMode
+    from relmap.evaluate.metrics import DeltaUnit, Relation
 
     ev.description = (
         "Associate the estimate with the reference by time stamps, align it, and "

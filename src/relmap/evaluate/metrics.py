@@ -51,7 +51,8 @@ class Relation(Option):
     @property
     def unit(self) -> str:
         """The errors' unit as printed: ``"m"``, ``"rad"``, ``"°"``, or ``""`` for a norm."""
-        return {"trans": "m", "angle_rad": "rad", "angle_deg": "°"}.get(self.value, "")
+        units = {Relation.TRANS: "m", Relation.ANGLE_RAD: "rad", Relation.ANGLE_DEG: "°"}
+        return units.get(self, "")
 
 
 class DeltaUnit(Option):

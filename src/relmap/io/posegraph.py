@@ -106,7 +106,8 @@ from relmap.io import formats
 from relmap.io._parsing import fail_at, frozen, strict_float
 from relmap.io.atomic import write_text_atomic
 from relmap.io.textfile import Input
-from relmap.lie import SE3, Group, se2, se3, so3
+from relmap.lie import se2, se3, so3
+from relmap.lie.group import SE3, Group
 from relmap.typing import ArrayLike, FloatArray, IntArray, Option
 from relmap.uncertain import gaussian
 from relmap.uncertain.at import AT

@@ -28,7 +28,7 @@ from relmap.errors import (
     UnknownATError,
     UnknownFrameError,
 )
-from relmap.lie import Group
+from relmap.lie.group import Group
 from relmap.network.parts import Edge, JointGroup
 from relmap.typing import ArrayLike, FloatArray
 from relmap.uncertain import gaussian

@@ -1,6 +1,6 @@
 """Batch studies: one function over a grid of parameters, here or on a Dask cluster.
 
->>> from relmap import study
+>>> from relmap.sim import study
 >>> def area(side, scale):
 ...     return {"area": (side * scale) ** 2}
 >>> t = study.run(area, study.grid(side=[1.0, 2.0], scale=[1, 10]))

@@ -28,7 +28,7 @@ from typing import Any, ClassVar, TypeVar
 import numpy as np
 
 from relmap.errors import ArgumentTypeError, NumericalError, ParameterError, ShapeError
-from relmap.lie import Group
+from relmap.lie.group import Group
 from relmap.typing import ArrayLike, FloatArray, SeedLike
 from relmap.uncertain import gaussian
 from relmap.uncertain.gaussian import Ellipse
