@@ -22,6 +22,8 @@ import ast
 import functools
 from collections.abc import Iterator
 from pathlib import Path
+from types import FrameType
+from typing import NamedTuple
 
 import pytest
 
@@ -661,3 +663,150 @@ def test_options_are_enums_defined_once(module):
                 if set(words) <= values:
                     found.append(f"line {node.lineno}: {words} are {name}'s values again")
     assert not found, f"{module}: options written as strings: {found}"
+
+
+# -------------------------------------------------------------------------- data walks
+#: The commands whose data walk is measured, run in-process (``relmap.app.cli.main``);
+#: ``{examples}`` is the examples folder and ``{tmp}`` a folder holding two small trajectories
+#: (``ref.txt``, TUM; ``est.txt``, relmap's format with covariance). A walk over the shared
+#: data (``relmap localize``) adds ``{data}`` here and the ``real_data`` mark.
+WALKS = [
+    pytest.param(["query", "{examples}/bridge.yaml", "w", "u"], id="query"),
+    pytest.param(["eval", "{tmp}/ref.txt", "{tmp}/est.txt"], id="eval"),
+]
+#: The AT algebra's modules: within them a walk goes down and comes back (each kind's steps in
+#: its own module, the base calls no kind).
+ALGEBRA = ("relmap.uncertain", "relmap.lie", "relmap._layout")
+
+
+class Call(NamedTuple):
+    """One call of a relmap function: who called (the nearest relmap function up the stack, so
+    a callback through numpy or a builtin counts as called by the function that handed it on)
+    and what was called, each as (module, qualified name)."""
+
+    caller: tuple[str, str]
+    callee: tuple[str, str]
+
+
+def walk(argv: list[str]) -> list[Call]:
+    """Every call of a relmap function while ``relmap argv`` runs (after a first run, so that
+    lazy imports are done), in order, under :func:`sys.setprofile`."""
+    import contextlib
+    import io
+    import sys
+
+    from relmap.app.cli import main
+
+    calls: list[Call] = []
+
+    def profile(frame: FrameType, event: str, arg: object) -> None:
+        if event != "call" or not frame.f_globals.get("__name__", "").startswith("relmap"):
+            return
+        up = frame.f_back
+        while up is not None and not up.f_globals.get("__name__", "").startswith("relmap"):
+            up = up.f_back
+        if up is not None:
+            calls.append(
+                Call(
+                    (up.f_globals["__name__"], up.f_code.co_qualname),
+                    (frame.f_globals["__name__"], frame.f_code.co_qualname),
+                )
+            )
+
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        assert main(argv) == 0, f"relmap {' '.join(argv)} failed"
+        sys.setprofile(profile)
+        try:
+            status = main(argv)
+        finally:
+            sys.setprofile(None)
+    assert status == 0
+    return calls
+
+
+@functools.cache
+def below(module: str) -> frozenset[str]:
+    """The relmap modules ``module`` imports, directly or through others."""
+    out: set[str] = set()
+    for other in imports(module):
+        if other in MODULES and other not in (module, "relmap"):
+            out |= {other, *below(other)}
+    return frozenset(out)
+
+
+def upward(calls: list[Call]) -> list[Call]:
+    """The calls from a layer to a higher one (LAYERS): only a callback, a hook defined higher
+    up or a protocol method can make one."""
+    return [c for c in calls if layer_of(c.callee[0]) > layer_of(c.caller[0])]
+
+
+def climbs(calls: list[Call], within: tuple[str, ...] = ("relmap",)) -> list[Call]:
+    """The calls between modules of ``within`` against the import graph: the callee's module
+    imports the caller's (it sits above it), so the walk climbs back up."""
+    inside = [c for c in calls if all(m.startswith(within) for m in (c.caller[0], c.callee[0]))]
+    return [c for c in inside if c.caller[0] != c.callee[0] and c.caller[0] in below(c.callee[0])]
+
+
+def switches(calls: list[Call], within: tuple[str, ...] = ALGEBRA) -> int:
+    """How often the walk goes from one module of ``within`` into another (back and forth)."""
+    return sum(
+        c.caller[0] != c.callee[0] and all(m.startswith(within) for m in (c.caller[0], c.callee[0]))
+        for c in calls
+    )
+
+
+def _walk_files(folder: Path) -> dict[str, str]:
+    """The placeholders of :data:`WALKS`, with the two trajectories written into ``folder``."""
+    import numpy as np
+
+    from relmap.io.trajectory import write_trajectory
+    from relmap.uncertain.trajectory import Trajectory
+
+    t = np.arange(20) * 0.1
+    xyz = np.stack([np.cos(t), np.sin(t), 0.1 * t], -1)
+    q = np.tile([0.0, 0.0, 0.0, 1.0], (20, 1))
+    write_trajectory(folder / "ref.txt", Trajectory.from_quaternions(xyz, q, t), "tum")
+    M = Trajectory.from_quaternions(xyz + 0.01 * np.sin(7 * t)[:, None], q, t).matrices
+    cov = np.broadcast_to(np.diag([1e-4] * 3 + [1e-6] * 3), (20, 6, 6))
+    write_trajectory(folder / "est.txt", Trajectory.from_matrices(M, t, cov))
+    return {"examples": str(SRC.parent / "examples"), "tmp": str(folder)}
+
+
+@pytest.mark.parametrize("argv", WALKS)
+def test_a_data_walk_goes_down_and_comes_back(argv, tmp_path):
+    """A command's data walk goes down the layers and comes back: no call climbs to a higher
+    layer, and within the AT algebra no call climbs against the import graph (the kinds'
+    steps each in their module, the base calling none of them)."""
+    places = _walk_files(tmp_path)
+    calls = walk([a.format(**places) for a in argv])
+    assert any(c.callee[0].startswith("relmap.uncertain") for c in calls)  # not vacuous
+    assert not upward(calls), f"calls up a layer: {sorted(set(upward(calls)))}"
+    assert not climbs(calls, ALGEBRA), f"the AT algebra climbs: {sorted(set(climbs(calls)))}"
+
+
+def test_the_walk_measure_sees_a_climb():
+    """What the check above relies on: a callback from a lower layer into a higher one is an
+    upward call and a climb; a call down is neither."""
+    down = Call(("relmap.network.query", "query"), ("relmap.uncertain.algebra", "compound"))
+    back = Call(("relmap.network.reduce", "_Reducer.reduce"), ("relmap.app.cli", "<lambda>"))
+    assert upward([down, back]) == [back] and climbs([down, back]) == [back]
+    hook = Call(("relmap.uncertain.pose", "UncertainPose.x"), ("relmap.uncertain.at", "AT.y"))
+    assert not upward([hook]) and climbs([hook], ALGEBRA) == [hook] and switches([hook]) == 1
+
+
+if __name__ == "__main__":  # the counts of the report: python tests/test_architecture.py
+    import sys
+    import tempfile
+
+    sys.path.insert(0, str(SRC.parent))
+    extra = [["query", "--method", "reduce", "{examples}/bridge.yaml", "w", "u"]]
+    with tempfile.TemporaryDirectory() as folder:
+        places = _walk_files(Path(folder))
+        for argv in [p.values[0] for p in WALKS] + extra:
+            calls = walk([a.format(**places) for a in argv])
+            print(
+                f"relmap {' '.join(argv[:3])}: {len(calls)} calls, {len(upward(calls))} up a "
+                f"layer, {len(climbs(calls))} against the import graph "
+                f"({len(climbs(calls, ALGEBRA))} in the AT algebra), {switches(calls)} switches "
+                "between the AT algebra's modules"
+            )
