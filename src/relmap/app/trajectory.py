@@ -95,7 +95,7 @@ def _eval(args: argparse.Namespace) -> int:
     for kind, table in (("APE", ev.ape), ("RPE", ev.rpe)):
         for rel, e in table.items():
             s = e.stats()
-            name = f"{kind} {rel} {rel.unit}".rstrip()
+            name = f"{kind} {rel} {e.relation.unit}".rstrip()
             print(
                 f"  {name:16s}"
                 + "".join(f"{s[k]:11.4g}" for k in ("rmse", "mean", "median", "std", "min", "max"))

@@ -161,8 +161,8 @@ def pairs(
         if all_pairs:
             i = np.arange(max(n - d, 0))
             return i, i + d
-        ids = np.arange(0, n, d)
-        return ids[:-1], ids[1:]
+        every = np.arange(0, n, d)
+        return every[:-1], every[1:]
     if unit is DeltaUnit.METRES:
         steps = np.linalg.norm(M[1:, :3, 3] - M[:-1, :3, 3], axis=1)
     else:

@@ -371,7 +371,7 @@ class _Reducer:
         ats = [self.oriented(st, k, a)[0] for k, a in legs]
         out = ats[0]
         for x in ats[1:]:
-            out = compound(out, x, moments=self.moments)  # type: ignore[arg-type]
+            out = compound(out, x, moments=self.moments)
         return out
 
     def first(self, st: _State, a: Frame, b: Frame) -> tuple[Frame, Frame]:
@@ -488,7 +488,7 @@ class _Reducer:
         if cross is not None:
             before, second = self.oriented(st, k1, a)[0], self.oriented(st, k2, m)[0]
             try:
-                at = compound(before, second, cross_cov=cross, moments=self.moments)  # type: ignore[arg-type]
+                at = compound(before, second, cross_cov=cross, moments=self.moments)
             except NotPositiveSemidefiniteError:
                 if not self.decorrelate(st, {n for n, _ in (*l1, *l2)}):
                     raise

@@ -95,7 +95,7 @@ def reverse(a: P, *, jacobians: bool = False) -> P | tuple[P, FloatArray]:
     which :func:`compound` accepts as ``cross_cov``.
     """
     same_kind((a,))
-    return a._reverse(bool(jacobians))  # type: ignore[no-any-return]
+    return a._reverse(bool(jacobians))
 
 
 def merge(

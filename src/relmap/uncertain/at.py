@@ -168,11 +168,6 @@ class AT(UncertainPose):
         return cls(mean, planar, rtol=rtol)
 
     # ------------------------------------------------------------------- accessors
-    @property
-    def mean(self) -> FloatArray:
-        """``(..., 3)`` read-only array ``(x, y, θ)``."""
-        return self._mean
-
     def __repr__(self) -> str:
         if self.ndim:
             return f"AT(batch_shape={self.batch_shape})"
@@ -215,7 +210,7 @@ class AT(UncertainPose):
     def reverse(self) -> AT:
         """The reversed AT ``Aᴿ`` (:func:`relmap.reverse`): where A's parent frame is, seen
         from A's child frame."""
-        return self._reverse(False)  # type: ignore[no-any-return]
+        return self._reverse(False)  # type: ignore[return-value]
 
     def _compound(self, other: AT, cross_cov: FloatArray | None) -> AT:
         """Eqs. (1)-(4): ``C = H C_a Hᵀ + K C_b Kᵀ`` on the six entries; with ``cross_cov`` (a

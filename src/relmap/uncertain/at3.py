@@ -181,11 +181,6 @@ class AT3(UncertainPose):
 
     # ----------------------------------------------------------------- accessors
     @property
-    def mean(self) -> FloatArray:
-        """The mean pose: homogeneous matrices (..., 4, 4) (read-only)."""
-        return self._mean
-
-    @property
     def matrix(self) -> FloatArray:
         """(..., 4, 4) homogeneous matrices (read-only); the same as :attr:`mean`."""
         return self._mean
@@ -299,7 +294,7 @@ class AT3(UncertainPose):
     def reverse(self) -> AT3:
         """The reversed pose ``Aᴿ`` (:func:`relmap.reverse`): where A's parent frame is, seen
         from A's child frame."""
-        return self._reverse(False)  # type: ignore[no-any-return]
+        return self._reverse(False)  # type: ignore[return-value]
 
     def _compound(self, other: AT3, cross_cov: FloatArray | None) -> AT3:
         """``C = J_a C_a J_aᵀ + J_b C_b J_bᵀ`` (+ the cross terms of a dependent pair), with

@@ -45,7 +45,7 @@ class UncertainPose:
     group: ClassVar[Group]  #: the pose group (generic code reads it)
     #: where the translation sits in a mean (the kind states it: ``[..., :2]`` of SE(2)'s
     #: ``(x, y, θ)``, ``[..., :3, 3]`` of SE(3)'s matrices)
-    _translation: ClassVar[tuple[object, ...]]
+    _translation: ClassVar[tuple[Any, ...]]
     #: the dimension n of the space the poses move in (SE(n): 2 for AT, 3 for AT3); the
     #: covariance's position block is its first n × n (:attr:`position_cov`)
     dim: ClassVar[int]
@@ -125,6 +125,12 @@ class UncertainPose:
         return cov
 
     # ------------------------------------------------------------------ accessors
+    @property
+    def mean(self) -> FloatArray:
+        """The read-only mean, a point of :attr:`group`: ``(..., 3)`` ``(x, y, θ)`` for an AT,
+        ``(..., 4, 4)`` homogeneous matrices for an AT3."""
+        return self._mean
+
     @property
     def cov(self) -> FloatArray:
         """``(..., dof, dof)`` read-only covariance in the chart, translation first, in the
