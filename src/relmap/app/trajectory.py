@@ -296,7 +296,7 @@ def _convert_arguments(cv: argparse.ArgumentParser) -> None:
 
     cv.add_argument(
         "--format",
-        choices=[f.name for f in formats.formats("trajectory", writable=True)],
+        choices=[f.name for f in formats.formats(formats.Kind.TRAJECTORY, writable=True)],
         help="default: euroc for .csv, else relmap (TUM when 3-D without covariance)",
     )
     cv.add_argument("--topic", metavar="T", help="bag topic or /tf:PARENT.CHILD")

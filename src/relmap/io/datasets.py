@@ -49,7 +49,8 @@ import numpy as np
 from relmap.errors import FileFormatError, NonFiniteError, ParameterError
 from relmap.io._parsing import fail_at, frozen, strict_float
 from relmap.io.textfile import read_text
-from relmap.lie import SE2, se2
+from relmap.lie import se2
+from relmap.lie.group import SE2
 from relmap.typing import ArrayLike, FloatArray, IntArray, Option
 
 __all__ = [

@@ -524,7 +524,7 @@ def read_graph(path: str | os.PathLike[str] | Input) -> PoseGraph:
     accepted: :func:`relmap.io.textfile.read_input`); a file in another format is refused naming
     it (:func:`relmap.io.formats.read`).
     """
-    graph: PoseGraph = formats.read(path, ("graph",))[1]
+    graph: PoseGraph = formats.read(path, (formats.Kind.GRAPH,))[1]
     return graph
 
 
@@ -678,7 +678,7 @@ def write_graph(
     see the module docstring). Nothing is written if anything is invalid. The writer is the
     registered one of the graph's format (:mod:`relmap.io.formats`).
     """
-    formats.writer(graph.format, "graph")(path, graph, poses=poses)
+    formats.writer(graph.format, formats.Kind.GRAPH)(path, graph, poses=poses)
 
 
 def as_format(graph: PoseGraph, format: GraphFormat | None = None) -> PoseGraph:
@@ -690,11 +690,11 @@ def as_format(graph: PoseGraph, format: GraphFormat | None = None) -> PoseGraph:
     measurements (:class:`ParameterError` at once if a covariance has none) and no kept
     quaternions.
     """
-    legacy = graph.group is SE3 and graph.format == "toro"
-    target = format or ("g2o" if legacy else graph.format)
-    if legacy and target == "g2o":
+    legacy = graph.group is SE3 and graph.format == GraphFormat.TORO
+    target = format or (GraphFormat.G2O if legacy else graph.format)
+    if legacy and target == GraphFormat.G2O:
         return graph._replace(
-            format="g2o",
+            format=GraphFormat.G2O,
             information=file_information(graph.measurements),
             vertex_quaternions=None,
             edge_quaternions=None,
@@ -827,7 +827,7 @@ def file_information(
 # ----------------------------------------------------------------------------------- the formats
 #: A record's tag, as g2o and TORO write them (upper case, ``:`` inside: ``EDGE_SE3:QUAT``).
 _TAG = re.compile(r"[A-Z][A-Z0-9_]*(?::[A-Z0-9_]+)*")
-_TORO_TAGS = frozenset(tag for tag, (fmt, _) in _KIND_OF_TAG.items() if fmt == "toro")
+_TORO_TAGS = frozenset(tag for tag, (fmt, _) in _KIND_OF_TAG.items() if fmt is GraphFormat.TORO)
 
 
 def _first_tag(head: formats.Head) -> str | None:
@@ -854,22 +854,22 @@ def _read(source: Input) -> PoseGraph:
 
 formats.register(
     formats.Format(
-        "g2o",
-        "graph",
+        GraphFormat.G2O,
+        formats.Kind.GRAPH,
         "VERTEX_SE2/EDGE_SE2, VERTEX_SE3:QUAT/EDGE_SE3:QUAT, FIX records",
         _is_g2o,
         _read,
-        functools.partial(_write_as, "g2o"),
+        functools.partial(_write_as, GraphFormat.G2O),
         fallback=True,
     )
 )
 formats.register(
     formats.Format(
-        "toro",
-        "graph",
+        GraphFormat.TORO,
+        formats.Kind.GRAPH,
         "VERTEX2/EDGE2 records; VERTEX3/EDGE3 read only",
         _is_toro,
         _read,
-        functools.partial(_write_as, "toro"),
+        functools.partial(_write_as, GraphFormat.TORO),
     )
 )
