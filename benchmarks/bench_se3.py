@@ -11,7 +11,7 @@
 2. N reversals with covariance: ``a.reverse()`` vs ``Pose3.inverse(H)`` and ``H Σ Hᵀ``.
 3. Chains: B independent chains of L steps (B·L compounds), every intermediate kept: relmap
    compounds the B chains one step at a time (L batched calls of width B), and all prefixes in
-   one call (``relmap.uncertain.at3.compound_chain3``) on the steps as stored, (B, L), and stored
+   one call (``rm.compound_chain``) on the steps as stored, (B, L), and stored
    step-major, (L, B) (the order its kernel reads; (B, L) is first copied into it); GTSAM
    loops over all.
 4. One pair per call (no batch): relmap's fixed overhead against GTSAM's, for a compound and
@@ -47,7 +47,6 @@ import gtsam
 import numpy as np
 
 import relmap as rm
-from relmap.uncertain.at3 import compound_chain3
 
 Timing = tuple[float, float]
 
@@ -231,23 +230,23 @@ def main() -> None:
     ours_all = rm.AT3.stack(ours, axis=1)  # (k, L), chain-major like GTSAM's
     print(f"\n{B:,} chains of {L} SE(3) steps ({B * L:,} compounds), every prefix kept")
     agreement(f"(first {k} chains)", ours_all, theirs)
-    agreement("compound_chain3", compound_chain3(steps[:k], axis=1), theirs)
+    agreement("compound_chain", rm.compound_chain(steps[:k], axis=1), theirs)
     # the same steps stored step-major, (L, B): the chain axis first, as the kernel reads them
     steps_lb = rm.AT3.from_matrix(np.swapaxes(steps.mean, 0, 1), np.swapaxes(steps.cov, 0, 1))
-    ours_lb = compound_chain3(steps_lb[:, :k], axis=0)
-    agreement("compound_chain3 (L, B)", rm.AT3(*(np.swapaxes(x, 0, 1) for x in (
+    ours_lb = rm.compound_chain(steps_lb[:, :k], axis=0)
+    agreement("compound_chain (L, B)", rm.AT3(*(np.swapaxes(x, 0, 1) for x in (
         ours_lb.translation, ours_lb.rotation, ours_lb.cov))), theirs)  # fmt: skip
     t_rch, t_rcc, t_rlb, t_gch = timings(
         lambda: relmap_chains(steps),
-        lambda: compound_chain3(steps, axis=1),
-        lambda: compound_chain3(steps_lb, axis=0),
+        lambda: rm.compound_chain(steps, axis=1),
+        lambda: rm.compound_chain(steps_lb, axis=0),
         lambda: gtsam_chains(g_steps, g_covs),
         repeat=args.gtsam_repeat,
         inner=(inner, inner, inner),
     )
     row(f"relmap  {L} batched a @ b of {B}", t_rch, B * L, "step")
-    row("relmap  compound_chain3 on (B, L)", t_rcc, B * L, "step")
-    row("relmap  compound_chain3 on (L, B)", t_rlb, B * L, "step")
+    row("relmap  compound_chain on (B, L)", t_rcc, B * L, "step")
+    row("relmap  compound_chain on (L, B)", t_rlb, B * L, "step")
     row("GTSAM loop", t_gch, B * L, "step")
     print(f"  relmap vs GTSAM, step by step:        {t_gch[0] / t_rch[0]:6.1f}x faster")
     print(f"  relmap vs GTSAM, one call, (B, L):    {t_gch[0] / t_rcc[0]:6.1f}x faster")

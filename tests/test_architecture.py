@@ -22,6 +22,8 @@ import ast
 import functools
 from collections.abc import Iterator
 from pathlib import Path
+from types import FrameType
+from typing import NamedTuple
 
 import pytest
 
@@ -208,7 +210,9 @@ def test_the_import_parser_sees_relmaps_imports():
     """What the checks above rely on: every form of import is seen and resolved."""
     assert "relmap._core" in imports("relmap.uncertain.at3")  # from relmap import _core (compiled)
     assert "relmap.errors" in imports("relmap.uncertain.gaussian")  # from relmap.errors import ...
-    assert "relmap.lie" in imports("relmap.uncertain.at3")  # from relmap.lie import SE3
+    assert "relmap.lie.group" in imports("relmap.uncertain.at3")  # from relmap.lie.group import SE3
+    assert "relmap.lie.se3" in imports("relmap.uncertain.at3")  # from relmap.lie import se3
+    assert "relmap.evaluate" in imports("relmap.app.trajectory")  # a package's own name
     assert "relmap.network.graph" in imports("relmap.io.maps")  # in a function or at the top
     assert "relmap" in imports("relmap.app.cli")  # from relmap import __version__: the package
     assert "numpy" in imports("relmap.uncertain.gaussian")
@@ -552,3 +556,257 @@ def test_no_code_branches_on_a_formats_name():
                 if value in owner and owner[value] != module
             ]
     assert not found, f"code branching on a format's name: {found}"
+
+
+# -------------------------------------------------------------- one name per thing
+def _bound_names(module: str) -> set[str]:
+    """The names ``module`` defines itself at its top level (functions, classes, assignments;
+    also inside top-level ``if``/``try`` blocks), not those it imports."""
+    out: set[str] = set()
+    todo: list[ast.stmt] = list(tree(module).body)
+    while todo:
+        node = todo.pop()
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            out.add(node.name)
+        elif isinstance(node, (ast.Assign, ast.AnnAssign, ast.AugAssign)):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            out.update(n.id for t in targets for n in ast.walk(t) if isinstance(n, ast.Name))
+        elif isinstance(node, (ast.If, ast.Try)):
+            todo.extend(node.body + node.orelse + getattr(node, "finalbody", []))
+            todo.extend(s for h in getattr(node, "handlers", []) for s in h.body)
+    return out
+
+
+def _imported_names(module: str) -> Iterator[tuple[int, str, str]]:
+    """``(line, source module, name)`` of every ``from relmap… import name`` in ``module``."""
+    path = MODULES[module]
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    for node in ast.walk(tree(module)):
+        if not isinstance(node, ast.ImportFrom):
+            continue
+        source = node.module or ""
+        if node.level:
+            base = package.split(".")[: len(package.split(".")) - node.level + 1]
+            source = ".".join([*base, *([node.module] if node.module else [])])
+        if source in MODULES:
+            for alias in node.names:
+                yield node.lineno, source, alias.name
+
+
+@pytest.mark.parametrize("module", LIBRARY)
+def test_library_code_imports_a_name_from_the_module_that_defines_it(module):
+    """No alias modules: relmap's modules import each name from the module that defines it,
+    never through a module that re-exports it (a package's ``__init__`` is the users' door,
+    not relmap's; the applications may take ``__version__`` from the package)."""
+    aliased = [
+        f"line {line}: {name} from {source}"
+        for line, source, name in _imported_names(module)
+        if f"{source}.{name}" not in MODULES
+        and f"{source}.{name}" != "relmap._core"
+        and name not in _bound_names(source)
+        and (source, name) != ("relmap", "__version__")
+    ]
+    assert not aliased, f"{module} imports names through a re-export: {aliased}"
+
+
+#: Modules being rewritten now (issue 31: models/, filter/ and localize are the lead engineer's);
+#: their options become Option enums there, and the checks below then cover them too.
+PENDING_OPTIONS: tuple[str, ...] = ()
+
+
+def _option_values() -> dict[str, frozenset[str]]:
+    """Every :class:`relmap.typing.Option` of ``src/relmap`` (``module.Name``) and its values."""
+    out: dict[str, frozenset[str]] = {}
+    for module in MODULES:
+        for node in ast.walk(tree(module)):
+            if isinstance(node, ast.ClassDef) and any(
+                isinstance(b, ast.Name) and b.id == "Option" for b in node.bases
+            ):
+                out[f"{module}.{node.name}"] = frozenset(
+                    s.value.value
+                    for s in node.body
+                    if isinstance(s, ast.Assign)
+                    and isinstance(s.value, ast.Constant)
+                    and isinstance(s.value.value, str)
+                )
+    return out
+
+
+def _pending(module: str) -> bool:
+    return any(module == p or module.startswith(p + ".") for p in PENDING_OPTIONS)
+
+
+@pytest.mark.parametrize("module", [m for m in LIBRARY if not _pending(m)])
+def test_options_are_enums_defined_once(module):
+    """An option is an :class:`relmap.typing.Option` (a str enum, parsed at the edge with an
+    error listing its choices), not a ``Literal`` of strings, and its values are written once:
+    no tuple, list, set or dict of two or more of one option's values elsewhere (a second
+    list of choices, e.g. argparse's, reads them from the enum)."""
+    options = _option_values()
+    assert "relmap.uncertain.moments.MomentsMethod" in options  # (the check is not vacuous)
+    found = []
+    for node in ast.walk(tree(module)):
+        if isinstance(node, ast.Subscript) and getattr(node.value, "id", "") == "Literal":
+            words = [c.value for c in ast.walk(node.slice) if isinstance(c, ast.Constant)]
+            if any(isinstance(w, str) for w in words):
+                found.append(f"line {node.lineno}: Literal{words}")
+        items = (
+            node.keys
+            if isinstance(node, ast.Dict)
+            else node.elts
+            if isinstance(node, (ast.Tuple, ast.List, ast.Set))
+            else []
+        )
+        words = [c.value for c in items if isinstance(c, ast.Constant)]
+        if len(words) >= 2 and all(isinstance(w, str) for w in words):
+            for name, values in options.items():
+                if set(words) <= values:
+                    found.append(f"line {node.lineno}: {words} are {name}'s values again")
+    assert not found, f"{module}: options written as strings: {found}"
+
+
+# -------------------------------------------------------------------------- data walks
+#: The commands whose data walk is measured, run in-process (``relmap.app.cli.main``);
+#: ``{examples}`` is the examples folder and ``{tmp}`` a folder holding two small trajectories
+#: (``ref.txt``, TUM; ``est.txt``, relmap's format with covariance). A walk over the shared
+#: data (``relmap localize``) adds ``{data}`` here and the ``real_data`` mark.
+WALKS = [
+    pytest.param(["query", "{examples}/bridge.yaml", "w", "u"], id="query"),
+    pytest.param(["eval", "{tmp}/ref.txt", "{tmp}/est.txt"], id="eval"),
+]
+#: The AT algebra's modules: within them a walk goes down and comes back (each kind's steps in
+#: its own module, the base calls no kind).
+ALGEBRA = ("relmap.uncertain", "relmap.lie", "relmap._layout")
+
+
+class Call(NamedTuple):
+    """One call of a relmap function: who called (the nearest relmap function up the stack, so
+    a callback through numpy or a builtin counts as called by the function that handed it on)
+    and what was called, each as (module, qualified name)."""
+
+    caller: tuple[str, str]
+    callee: tuple[str, str]
+
+
+def walk(argv: list[str]) -> list[Call]:
+    """Every call of a relmap function while ``relmap argv`` runs (after a first run, so that
+    lazy imports are done), in order, under :func:`sys.setprofile`."""
+    import contextlib
+    import io
+    import sys
+
+    from relmap.app.cli import main
+
+    calls: list[Call] = []
+
+    def profile(frame: FrameType, event: str, arg: object) -> None:
+        if event != "call" or not frame.f_globals.get("__name__", "").startswith("relmap"):
+            return
+        up = frame.f_back
+        while up is not None and not up.f_globals.get("__name__", "").startswith("relmap"):
+            up = up.f_back
+        if up is not None:
+            calls.append(
+                Call(
+                    (up.f_globals["__name__"], up.f_code.co_qualname),
+                    (frame.f_globals["__name__"], frame.f_code.co_qualname),
+                )
+            )
+
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        assert main(argv) == 0, f"relmap {' '.join(argv)} failed"
+        sys.setprofile(profile)
+        try:
+            status = main(argv)
+        finally:
+            sys.setprofile(None)
+    assert status == 0
+    return calls
+
+
+@functools.cache
+def below(module: str) -> frozenset[str]:
+    """The relmap modules ``module`` imports, directly or through others."""
+    out: set[str] = set()
+    for other in imports(module):
+        if other in MODULES and other not in (module, "relmap"):
+            out |= {other, *below(other)}
+    return frozenset(out)
+
+
+def upward(calls: list[Call]) -> list[Call]:
+    """The calls from a layer to a higher one (LAYERS): only a callback, a hook defined higher
+    up or a protocol method can make one."""
+    return [c for c in calls if layer_of(c.callee[0]) > layer_of(c.caller[0])]
+
+
+def climbs(calls: list[Call], within: tuple[str, ...] = ("relmap",)) -> list[Call]:
+    """The calls between modules of ``within`` against the import graph: the callee's module
+    imports the caller's (it sits above it), so the walk climbs back up."""
+    inside = [c for c in calls if all(m.startswith(within) for m in (c.caller[0], c.callee[0]))]
+    return [c for c in inside if c.caller[0] != c.callee[0] and c.caller[0] in below(c.callee[0])]
+
+
+def switches(calls: list[Call], within: tuple[str, ...] = ALGEBRA) -> int:
+    """How often the walk goes from one module of ``within`` into another (back and forth)."""
+    return sum(
+        c.caller[0] != c.callee[0] and all(m.startswith(within) for m in (c.caller[0], c.callee[0]))
+        for c in calls
+    )
+
+
+def _walk_files(folder: Path) -> dict[str, str]:
+    """The placeholders of :data:`WALKS`, with the two trajectories written into ``folder``."""
+    import numpy as np
+
+    from relmap.io.trajectory import write_trajectory
+    from relmap.uncertain.trajectory import Trajectory
+
+    t = np.arange(20) * 0.1
+    xyz = np.stack([np.cos(t), np.sin(t), 0.1 * t], -1)
+    q = np.tile([0.0, 0.0, 0.0, 1.0], (20, 1))
+    write_trajectory(folder / "ref.txt", Trajectory.from_quaternions(xyz, q, t), "tum")
+    M = Trajectory.from_quaternions(xyz + 0.01 * np.sin(7 * t)[:, None], q, t).matrices
+    cov = np.broadcast_to(np.diag([1e-4] * 3 + [1e-6] * 3), (20, 6, 6))
+    write_trajectory(folder / "est.txt", Trajectory.from_matrices(M, t, cov))
+    return {"examples": str(SRC.parent / "examples"), "tmp": str(folder)}
+
+
+@pytest.mark.parametrize("argv", WALKS)
+def test_a_data_walk_goes_down_and_comes_back(argv, tmp_path):
+    """A command's data walk goes down the layers and comes back: no call climbs to a higher
+    layer, and within the AT algebra no call climbs against the import graph (the kinds'
+    steps each in their module, the base calling none of them)."""
+    places = _walk_files(tmp_path)
+    calls = walk([a.format(**places) for a in argv])
+    assert any(c.callee[0].startswith("relmap.uncertain") for c in calls)  # not vacuous
+    assert not upward(calls), f"calls up a layer: {sorted(set(upward(calls)))}"
+    assert not climbs(calls, ALGEBRA), f"the AT algebra climbs: {sorted(set(climbs(calls)))}"
+
+
+def test_the_walk_measure_sees_a_climb():
+    """What the check above relies on: a callback from a lower layer into a higher one is an
+    upward call and a climb; a call down is neither."""
+    down = Call(("relmap.network.query", "query"), ("relmap.uncertain.algebra", "compound"))
+    back = Call(("relmap.network.reduce", "_Reducer.reduce"), ("relmap.app.cli", "<lambda>"))
+    assert upward([down, back]) == [back] and climbs([down, back]) == [back]
+    hook = Call(("relmap.uncertain.pose", "UncertainPose.x"), ("relmap.uncertain.at", "AT.y"))
+    assert not upward([hook]) and climbs([hook], ALGEBRA) == [hook] and switches([hook]) == 1
+
+
+if __name__ == "__main__":  # the counts of the report: python tests/test_architecture.py
+    import sys
+    import tempfile
+
+    sys.path.insert(0, str(SRC.parent))
+    extra = [["query", "--method", "reduce", "{examples}/bridge.yaml", "w", "u"]]
+    with tempfile.TemporaryDirectory() as folder:
+        places = _walk_files(Path(folder))
+        for argv in [p.values[0] for p in WALKS] + extra:
+            calls = walk([a.format(**places) for a in argv])
+            print(
+                f"relmap {' '.join(argv[:3])}: {len(calls)} calls, {len(upward(calls))} up a "
+                f"layer, {len(climbs(calls))} against the import graph "
+                f"({len(climbs(calls, ALGEBRA))} in the AT algebra), {switches(calls)} switches "
+                "between the AT algebra's modules"
+            )

@@ -515,3 +515,70 @@ def test_map_names_and_frames_are_checked_with_relmap_errors():
         g.add("W", ["B"], at, name="y")
     assert isinstance(info.value, RelmapError)
     assert [e.name for e in g.edges()] == ["x"]  # nothing half-added
+
+
+# ------------------------------------------------------------------------------------- options
+def _options_cases():  # type: ignore[no-untyped-def]
+    """(call with a bad option, the argument's name, the choices' values): one per option."""
+    from relmap.evaluate import metrics
+    from relmap.evaluate.alignment import AlignMode, align
+    from relmap.io.posegraph import GraphFormat, file_information
+    from relmap.network.query import QueryMethod
+    from relmap.network.reduce import DeltaY, OnIrreducible
+    from relmap.sim import study
+    from relmap.uncertain.trajectory import Trajectory
+
+    a = rm.AT([1.0, 0.0, 0.1], I3)
+    g = rm.RelationalMap()
+    g.add("w", "t", a, name="A")
+    steps = rm.AT.stack([a, a])
+    P = np.broadcast_to(np.eye(4), (3, 4, 4))
+    traj = Trajectory.from_matrices(P, np.arange(3.0))
+    return [
+        (lambda: rm.compound(a, a, moments="second"), "moments", moments.MomentsMethod),
+        (lambda: rm.compound_chain(steps, moments="2nd"), "moments", moments.MomentsMethod),
+        (
+            lambda: moments.unscented_chain(steps.mean, steps.cov, axis=0, scheme="parallel"),
+            "scheme",
+            moments.ChainScheme,
+        ),
+        (lambda: g.query("w", "t", method="best"), "method", QueryMethod),
+        (lambda: g.query("w", "t", method="reduce", delta_y="both"), "delta_y", DeltaY),
+        (
+            lambda: g.query("w", "t", method="reduce", on_irreducible="x"),
+            "on_irreducible",
+            OnIrreducible,
+        ),
+        (lambda: metrics.ape(P, P, "angle"), "pose relation", metrics.Relation),
+        (lambda: metrics.rpe(P, P, unit="km"), "delta unit", metrics.DeltaUnit),
+        (lambda: align(traj, traj, "affine"), "alignment", AlignMode),
+        (lambda: file_information(a, format="g3o"), "format", GraphFormat),
+        (lambda: study.run(abs, [{"x": 1}], on_error="ignore"), "on_error", study.OnError),
+    ]
+
+
+def test_a_bad_option_names_the_argument_and_lists_the_choices():
+    """Every option (a relmap.typing.Option) refuses a value that is none of its choices with a
+    ParameterError naming the argument and listing the choices."""
+    for call, name, options in _options_cases():
+        with pytest.raises(ParameterError) as info:
+            call()
+        message = str(info.value)
+        assert message.startswith(f"{name} must be one of "), message
+        assert all(repr(v) in message for v in options.choices()), message
+
+
+def test_an_option_takes_its_string_or_its_member():
+    """Callers pass strings or members alike (a str enum), and get the same answer."""
+    from relmap.network.query import QueryMethod
+    from relmap.uncertain.moments import MomentsMethod
+
+    a = rm.AT([1.0, 0.0, 0.1], I3)
+    by_name = rm.compound(a, a, moments="exact")
+    by_member = rm.compound(a, a, moments=MomentsMethod.EXACT)
+    np.testing.assert_array_equal(by_name.cov, by_member.cov)
+    g = rm.RelationalMap()
+    g.add("w", "t", a, name="A")
+    est = g.query("w", "t", method=QueryMethod.REDUCE)
+    assert est.method is QueryMethod.REDUCE and est.method == "reduce"
+    assert QueryMethod.parse("optimal", "method") is QueryMethod.OPTIMAL

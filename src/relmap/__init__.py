@@ -37,22 +37,24 @@ if TYPE_CHECKING:
         uncertain,
         viz,
     )  # fmt: skip
-    from relmap.network import Estimate, RelationalMap
-    from relmap.uncertain.at import AT, compound, compound_chain, merge, reverse
+    from relmap.network.graph import RelationalMap
+    from relmap.network.query import Estimate
+    from relmap.uncertain.algebra import compound, compound_chain, merge, reverse
+    from relmap.uncertain.at import AT
     from relmap.uncertain.at3 import AT3
     from relmap.uncertain.gaussian import Ellipse
 
 #: The public names and the module each comes from.
 _NAMES = {
     "AT": "relmap.uncertain.at",
-    "compound": "relmap.uncertain.at",
-    "compound_chain": "relmap.uncertain.at",
-    "merge": "relmap.uncertain.at",
-    "reverse": "relmap.uncertain.at",
     "AT3": "relmap.uncertain.at3",
+    "compound": "relmap.uncertain.algebra",
+    "compound_chain": "relmap.uncertain.algebra",
+    "merge": "relmap.uncertain.algebra",
+    "reverse": "relmap.uncertain.algebra",
     "Ellipse": "relmap.uncertain.gaussian",
-    "Estimate": "relmap.network",
-    "RelationalMap": "relmap.network",
+    "Estimate": "relmap.network.query",
+    "RelationalMap": "relmap.network.graph",
 }
 #: The public submodules, available as attributes of the package.
 _MODULES = (

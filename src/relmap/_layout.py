@@ -47,19 +47,6 @@ def components_outermost(arr: FloatArray, k: int) -> FloatArray:
     return np.moveaxis(np.ascontiguousarray(np.moveaxis(arr, axes, front)), front, axes)
 
 
-def read_only(arr: FloatArray, shape: tuple[int, ...]) -> FloatArray:
-    """A read-only view of ``arr`` broadcast to ``shape`` (a plain view when it has that shape:
-    np.broadcast_to costs microseconds, which matter for single values; ``arr`` itself when it
-    is read-only already, e.g. a result of the compiled core)."""
-    if arr.shape != shape:
-        return np.broadcast_to(arr, shape)
-    if not arr.flags.writeable:
-        return arr
-    view = arr.view()
-    view.setflags(write=False)  # (not view.flags.writeable = False: that builds a flags object)
-    return view
-
-
 def compact(arr: FloatArray, core: int) -> FloatArray:
     """The smallest view of ``arr`` that broadcasts back to it: every batch axis (all but the
     last ``core``) with stride 0 cut to length 1. A covariance shared by a batch (an AT built

@@ -46,6 +46,11 @@ class Option(str, enum.Enum):
         return str(self.value)
 
     @classmethod
+    def choices(cls) -> list[str]:
+        """The values, in order (e.g. a command-line option's choices)."""
+        return [str(member.value) for member in cls]
+
+    @classmethod
     def parse(cls: type[_O], value: object, name: str) -> _O:
         """The member of ``value`` (a member or its value); ``name`` is the argument's name."""
         try:  # a dict look-up: calling the enum costs microseconds, and options come every step

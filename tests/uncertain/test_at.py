@@ -18,6 +18,8 @@ from relmap.errors import (
 )
 from relmap.lie import se2
 from relmap.sim import montecarlo
+from relmap.uncertain import at
+from relmap.uncertain.gaussian import congruence
 from relmap.uncertain.propagate import SE2, Chart, propagate
 from tests.helpers import assert_poses_close, random_ats, random_covs, random_poses
 
@@ -164,11 +166,11 @@ def test_compound_matches_gtsam_via_body_conversion():
 def test_compound_with_own_reversal_cross_cov_is_exactly_zero():
     """A ⊕ Aᴿ with A's true correlation with Aᴿ: zero covariance; Eq. 4's independence: 2HCHᵀ."""
     unit = rm.AT([1.0, 0.5, 0.3], np.diag([0.01, 0.01, 0.001]))
-    r, R = rm.reverse(unit, jacobian=True)
+    r, R = rm.reverse(unit, jacobians=True)
     assert np.abs(rm.compound(unit, r, cross_cov=unit.cov @ R.T).cov).max() <= 1e-15
 
     a = random_ats(9, (200,))  # translations of metres, so terms reach ~1: zero to rounding
-    r, R = rm.reverse(a, jacobian=True)
+    r, R = rm.reverse(a, jacobians=True)
     cross = a.cov @ np.swapaxes(R, -1, -2)  # Cov(A, Aᴿ) = C_A Rᵀ
     z = rm.compound(a, r, cross_cov=cross)
     indep = rm.compound(a, r)
@@ -467,3 +469,35 @@ def test_merge_of_a_batch_sharing_its_covariances_computes_the_gain_once(rng, ho
     d = se2.minus(b.mean, a.mean)
     step = np.einsum("ij,...j->...i", C @ A.T @ Si[:, 3:], d)
     assert_poses_close(m.mean, se2.plus(a.mean, step), atol=1e-12)
+
+
+# ------------------------------------- SE(2)'s fused 3×3 congruences, against the matrix products
+def test_fused_congruences_are_the_matrix_products(rng):
+    C = random_covs(rng, (50,))
+    t, dx, dy = rng.uniform(-3, 3, 50), rng.normal(size=50), rng.normal(size=50)
+    c, s = np.cos(t), np.sin(t)
+    K = np.zeros((50, 3, 3))
+    K[:, 0, 0], K[:, 0, 1], K[:, 1, 0], K[:, 1, 1], K[:, 2, 2] = c, -s, s, c, 1.0
+    H = np.broadcast_to(np.eye(3), (50, 3, 3)).copy()
+    H[:, 0, 2], H[:, 1, 2] = -dy, dx
+    e = at.entries(C)
+    np.testing.assert_allclose(at.to_matrix(e), C, rtol=0, atol=0)
+    np.testing.assert_allclose(at.to_matrix(at.rotate(e, c, s)), K @ C @ K.transpose(0, 2, 1),
+                               rtol=1e-13, atol=1e-15)  # fmt: skip
+    np.testing.assert_allclose(at.to_matrix(at.shear(e, dx, dy)), H @ C @ H.transpose(0, 2, 1),
+                               rtol=1e-13, atol=1e-15)  # fmt: skip
+    S = random_covs(rng, (50,), n=2)
+    a, b, ee, f = rng.normal(size=(4, 50))
+    J = np.zeros((50, 3, 2))
+    J[:, 0], J[:, 1], J[:, 2, 1] = np.stack([a, ee], -1), np.stack([b, f], -1), 1.0
+    out = at.congruence_3x2(a, ee, b, f, S[:, 0, 0], S[:, 0, 1], S[:, 1, 1])
+    np.testing.assert_allclose(at.to_matrix(out), J @ S @ J.transpose(0, 2, 1),
+                               rtol=1e-13, atol=1e-15)  # fmt: skip
+    np.testing.assert_allclose(congruence(J, S), J @ S @ J.transpose(0, 2, 1), rtol=1e-13)
+    assert (congruence(J, S) == congruence(J, S).transpose(0, 2, 1)).all()
+
+
+def test_one_matrix_gives_python_floats():
+    e = at.entries(np.diag([1.0, 2.0, 3.0]))
+    assert all(type(v) is float for v in e)
+    assert at.to_matrix(at.rotate(e, 0.0, 1.0)).shape == (3, 3)

@@ -132,7 +132,7 @@ def test_ros_round_trip():
 # ------------------------------------------------------------------ laws
 def test_compound_with_own_reversal_cross_cov_is_zero():
     a = random_at3s(9, 50)
-    r, J = rm.reverse(a, jacobian=True)
+    r, J = rm.reverse(a, jacobians=True)
     c = rm.compound(a, r, cross_cov=a.cov @ np.swapaxes(J, -1, -2))
     np.testing.assert_allclose(c.matrix, np.broadcast_to(np.eye(4), (50, 4, 4)), atol=1e-14)
     assert np.abs(c.cov).max() <= 1e-15
@@ -402,7 +402,7 @@ def test_compound_and_reverse_that_overflow_raise(where):
     assert np.isfinite((fine @ fine).cov).all()
 
 
-def test_merge3_of_a_batch_sharing_its_covariances_computes_the_gains_once(rng):
+def test_merging_at3s_that_share_their_covariances_computes_the_gains_once(rng):
     """AT3s of one covariance each (stored once): the gains are computed once (the result's
     covariance stays stride 0) and, for equal means, are the information form (I_a + I_b)⁻¹."""
     L1, L2 = rng.normal(scale=0.1, size=(6, 6)), rng.normal(scale=0.1, size=(6, 6))

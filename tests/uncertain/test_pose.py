@@ -1,5 +1,5 @@
 """relmap.uncertain.pose: what AT and AT3 share (storage, stacking, indexing, sampling, the ellipse)
-behaves the same for both kinds, and the free functions dispatch on the kind, not isinstance."""
+behaves the same for both kinds (the free functions on both: tests/uncertain/test_algebra.py)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import relmap as rm
-from relmap.errors import ArgumentTypeError, ParameterError, ShapeError
+from relmap.errors import ArgumentTypeError
 from relmap.uncertain.pose import UncertainPose
 
 
@@ -59,36 +59,6 @@ def test_sampling_goes_through_the_chart(rng):
     q = rm.AT3.from_planar(a)
     d3 = rm.lie.se3.minus(q.sample(20_000, seed=1), q.mean)
     np.testing.assert_allclose(np.cov(d3.T)[np.ix_([0, 1, 5], [0, 1, 5])], a.cov, atol=0.004)
-
-
-def test_free_functions_take_either_kind_and_refuse_a_mix(rng):
-    a = _planar(rng, 2)
-    q = rm.AT3.from_planar(a)
-    # the planar AT3's operations are the AT's (the paper's chart is the AT3's in the plane)
-    np.testing.assert_allclose(
-        rm.compound(q[0], q[1]).cov[np.ix_([0, 1, 5], [0, 1, 5])],
-        rm.compound(a[0], a[1]).cov,
-        atol=1e-15,
-    )
-    np.testing.assert_allclose(
-        rm.reverse(q).cov[:, [0, 1, 5]][:, :, [0, 1, 5]], rm.reverse(a).cov, atol=1e-15
-    )
-    np.testing.assert_allclose(
-        rm.merge(q[0], q[1]).cov[np.ix_([0, 1, 5], [0, 1, 5])], rm.merge(a[0], a[1]).cov, atol=1e-15
-    )
-    np.testing.assert_allclose(
-        rm.compound_chain(q).cov[:, [0, 1, 5]][:, :, [0, 1, 5]],
-        rm.compound_chain(a).cov,
-        atol=1e-15,
-    )
-    for call in (lambda: rm.compound(a[0], q[0]), lambda: rm.merge(q[0], a[0]),
-                 lambda: rm.compound(1.0, a[0]), lambda: rm.reverse("a")):  # fmt: skip
-        with pytest.raises(ArgumentTypeError):
-            call()
-    with pytest.raises(ParameterError, match="SE\\(2\\)"):
-        rm.compound(q[0], q[1], moments="exact")
-    with pytest.raises(ShapeError):
-        rm.merge(q, rm.AT3.stack([q[0], q[0], q[0]]))
 
 
 @pytest.mark.parametrize("kind", ["AT", "AT3"])

@@ -55,7 +55,7 @@ def _validate(args: argparse.Namespace) -> int:
     from relmap.app import validate
     from relmap.app.progress import TerminalProgress
     from relmap.errors import ParameterError
-    from relmap.io import load_map
+    from relmap.io.maps import load_map
 
     if args.workers is not None and args.workers < 1:
         raise ParameterError(f"--workers must be a positive integer; got {args.workers}")
@@ -169,7 +169,7 @@ def _query(args: argparse.Namespace) -> int:
 
     from relmap.app.progress import TerminalProgress
     from relmap.errors import ParameterError
-    from relmap.io import load_map
+    from relmap.io.maps import load_map
 
     frames = [args.src, args.dst, *args.more]
     if len(frames) % 2:
@@ -293,8 +293,8 @@ def _solve(args: argparse.Namespace) -> int:
 
     from relmap.app.progress import TerminalProgress
     from relmap.errors import ParameterError
-    from relmap.io import read_graph, solve_graph, write_graph
-    from relmap.io.posegraph import as_format
+    from relmap.io.maps import solve_graph
+    from relmap.io.posegraph import as_format, read_graph, write_graph
 
     for out in (args.out, args.out_trajectory):
         if out and not Path(out).resolve().parent.is_dir():
@@ -521,17 +521,27 @@ def _output_folder(text: str) -> str:
     return text
 
 
-#: The trajectory commands (:mod:`relmap.app.trajectory`) and their help lines: ``relmap --help``
-#: lists them without importing that module or building their parsers.
+#: The trajectory commands (:mod:`relmap.app.trajectory`) and their help lines.
 TRAJECTORY_COMMANDS = {
     "eval": "score an estimated trajectory against a reference: APE, RPE (as evo) and NEES",
     "traj": "summarize (and plot) trajectory files",
     "convert": "convert a trajectory between formats",
 }
+#: relmap's commands and their help lines, in the order ``relmap --help`` lists them. Listing
+#: them imports nothing; a command's parser is built only when it runs (its choices come from
+#: the option enums of the modules it runs, which import numpy).
+COMMANDS = {
+    "demo": "reproduce the paper: print the key numbers, write an HTML report with figures",
+    "validate": "Monte Carlo check of a query on a map file",
+    "query": "the AT between two frames of a map (map JSON/YAML, g2o 2-D/3-D or TORO file)",
+    "solve": "optimize a pose graph (g2o 2-D/3-D, TORO) from its initial guess",
+    "localize": "EKF localization with a known map on an MRCLAM or CMU Plaza folder",
+    **TRAJECTORY_COMMANDS,
+}
 
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
-    """The argument parser of the ``relmap`` command; of the trajectory commands only
+    """The argument parser of the ``relmap`` command; of the commands' own parsers only
     ``command``'s is built (all of them for None)."""
     from relmap import __version__
 
@@ -544,12 +554,28 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
         "--debug", action="store_true", help="on an error, print the full traceback too"
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    demo = sub.add_parser(
-        "demo",
-        help="reproduce the paper: print the key numbers, write an HTML report with figures",
-        description="Fig. 1, the Wheatstone bridge (Figs. 3-4), Fig. 5 and §6.3, decisions "
+    for name, text in COMMANDS.items():  # listed always, built when they run
+        command_parser = sub.add_parser(name, help=text)
+        if command is None or command == name:
+            if name in TRAJECTORY_COMMANDS:
+                from relmap.app.trajectory import add_arguments
+
+                add_arguments(name, command_parser)
+            else:
+                _ARGUMENTS[name](command_parser)
+
+    for command in sub.choices.values():  # --debug after the command too
+        command.add_argument(
+            "--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS
+        )
+    return parser
+
+
+def _demo_arguments(demo: argparse.ArgumentParser) -> None:
+    demo.description = (
+        "Fig. 1, the Wheatstone bridge (Figs. 3-4), Fig. 5 and §6.3, decisions "
         "ahead of time, and the lecture's examples: numbers printed, and DIR/index.html written "
-        "with its figures beside it.",
+        "with its figures beside it."
     )
     demo.add_argument(
         "--seed", type=_seed, default=0, help="seed of the Monte Carlo checks (default 0)"
@@ -575,17 +601,20 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     )
     demo.set_defaults(run=_demo)
 
-    val = sub.add_parser(
-        "validate",
-        help="Monte Carlo check of a query on a map file",
-        description="Sample every AT that the query FROM → TO depends on, re-estimate on each "
+
+def _validate_arguments(val: argparse.ArgumentParser) -> None:
+    val.description = (
+        "Sample every AT that the query FROM → TO depends on, re-estimate on each "
         "sampled map by the query's method, and compare predicted and empirical mean and "
         "covariance (relative errors), NEES and Mardia's Gaussianity statistics. The reduction "
         "is evaluated on blocks of 4096 samples at once; the optimal method solves each sampled "
         "map in turn. --workers or --scheduler spread the blocks over a Dask cluster: the same "
         "seed gives the same numbers. The method, why, and a forecast of the time are printed "
-        "on standard error before sampling starts.",
+        "on standard error before sampling starts."
     )
+    from relmap.network.query import QueryMethod
+    from relmap.uncertain.moments import MomentsMethod
+
     val.add_argument("map", metavar="MAP", help="map file (JSON/YAML) or pose graph")
     val.add_argument("src", metavar="FROM", help="source frame")
     val.add_argument("dst", metavar="TO", help="destination frame")
@@ -596,11 +625,11 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
         help="number of samples (default 10000)",
     )
     val.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
-    val.add_argument("--method", choices=("auto", "reduce", "optimal"), default="auto")
+    val.add_argument("--method", choices=QueryMethod.choices(), default=QueryMethod.AUTO.value)
     val.add_argument(
         "--moments",
-        choices=("first_order", "exact", "unscented"),
-        default="first_order",
+        choices=MomentsMethod.choices(),
+        default=MomentsMethod.FIRST_ORDER.value,
         help="how the reduction compounds (SE(2) maps; default first_order)",
     )
     val.add_argument("--json", action="store_true", help="print one JSON object")
@@ -620,11 +649,12 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     )
     val.set_defaults(run=_validate)
 
-    query = sub.add_parser(
-        "query",
-        help="the AT between two frames of a map (map JSON/YAML, g2o 2-D/3-D or TORO file)",
-        description="Estimate where frame TO is, seen from frame FROM, with its covariance.",
-    )
+
+def _query_arguments(query: argparse.ArgumentParser) -> None:
+    query.description = "Estimate where frame TO is, seen from frame FROM, with its covariance."
+    from relmap.network.query import QueryMethod
+    from relmap.network.reduce import OnIrreducible
+
     query.add_argument(
         "map", metavar="MAP", help="map file (JSON/YAML) or pose graph (g2o 2-D/3-D, TORO)"
     )
@@ -638,11 +668,11 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
         nargs="*",
         help="further pairs of frames: the map is loaded (and solved) once for all",
     )
-    query.add_argument("--method", choices=("auto", "reduce", "optimal"), default="auto")
+    query.add_argument("--method", choices=QueryMethod.choices(), default=QueryMethod.AUTO.value)
     query.add_argument(
         "--on-irreducible",
-        choices=("raise", "drop"),
-        default="raise",
+        choices=OnIrreducible.choices(),
+        default=OnIrreducible.RAISE.value,
         help="reduce: when Delta-Y cannot reduce a loop, fail (raise) or delete the best AT (drop)",
     )
     query.add_argument(
@@ -653,11 +683,11 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     )
     query.set_defaults(run=_query)
 
-    solve = sub.add_parser(
-        "solve",
-        help="optimize a pose graph (g2o 2-D/3-D, TORO) from its initial guess",
-        description="Jointly optimize all poses of a pose graph; the anchor (the first FIX "
-        "vertex, else the first vertex) stays put.",
+
+def _solve_arguments(solve: argparse.ArgumentParser) -> None:
+    solve.description = (
+        "Jointly optimize all poses of a pose graph; the anchor (the first FIX "
+        "vertex, else the first vertex) stays put."
     )
     solve.add_argument("graph", metavar="GRAPH", help="g2o (2-D or 3-D) or TORO file")
     solve.add_argument(
@@ -676,23 +706,25 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     solve.add_argument("--max-iterations", type=_int_in(1, 1_000_000), default=100)
     solve.set_defaults(run=_solve)
 
-    loc = sub.add_parser(
-        "localize",
-        help="EKF localization with a known map on an MRCLAM or CMU Plaza folder",
-        description="Run an EKF (odometry + landmark readings, lecture Eqs. 13-28) over a "
+
+def _localize_arguments(loc: argparse.ArgumentParser) -> None:
+    loc.description = (
+        "Run an EKF (odometry + landmark readings, lecture Eqs. 13-28) over a "
         "dataset folder (UTIAS MRCLAM or CMU Plaza, recognised by its files) and score it, and "
         "dead reckoning, against the ground truth. The noise comes from the run's own innovations "
         "(no ground truth), or with --calibrate from-run N from another MRCLAM robot's run "
-        "against its ground truth; Plaza runs and is scored on the second half of its run.",
+        "against its ground truth; Plaza runs and is scored on the second half of its run."
     )
+    from relmap.filter.landmarks import Association
+
     loc.add_argument("dataset", metavar="DATASET", help="MRCLAM or CMU Plaza dataset folder")
     loc.add_argument(
         "--robot", type=_int_in(1, 5), metavar="N", help="MRCLAM robot 1-5 (default 1)"
     )
     loc.add_argument(
         "--associate",
-        choices=("signatures", "mahalanobis", "euclidean", "jcbb"),
-        default="signatures",
+        choices=Association.choices(),
+        default=Association.SIGNATURES.value,
         help="pair readings with landmarks by barcode/beacon id (default), by the nearest "
         "landmark (Mahalanobis or Euclidean distance), or by joint compatibility (JCBB)",
     )
@@ -719,18 +751,14 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     )
     loc.set_defaults(run=_localize, calibrate_from=None)
 
-    for name, text in TRAJECTORY_COMMANDS.items():  # listed always, built when they run
-        command_parser = sub.add_parser(name, help=text)
-        if command is None or command == name:
-            from relmap.app.trajectory import add_arguments
 
-            add_arguments(name, command_parser)
-
-    for command in sub.choices.values():  # --debug after the command too
-        command.add_argument(
-            "--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS
-        )
-    return parser
+_ARGUMENTS = {
+    "demo": _demo_arguments,
+    "validate": _validate_arguments,
+    "query": _query_arguments,
+    "solve": _solve_arguments,
+    "localize": _localize_arguments,
+}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -30,12 +30,13 @@ import numpy as np
 from relmap.errors import IrreducibleNetworkError
 from relmap.io.mapfile import ATRecord, read_records
 from relmap.lie import se2
-from relmap.models import PlanarArm
+from relmap.models.arm import PlanarArm
 from relmap.models.decisions import DoorDecision, ViewDecision
 from relmap.network.graph import RelationalMap
 from relmap.sim import montecarlo
 from relmap.uncertain import gaussian
-from relmap.uncertain.at import AT, compound_chain, merge
+from relmap.uncertain.algebra import compound_chain, merge
+from relmap.uncertain.at import AT
 from relmap.uncertain.propagate import Moments
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -242,7 +243,7 @@ def delta_y_study(seed: int = 0, n: int = DELTA_Y_SAMPLES) -> list[DeltaYRow]:
     (default), by the paper's formulas, and optimally; each reduction also re-run on ``n``
     sampled maps (:func:`relmap.network.reduce.reduce_network`, batched) against the truth
     taken as the file's means of the loop-free part (the optimal estimate's mean)."""
-    from relmap.network.reduce import reduce_network
+    from relmap.network.reduce import DeltaY, reduce_network
 
     rng = np.random.default_rng(seed)
     records = _shipped("fig3.json")
@@ -261,7 +262,7 @@ def delta_y_study(seed: int = 0, n: int = DELTA_Y_SAMPLES) -> list[DeltaYRow]:
                 h.add(e.src, e.dst, AT(se2.between(sol.pose(e.src), sol.pose(e.dst)), e.at.cov))
             truth = se2.between(sol.pose("w"), sol.pose("u"))
             out = {}
-            for how in ("consistent", "paper"):
+            for how in DeltaY:
                 est = h.query("w", "u", method="reduce", delta_y=how).at
                 try:
                     back = h.query("u", "w", method="reduce", delta_y=how).at.reverse()
@@ -283,7 +284,7 @@ def delta_y_study(seed: int = 0, n: int = DELTA_Y_SAMPLES) -> list[DeltaYRow]:
             def rel(a: np.ndarray | None, b: np.ndarray) -> float:
                 return np.nan if a is None else float(np.linalg.norm(a - b) / np.linalg.norm(b))
 
-            c, p = out["consistent"], out["paper"]
+            c, p = out[DeltaY.CONSISTENT], out[DeltaY.PAPER]
             del opt
             rows.append(
                 DeltaYRow(
@@ -452,16 +453,16 @@ def lecture(
     """Run the lecture's examples; with ``data`` (the shared data folder) also EKF localization
     of MRCLAM robot 1 (:func:`relmap.app.localize.localize`)."""
     from relmap.app.localize import score
-    from relmap import filter as ekf
-    from relmap.models import (
+    from relmap.filter.logs import Log, run
+    from relmap.models.odometry import (
         DiffDrive,
         DistanceNoise,
         Odometry,
-        RangeBearingSensor,
         WheelNoise,
         dead_reckon,
         increment,
     )
+    from relmap.models.range_bearing import RangeBearingSensor
 
     rng = np.random.default_rng(seed)
     arm = PlanarArm(*ARM)
@@ -495,11 +496,11 @@ def lecture(
         index += [k] * int(seen.sum())
         readings.append(z[seen])
         seen_ids.append(np.flatnonzero(seen))
-    log = ekf.Log(
+    log = Log(
         np.arange(EKF_STEPS + 1.0), np.tile(step_u, (EKF_STEPS, 1)), np.array(index, np.int64),
         np.concatenate(readings), np.concatenate(seen_ids),
     )  # fmt: skip
-    trace = ekf.run(log, Odometry(noise), sensor, landmarks, start=prior, associate="signatures")
+    trace = run(log, Odometry(noise), sensor, landmarks, start=prior, associate="signatures")
     truth_arr = np.array(truth)
     estimate = trace.estimate()
     dr = dead_reckon(np.tile(step_u, (EKF_STEPS, 1)), noise, start=prior)

@@ -37,8 +37,9 @@ from typing import NamedTuple
 import numpy as np
 
 from relmap.errors import ParameterError, ShapeError
-from relmap import filter as ekf
 from relmap.filter import autocalibration
+from relmap.filter.landmarks import Association, LandmarkMap, Status
+from relmap.filter.logs import Trace, run
 from relmap.io.datasets import (
     DatasetKind,
     Mrclam,
@@ -75,7 +76,7 @@ __all__ = [
 ]
 
 #: Ways to pair readings with landmarks (:class:`relmap.filter.Association`).
-ASSOCIATIONS = tuple(a.value for a in ekf.Association)
+ASSOCIATIONS = tuple(Association.choices())
 #: Standard deviations ``(σx, σy, σθ)`` (m, m, rad) of the filters' start pose.
 START_SIGMA = (0.02, 0.02, 0.02)
 #: Where autocalibration starts: the odometry's ``(k_s, k_theta, k_theta_s)`` (m²/m, rad²/rad,
@@ -169,7 +170,7 @@ class Localization(NamedTuple):
     score: Score  #: the EKF's score
     baseline: Score  #: dead reckoning's score
     readings: dict[str, int]  #: what happened to the readings (status names, "ignored", "wrong")
-    trace: ekf.Trace  #: the filter's trace (innovations, S, statuses, NIS, log-likelihood)
+    trace: Trace  #: the filter's trace (innovations, S, statuses, NIS, log-likelihood)
     reading_t: FloatArray  #: ``(M,)`` the time of each reading offered to the filter
 
     @property
@@ -464,17 +465,17 @@ def _localization(
     else:
         log = recording.log(0.0, noise.range_scale)
     tick(STAGES - 1, STAGES)
-    landmark_map = ekf.LandmarkMap(landmarks)  # checked once for the filter and dead reckoning
+    landmark_map = LandmarkMap(landmarks)  # checked once for the filter and dead reckoning
     kw = dict(start=start(float(log.t[0])), gate=gate, **noise.options)
-    trace = ekf.run(log, noise.motion, noise.sensor, landmark_map, associate=associate, **kw)
+    trace = run(log, noise.motion, noise.sensor, landmark_map, associate=associate, **kw)
     quiet = log._replace(reading_index=log.reading_index[:0], z=log.z[:0], signature=None)
-    dr = ekf.run(quiet, noise.motion, noise.sensor, landmark_map, associate="mahalanobis",
+    dr = run(quiet, noise.motion, noise.sensor, landmark_map, associate="mahalanobis",
                  readings=False, **kw)  # fmt: skip
     tick(STAGES, STAGES)
     true_landmark = log.signature
     truth = truth_at(log.t)
-    counts = {s.name.lower(): int(trace.count(s)) for s in ekf.Status}
-    used = trace.status == ekf.Status.USED
+    counts = {s.name.lower(): int(trace.count(s)) for s in Status}
+    used = trace.status == Status.USED
     counts["wrong"] = int((used & (trace.landmark != true_landmark)).sum())
     counts["ignored"] = ignored
     counts["ambiguous"] = int(trace.ambiguous)

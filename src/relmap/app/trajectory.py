@@ -54,7 +54,7 @@ def _eval(args: argparse.Namespace) -> int:
     ref_topic, est_topic = _topics(args, ref_in, est_in)
     ref = _read(ref_in, ref_topic, args.ref_times)
     est = _read(est_in, est_topic, args.est_times)
-    relations = ("trans", "angle_deg") if not args.relation else tuple(args.relation)
+    chosen = {"relations": tuple(args.relation)} if args.relation else {}  # or evaluate's
     ev = evaluate(
         ref,
         est,
@@ -63,7 +63,7 @@ def _eval(args: argparse.Namespace) -> int:
         max_diff=args.t_max_diff,
         offset=args.t_offset,
         interpolate_ref=args.interpolate,
-        relations=relations,
+        **chosen,  # type: ignore[arg-type]
         rpe_delta=args.delta if args.rpe else None,
         rpe_unit=args.unit,
         all_pairs=args.all_pairs,
@@ -88,7 +88,6 @@ def _eval(args: argparse.Namespace) -> int:
             f"  aligned ({a.mode}): scale {a.scale:.6g}, translation "
             + " ".join(f"{v:.4g}" for v in a.translation)
         )
-    units = {"trans": "m", "angle_deg": "°", "angle_rad": "rad", "rot": "", "full": ""}
     print(
         f"  {'':16s}"
         + "".join(f"{k:>11s}" for k in ("rmse", "mean", "median", "std", "min", "max"))
@@ -96,7 +95,7 @@ def _eval(args: argparse.Namespace) -> int:
     for kind, table in (("APE", ev.ape), ("RPE", ev.rpe)):
         for rel, e in table.items():
             s = e.stats()
-            name = f"{kind} {rel} {units[rel]}".rstrip()
+            name = f"{kind} {rel} {e.relation.unit}".rstrip()
             print(
                 f"  {name:16s}"
                 + "".join(f"{s[k]:11.4g}" for k in ("rmse", "mean", "median", "std", "min", "max"))
@@ -216,6 +215,9 @@ def add_arguments(command: str, parser: argparse.ArgumentParser) -> None:
 
 
 def _eval_arguments(ev: argparse.ArgumentParser) -> None:
+    from relmap.evaluate.alignment import AlignMode
+    from relmap.evaluate.metrics import DeltaUnit, Relation
+
     ev.description = (
         "Associate the estimate with the reference by time stamps, align it, and "
         "report the absolute (APE) and relative (RPE) pose errors with evo's definitions, and, "
@@ -225,11 +227,11 @@ def _eval_arguments(ev: argparse.ArgumentParser) -> None:
     )
     ev.add_argument("ref", metavar="REF", help="reference (ground truth) trajectory")
     ev.add_argument("est", metavar="EST", help="estimated trajectory")
-    ev.add_argument("--align", choices=("se3", "sim3", "scale", "origin", "none"), default="none")
+    ev.add_argument("--align", choices=AlignMode.choices(), default=AlignMode.NONE.value)
     ev.add_argument("--n-align", type=int, metavar="N", help="align on the first N pairs only")
     ev.add_argument("--rpe", action="store_true", help="also the relative pose error")
     ev.add_argument("--delta", type=float, default=1.0, help="RPE pair distance (default 1)")
-    ev.add_argument("--unit", choices=("frames", "m", "s"), default="frames")
+    ev.add_argument("--unit", choices=DeltaUnit.choices(), default=DeltaUnit.FRAMES.value)
     ev.add_argument(
         "--pairs-from-reference",
         action="store_true",
@@ -241,7 +243,7 @@ def _eval_arguments(ev: argparse.ArgumentParser) -> None:
     ev.add_argument(
         "--relation",
         action="append",
-        choices=("trans", "angle_deg", "angle_rad", "rot", "full"),
+        choices=Relation.choices(),
         help="pose relation(s) to report (default: trans and angle_deg)",
     )
     ev.add_argument(
@@ -294,7 +296,7 @@ def _convert_arguments(cv: argparse.ArgumentParser) -> None:
 
     cv.add_argument(
         "--format",
-        choices=[f.name for f in formats.formats("trajectory", writable=True)],
+        choices=[f.name for f in formats.formats(formats.Kind.TRAJECTORY, writable=True)],
         help="default: euroc for .csv, else relmap (TUM when 3-D without covariance)",
     )
     cv.add_argument("--topic", metavar="T", help="bag topic or /tf:PARENT.CHILD")

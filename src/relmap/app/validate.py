@@ -50,6 +50,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import numpy as np
 
 from relmap.errors import ParameterError
+from relmap.network.query import QueryMethod
 from relmap.sim import montecarlo
 from relmap.typing import SeedLike
 from relmap.uncertain.at import AT
@@ -58,6 +59,7 @@ from relmap.uncertain.at3 import AT3
 if TYPE_CHECKING:
     from relmap.network.graph import RelationalMap
     from relmap.network.query import Estimate, LinearizationCheck
+    from relmap.uncertain.moments import MomentsMethod
 
 __all__ = ["BLOCK", "Plan", "Validation", "plan", "run", "validate_query"]
 
@@ -123,7 +125,7 @@ class Validation(NamedTuple):
 
 #: Samples per block, by method: a block is the unit of the random streams and of the partial
 #: sums (chunks of blocks go to workers; see :func:`relmap.sim.montecarlo.run`).
-BLOCK = {"reduce": 4096, "optimal": 4}
+BLOCK = {QueryMethod.REDUCE: 4096, QueryMethod.OPTIMAL: 4}
 
 
 class Plan(NamedTuple):
@@ -141,7 +143,7 @@ class Plan(NamedTuple):
         """A rough forecast of the sampling's time on ``workers`` processes, from the pilot
         (the optimal method re-solves one map per sample; the reduction runs per block)."""
         method = self.estimate.method
-        per_block = self.pilot_seconds * (BLOCK[method] if method == "optimal" else 4)
+        per_block = self.pilot_seconds * (BLOCK[method] if method is QueryMethod.OPTIMAL else 4)
         blocks = -(-int(n) // BLOCK[method])
         return per_block * -(-blocks // max(1, workers))
 
@@ -157,11 +159,11 @@ class _Problem(NamedTuple):
     kind: type  #: AT or AT3
     src: Frame
     dst: Frame
-    method: str
+    method: QueryMethod
 
     @classmethod
     def of(
-        cls, g: RelationalMap, names: tuple[str, ...], src: Frame, dst: Frame, method: str
+        cls, g: RelationalMap, names: tuple[str, ...], src: Frame, dst: Frame, method: QueryMethod
     ) -> _Problem:
         edges = [g.edge(name) for name in names]
         return cls(
@@ -184,7 +186,7 @@ def _draw(problem: _Problem, rng: np.random.Generator, m: int) -> np.ndarray:
     draws = [at.sample(m, rng) for at in ats]
     dof = kind.group.dof
     edges = list(zip(problem.names, problem.ends, covs, draws, strict=True))
-    if problem.method == "reduce":
+    if problem.method is QueryMethod.REDUCE:
         from relmap.network.reduce import reduce_network
 
         batched = [
@@ -199,12 +201,17 @@ def _draw(problem: _Problem, rng: np.random.Generator, m: int) -> np.ndarray:
         h = RelationalMap()
         for name, (s, t), cov, d in edges:
             h.add(s, t, kind._trusted(d[k], cov), name=name)
-        out[k] = h.query(problem.src, problem.dst, method="optimal").at.mean
+        out[k] = h.query(problem.src, problem.dst, method=QueryMethod.OPTIMAL).at.mean
     return out
 
 
 def plan(
-    g: RelationalMap, src: Frame, dst: Frame, *, method: str = "auto", moments: str = "first_order"
+    g: RelationalMap,
+    src: Frame,
+    dst: Frame,
+    *,
+    method: QueryMethod | str = QueryMethod.AUTO,
+    moments: MomentsMethod | str = "first_order",
 ) -> Plan:
     """Answer the query and decide what :func:`run` will sample and how (see
     :func:`validate_query`)."""
@@ -218,7 +225,7 @@ def plan(
     est = g.query(src, dst, method=method, moments=moments)
     seconds = time.perf_counter() - t0
     check = None
-    if est.method == "reduce" and est.at.dim == 2:  # exact moments are SE(2)'s
+    if est.method is QueryMethod.REDUCE and est.at.dim == 2:  # exact moments are SE(2)'s
         from relmap.network.query import linearization_check
 
         check = linearization_check(g, src, dst)
@@ -228,9 +235,9 @@ def plan(
     in_play = {n for b in blocks for n in b.names}
     names = tuple(e.name for e in g.edges() if e.name in in_play)
     loops = [b for b in blocks if len(b.names) > 1]
-    if method != "auto":
-        reason = f"method {method}, as asked"
-    elif est.method == "reduce":
+    if method != QueryMethod.AUTO:
+        reason = f"method {est.method}, as asked"
+    elif est.method is QueryMethod.REDUCE:
         reason = (
             "auto chose reduce: no loop lies between the frames, so compounding along the "
             "chain is the first-order answer (one batched reduction per block of samples)"
@@ -244,7 +251,8 @@ def plan(
         )
     problem = _Problem.of(g, names, src, dst, est.method)
     t1 = time.perf_counter()
-    _draw(problem, np.random.default_rng(0), 1 if est.method == "optimal" else 256)  # a pilot
+    pilot_samples = 1 if est.method is QueryMethod.OPTIMAL else 256
+    _draw(problem, np.random.default_rng(0), pilot_samples)  # a pilot
     pilot = time.perf_counter() - t1
     return Plan(est, names, reason, seconds, pilot, check, problem)
 
@@ -281,12 +289,12 @@ def validate_query(
     src: Frame,
     dst: Frame,
     *,
-    method: str = "auto",
+    method: QueryMethod | str = QueryMethod.AUTO,
     n: int = 10_000,
     seed: SeedLike | np.random.SeedSequence = 0,
     probability: float = 0.9,
     progress: Progress | None = None,
-    moments: str = "first_order",
+    moments: MomentsMethod | str = "first_order",
     client: Any = None,
     keep: int = montecarlo.KEEP,
 ) -> Validation:

@@ -11,14 +11,14 @@ from __future__ import annotations
 from typing import NamedTuple
 
 from relmap.errors import ParameterError
-from relmap.evaluate.alignment import ALIGNMENTS, Alignment, align, umeyama
+from relmap.evaluate.alignment import Alignment, AlignMode, align, umeyama
 from relmap.evaluate.association import Association, associate, interpolate
 from relmap.evaluate.consistency import Consistency, consistency, relative_consistency
 from relmap.evaluate.metrics import (
-    RELATIONS,
     STATISTICS,
-    UNITS,
+    DeltaUnit,
     Errors,
+    Relation,
     ape,
     pairs,
     rpe,
@@ -27,15 +27,15 @@ from relmap.evaluate.metrics import (
 from relmap.uncertain.trajectory import Trajectory
 
 __all__ = [
-    "ALIGNMENTS",
-    "RELATIONS",
     "STATISTICS",
-    "UNITS",
+    "AlignMode",
     "Alignment",
     "Association",
     "Consistency",
+    "DeltaUnit",
     "Errors",
     "Evaluation",
+    "Relation",
     "align",
     "ape",
     "associate",
@@ -88,19 +88,23 @@ def evaluate(
     ref: Trajectory,
     est: Trajectory,
     *,
-    align_mode: str = "none",
+    align_mode: AlignMode | str = AlignMode.NONE,
     n_align: int | None = None,
     max_diff: float = 0.01,
     offset: float = 0.0,
     interpolate_ref: bool = False,
-    relations: tuple[str, ...] = ("trans", "angle_deg"),
+    relations: tuple[Relation | str, ...] = (Relation.TRANS, Relation.ANGLE_DEG),
     rpe_delta: float | None = None,
-    rpe_unit: str = "frames",
+    rpe_unit: DeltaUnit | str = DeltaUnit.FRAMES,
     all_pairs: bool = False,
     rel_tol: float = 0.1,
     pairs_from_reference: bool = False,
 ) -> Evaluation:
-    """Associate, align, measure, judge (module docstring); ``rpe_delta=None``: no RPE."""
+    """Associate, align, measure, judge (module docstring); ``rpe_delta=None``: no RPE.
+    ``align_mode`` is an :class:`AlignMode`, ``relations`` are :class:`Relation` s,
+    ``rpe_unit`` a :class:`DeltaUnit`."""
+    relations = tuple(Relation.parse(r, "pose relation") for r in relations)
+    rpe_unit = DeltaUnit.parse(rpe_unit, "delta unit")
     if ref.is_planar != est.is_planar:
         raise ParameterError(
             f"{est.source or 'the estimate'} is {'planar' if est.is_planar else '3-D'} and "

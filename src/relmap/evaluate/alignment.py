@@ -18,27 +18,37 @@ propagated from a known start describes.
 
 from __future__ import annotations
 
-from typing import Literal, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
 from relmap.errors import ParameterError
-from relmap.typing import FloatArray
+from relmap.typing import FloatArray, Option
 from relmap.uncertain.at import AT
 from relmap.uncertain.at3 import AT3
 from relmap.uncertain.gaussian import congruence
 from relmap.uncertain.trajectory import Trajectory, planar_from_matrices
 
-__all__ = ["ALIGNMENTS", "Alignment", "align", "umeyama"]
+__all__ = ["AlignMode", "Alignment", "align", "umeyama"]
 
-AlignMode = Literal["se3", "sim3", "scale", "origin", "none"]
-ALIGNMENTS: tuple[str, ...] = ("se3", "sim3", "scale", "origin", "none")
+
+class AlignMode(Option):
+    """How :func:`align` moves the estimate onto the reference (evo's ``-a``, ``-s``,
+    ``--align_origin``): Umeyama's rotation and translation (``"se3"``), with scale
+    (``"sim3"``), scale alone (``"scale"``), the first poses made equal (``"origin"``), or not at
+    all (``"none"``)."""
+
+    SE3 = "se3"
+    SIM3 = "sim3"
+    SCALE = "scale"
+    ORIGIN = "origin"
+    NONE = "none"
 
 
 class Alignment(NamedTuple):
     """The transform applied to the estimate: ``p' = R (s p) + t``, rotations ``R·R_est``."""
 
-    mode: str
+    mode: AlignMode
     rotation: FloatArray  #: (3, 3)
     translation: FloatArray  #: (3,)
     scale: float
@@ -78,11 +88,15 @@ def umeyama(
 
 
 def align(
-    est: Trajectory, ref: Trajectory, mode: str = "se3", *, n: int | None = None
+    est: Trajectory,
+    ref: Trajectory,
+    mode: AlignMode | str = AlignMode.SE3,
+    *,
+    n: int | None = None,
 ) -> tuple[Trajectory, Alignment]:
-    """``est`` aligned to ``ref`` (associated pose by pose), and the transform used."""
-    if mode not in ALIGNMENTS:
-        raise ParameterError(f"alignment must be one of {', '.join(ALIGNMENTS)}; got {mode!r}")
+    """``est`` aligned to ``ref`` (associated pose by pose) by ``mode`` (an
+    :class:`AlignMode`), and the transform used."""
+    mode = AlignMode.parse(mode, "alignment")
     if len(est) != len(ref):
         raise ParameterError(
             f"align needs associated trajectories; got {len(est)} and {len(ref)} poses"
@@ -91,12 +105,12 @@ def align(
         raise ParameterError(f"the number of poses to align must be >= 1; got {n}")
     Me, Mr = est.matrices, ref.matrices
     R, t, s = np.eye(3), np.zeros(3), 1.0
-    if mode in ("se3", "sim3", "scale"):
+    if mode in (AlignMode.SE3, AlignMode.SIM3, AlignMode.SCALE):
         k = len(est) if n is None else min(n, len(est))
-        R, t, s = umeyama(Me[:k, :3, 3], Mr[:k, :3, 3], with_scale=mode != "se3")
-        if mode == "scale":
+        R, t, s = umeyama(Me[:k, :3, 3], Mr[:k, :3, 3], with_scale=mode is not AlignMode.SE3)
+        if mode is AlignMode.SCALE:
             R, t = np.eye(3), np.zeros(3)
-    elif mode == "origin":
+    elif mode is AlignMode.ORIGIN:
         E0 = Me[0]
         inv = np.eye(4)
         inv[:3, :3] = E0[:3, :3].T
@@ -104,7 +118,7 @@ def align(
         A = Mr[0] @ inv
         R, t = A[:3, :3], A[:3, 3]
     result = Alignment(mode, R, t, s)
-    if mode == "none":
+    if mode is AlignMode.NONE:
         return est, result
     return est.with_poses(_transformed(est, R, t, s)), result
 

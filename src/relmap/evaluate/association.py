@@ -18,7 +18,7 @@ from typing import NamedTuple
 import numpy as np
 
 from relmap.errors import ParameterError
-from relmap.lie import SE2, SE3
+from relmap.lie.group import SE2, SE3
 from relmap.typing import FloatArray, IntArray
 from relmap.uncertain.trajectory import Trajectory
 

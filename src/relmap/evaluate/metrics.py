@@ -18,17 +18,17 @@ estimate's poses unless ``pairs_from_reference``.
 
 from __future__ import annotations
 
-from typing import Literal, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
 from relmap.errors import ParameterError
-from relmap.typing import FloatArray, IntArray
+from relmap.typing import FloatArray, IntArray, Option
 
 __all__ = [
-    "RELATIONS",
     "STATISTICS",
-    "UNITS",
+    "DeltaUnit",
+    "Relation",
     "ape",
     "pairs",
     "pose_errors",
@@ -36,16 +36,42 @@ __all__ = [
     "statistics",
 ]
 
-Relation = Literal["trans", "angle_rad", "angle_deg", "rot", "full"]
-RELATIONS: tuple[str, ...] = ("trans", "angle_rad", "angle_deg", "rot", "full")
-UNITS: tuple[str, ...] = ("frames", "m", "s")
+
+class Relation(Option):
+    """The error of an error pose ``E`` (evo's pose relations): the translation's length
+    ``|t(E)|`` (m), the rotation angle ``|Log R(E)|`` in radians or degrees, the rotation part
+    ``‖R(E) - I‖_F`` or the full pose ``‖E - I‖_F`` (no unit)."""
+
+    TRANS = "trans"
+    ANGLE_RAD = "angle_rad"
+    ANGLE_DEG = "angle_deg"
+    ROT = "rot"
+    FULL = "full"
+
+    @property
+    def unit(self) -> str:
+        """The errors' unit as printed: ``"m"``, ``"rad"``, ``"°"``, or ``""`` for a norm."""
+        units = {Relation.TRANS: "m", Relation.ANGLE_RAD: "rad", Relation.ANGLE_DEG: "°"}
+        return units.get(self, "")
+
+
+class DeltaUnit(Option):
+    """What an RPE pair distance counts (module docstring): poses (``"frames"``), metres of
+    path walked (``"m"``) or seconds (``"s"``)."""
+
+    FRAMES = "frames"
+    METRES = "m"
+    SECONDS = "s"
+
+
+#: evo's statistics of errors, in the order :func:`statistics` gives them.
 STATISTICS: tuple[str, ...] = ("rmse", "mean", "median", "std", "min", "max", "sse")
 
 
 class Errors(NamedTuple):
     """Per-pose (APE) or per-pair (RPE) errors of one relation, and which poses they belong to."""
 
-    relation: str
+    relation: Relation
     values: FloatArray  #: (k,)
     first: IntArray  #: (k,) index of the pose (APE) or of the pair's first pose (RPE)
     second: IntArray  #: (k,) the same as ``first`` (APE) or the pair's second pose (RPE)
@@ -86,27 +112,27 @@ def _relative(A: FloatArray, B: FloatArray) -> FloatArray:
     return _inv(A) @ B
 
 
-def pose_errors(E: FloatArray, relation: str) -> FloatArray:
-    """The error of each error pose ``E`` (k, 4, 4) for ``relation`` (one of :data:`RELATIONS`,
+def pose_errors(E: FloatArray, relation: Relation | str) -> FloatArray:
+    """The error of each error pose ``E`` (k, 4, 4) for ``relation`` (a :class:`Relation`,
     ``trans`` being the norm of E's translation)."""
-    if relation == "trans":
+    relation = Relation.parse(relation, "pose relation")
+    if relation is Relation.TRANS:
         return np.linalg.norm(E[:, :3, 3], axis=1)
-    if relation in ("angle_rad", "angle_deg"):
+    if relation in (Relation.ANGLE_RAD, Relation.ANGLE_DEG):
         from scipy.spatial.transform import Rotation
 
         angle = Rotation.from_matrix(E[:, :3, :3]).magnitude() if len(E) else np.zeros(0)
-        return np.degrees(angle) if relation == "angle_deg" else np.asarray(angle)
-    if relation == "rot":
+        return np.degrees(angle) if relation is Relation.ANGLE_DEG else np.asarray(angle)
+    if relation is Relation.ROT:
         return np.linalg.norm(E[:, :3, :3] - np.eye(3), axis=(1, 2))
-    if relation == "full":
-        return np.linalg.norm(E - np.eye(4), axis=(1, 2))
-    raise ParameterError(f"pose relation must be one of {', '.join(RELATIONS)}; got {relation!r}")
+    return np.linalg.norm(E - np.eye(4), axis=(1, 2))  # Relation.FULL
 
 
-def ape(P: FloatArray, Q: FloatArray, relation: str = "trans") -> Errors:
+def ape(P: FloatArray, Q: FloatArray, relation: Relation | str = Relation.TRANS) -> Errors:
     """Absolute pose errors of estimated poses ``P`` against reference poses ``Q`` (n, 4, 4)."""
+    relation = Relation.parse(relation, "pose relation")
     idx = np.arange(len(P))
-    if relation == "trans":
+    if relation is Relation.TRANS:
         values = np.linalg.norm(P[:, :3, 3] - Q[:, :3, 3], axis=1)
     else:
         values = pose_errors(_relative(P, Q), relation)
@@ -116,28 +142,28 @@ def ape(P: FloatArray, Q: FloatArray, relation: str = "trans") -> Errors:
 def pairs(
     M: FloatArray,
     delta: float,
-    unit: str = "frames",
+    unit: DeltaUnit | str = DeltaUnit.FRAMES,
     *,
     all_pairs: bool = False,
     rel_tol: float = 0.1,
     stamps: FloatArray | None = None,
 ) -> tuple[IntArray, IntArray]:
-    """RPE index pairs ``(i, j)`` chosen on poses ``M`` (n, 4, 4) (module docstring)."""
+    """RPE index pairs ``(i, j)`` chosen on poses ``M`` (n, 4, 4), ``delta`` apart in
+    ``unit`` (a :class:`DeltaUnit`; module docstring)."""
     n = len(M)
-    if unit not in UNITS:
-        raise ParameterError(f"delta unit must be one of {', '.join(UNITS)}; got {unit!r}")
+    unit = DeltaUnit.parse(unit, "delta unit")
     if not delta > 0:
         raise ParameterError(f"delta must be > 0; got {delta}")
-    if unit == "frames":
+    if unit is DeltaUnit.FRAMES:
         if int(delta) != delta:
             raise ParameterError(f"a delta in frames must be a whole number; got {delta}")
         d = int(delta)
         if all_pairs:
             i = np.arange(max(n - d, 0))
             return i, i + d
-        ids = np.arange(0, n, d)
-        return ids[:-1], ids[1:]
-    if unit == "m":
+        every = np.arange(0, n, d)
+        return every[:-1], every[1:]
+    if unit is DeltaUnit.METRES:
         steps = np.linalg.norm(M[1:, :3, 3] - M[:-1, :3, 3], axis=1)
     else:
         if stamps is None:
@@ -181,16 +207,17 @@ def _all_pairs(D: FloatArray, delta: float, tol: float) -> tuple[IntArray, IntAr
 def rpe(
     P: FloatArray,
     Q: FloatArray,
-    relation: str = "trans",
+    relation: Relation | str = Relation.TRANS,
     *,
     delta: float = 1,
-    unit: str = "frames",
+    unit: DeltaUnit | str = DeltaUnit.FRAMES,
     all_pairs: bool = False,
     rel_tol: float = 0.1,
     pairs_from_reference: bool = False,
     stamps: FloatArray | None = None,
 ) -> Errors:
     """Relative pose errors of ``P`` against ``Q`` (n, 4, 4) (module docstring)."""
+    relation = Relation.parse(relation, "pose relation")
     i, j = pairs(
         Q if pairs_from_reference else P,
         delta,

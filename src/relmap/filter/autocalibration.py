@@ -76,7 +76,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from relmap.errors import ParameterError, ShapeError
+from relmap.errors import ParameterError
 from relmap.filter.landmarks import Association, LandmarkMap, Status
 from relmap.filter.logs import Log, Trace, run
 from relmap.models.base import Measurement, Motion

@@ -35,7 +35,8 @@ from relmap.filter.landmarks import (
 from relmap.filter.segments import chains
 from relmap.models.base import Measurement, Motion, RelativeMotion
 from relmap.typing import ArrayLike, FloatArray, IntArray, Option
-from relmap.uncertain.at import AT, compound
+from relmap.uncertain.algebra import compound
+from relmap.uncertain.at import AT
 from relmap.uncertain.propagate import SE2
 
 __all__ = ["Keep", "Log", "Trace", "run"]

@@ -42,15 +42,16 @@ from __future__ import annotations
 import os
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Literal, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
 from relmap.errors import FileFormatError, NonFiniteError, ParameterError
 from relmap.io._parsing import fail_at, frozen, strict_float
 from relmap.io.textfile import read_text
-from relmap.lie import SE2, se2
-from relmap.typing import ArrayLike, FloatArray, IntArray
+from relmap.lie import se2
+from relmap.lie.group import SE2
+from relmap.typing import ArrayLike, FloatArray, IntArray, Option
 
 __all__ = [
     "DatasetKind",
@@ -62,7 +63,14 @@ __all__ = [
     "recognise",
 ]
 
-DatasetKind = Literal["mrclam", "plaza"]
+
+class DatasetKind(Option):
+    """The datasets :func:`recognise` tells apart: UTIAS MRCLAM (:func:`read_mrclam`) and CMU
+    Plaza (:func:`read_plaza`)."""
+
+    MRCLAM = "mrclam"
+    PLAZA = "plaza"
+
 
 #: Number of robots (and their subject numbers 1..N) in an MRCLAM folder.
 MRCLAM_ROBOTS = 5
@@ -575,7 +583,8 @@ def read_plaza(folder: str | os.PathLike[str]) -> Plaza:
 
 # ------------------------------------------------------------------------------ recognise
 def recognise(folder: str | os.PathLike[str]) -> DatasetKind | None:
-    """Which dataset ``folder`` holds, from the files present: ``"mrclam"``, ``"plaza"`` or None.
+    """Which dataset ``folder`` holds (a :class:`DatasetKind`), from the files present:
+    ``"mrclam"``, ``"plaza"`` or None.
 
     ``"mrclam"`` needs every MRCLAM file (:func:`read_mrclam`); ``"plaza"`` a ``P_DR.txt``,
     ``P_TD.txt`` and ``P_.mat`` with a common prefix ``P``. None for anything else, including a
@@ -596,4 +605,4 @@ def recognise(folder: str | os.PathLike[str]) -> DatasetKind | None:
         plaza = True
     if mrclam and plaza:
         raise FileFormatError(p, "holds both MRCLAM and CMU Plaza files: which dataset is meant?")
-    return "mrclam" if mrclam else "plaza" if plaza else None
+    return DatasetKind.MRCLAM if mrclam else DatasetKind.PLAZA if plaza else None

@@ -25,10 +25,11 @@ from __future__ import annotations
 import os
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Literal, NamedTuple
+from typing import Any, NamedTuple
 
 from relmap.errors import FileFormatError, ParameterError
 from relmap.io.textfile import Input, read_input
+from relmap.typing import Option
 
 __all__ = [
     "Format",
@@ -43,13 +44,20 @@ __all__ = [
     "writer",
 ]
 
-#: What a format holds (what its reader returns).
-Kind = Literal["map", "graph", "trajectory"]
+
+class Kind(Option):
+    """What a format holds (what its reader returns)."""
+
+    MAP = "map"
+    GRAPH = "graph"
+    TRAJECTORY = "trajectory"
+
+
 #: Each kind's name in messages, singular and plural.
 _WORDS: dict[Kind, tuple[str, str]] = {
-    "map": ("map", "maps"),
-    "graph": ("pose graph", "pose graphs"),
-    "trajectory": ("trajectory", "trajectories"),
+    Kind.MAP: ("map", "maps"),
+    Kind.GRAPH: ("pose graph", "pose graphs"),
+    Kind.TRAJECTORY: ("trajectory", "trajectories"),
 }
 
 

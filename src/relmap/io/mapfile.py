@@ -153,7 +153,7 @@ def read_records(path: str | os.PathLike[str] | Input) -> list[ATRecord]:
     """Read a map file (``.json``, or YAML for any other suffix; gzip, a BOM, CRLF and pipes
     accepted: :func:`relmap.io.textfile.read_input`) into :class:`ATRecord` s; a file in another
     format is refused naming it (:func:`relmap.io.formats.read`)."""
-    records: list[ATRecord] = formats.read(path, ("map",))[1]
+    records: list[ATRecord] = formats.read(path, (formats.Kind.MAP,))[1]
     return records
 
 
@@ -344,7 +344,7 @@ def _read(source: Input) -> list[ATRecord]:
 formats.register(
     formats.Format(
         "map",
-        "map",
+        formats.Kind.MAP,
         "relmap's map file: YAML, or JSON for a .json name, with a list 'ats'",
         _is_map,
         _read,

@@ -24,8 +24,8 @@ def load_map(path: str | os.PathLike[str] | Input) -> RelationalMap:
     integer frames, their poses the initial guess; a 3-D graph gives a map of
     :class:`relmap.AT3`. The file is read once (:func:`relmap.io.textfile.read_input`): a pipe,
     gzip, a BOM and CRLF are accepted."""
-    fmt, content = formats.read(path, ("map", "graph"))
-    if fmt.holds == "graph":
+    fmt, content = formats.read(path, (formats.Kind.MAP, formats.Kind.GRAPH))
+    if fmt.holds is formats.Kind.GRAPH:
         return RelationalMap.from_posegraph(content)
     return RelationalMap.from_records(content)
 
@@ -43,7 +43,7 @@ def save_map(
     if g.groups:
         raise ParameterError("map files cannot hold dependent ATs (joint groups) yet")
     records = [ATRecord(e.name, e.src, e.dst, e.at) for e in g.edges()]
-    formats.writer("map", "map")(path, records, description=description)
+    formats.writer("map", formats.Kind.MAP)(path, records, description=description)
 
 
 def solve_graph(

@@ -89,7 +89,7 @@ import os
 import re
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Literal, NamedTuple, TypeVar
+from typing import NamedTuple, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -106,8 +106,9 @@ from relmap.io import formats
 from relmap.io._parsing import fail_at, frozen, strict_float
 from relmap.io.atomic import write_text_atomic
 from relmap.io.textfile import Input
-from relmap.lie import SE3, Group, se2, se3, so3
-from relmap.typing import ArrayLike, FloatArray, IntArray
+from relmap.lie import se2, se3, so3
+from relmap.lie.group import SE3, Group
+from relmap.typing import ArrayLike, FloatArray, IntArray, Option
 from relmap.uncertain import gaussian
 from relmap.uncertain.at import AT
 from relmap.uncertain.at3 import AT3
@@ -122,7 +123,15 @@ __all__ = [
     "write_graph",
 ]
 
-GraphFormat = Literal["g2o", "toro"]
+
+class GraphFormat(Option):
+    """The text format of a pose graph: g2o (``VERTEX_SE2``/``EDGE_SE2``, ``VERTEX_SE3:QUAT``/
+    ``EDGE_SE3:QUAT``, ``FIX``) or TORO (``VERTEX2``/``EDGE2``; the legacy 3-D ``VERTEX3``/
+    ``EDGE3``, read only)."""
+
+    G2O = "g2o"
+    TORO = "toro"
+
 
 #: Largest accepted ``| |q| - 1 |`` of a quaternion read from a file (see the module docstring).
 QUATERNION_ATOL = 1e-3
@@ -146,37 +155,37 @@ class _Spec(NamedTuple):
 
 
 _UPPER6 = tuple((r, c) for r in range(6) for c in range(r, 6))
-_SPECS: dict[tuple[str, int], _Spec] = {
-    ("g2o", 2): _Spec(
-        "g2o", 2, "VERTEX_SE2", "EDGE_SE2", "FIX", 3, 3,
+_SPECS: dict[tuple[GraphFormat, int], _Spec] = {
+    (GraphFormat.G2O, 2): _Spec(
+        GraphFormat.G2O, 2, "VERTEX_SE2", "EDGE_SE2", "FIX", 3, 3,
         ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)),
         "id x y θ", "i j dx dy dθ and 6 information numbers",
     ),
-    ("toro", 2): _Spec(
-        "toro", 2, "VERTEX2", "EDGE2", None, 3, 3,
+    (GraphFormat.TORO, 2): _Spec(
+        GraphFormat.TORO, 2, "VERTEX2", "EDGE2", None, 3, 3,
         ((0, 0), (0, 1), (1, 1), (2, 2), (0, 2), (1, 2)),
         "id x y θ", "i j dx dy dθ and 6 information numbers",
     ),
-    ("g2o", 3): _Spec(
-        "g2o", 3, "VERTEX_SE3:QUAT", "EDGE_SE3:QUAT", "FIX", 7, 7, _UPPER6,
+    (GraphFormat.G2O, 3): _Spec(
+        GraphFormat.G2O, 3, "VERTEX_SE3:QUAT", "EDGE_SE3:QUAT", "FIX", 7, 7, _UPPER6,
         "id x y z qx qy qz qw", "i j x y z qx qy qz qw and 21 information numbers",
     ),
-    ("toro", 3): _Spec(
-        "toro", 3, "VERTEX3", "EDGE3", None, 6, 6, _UPPER6,
+    (GraphFormat.TORO, 3): _Spec(
+        GraphFormat.TORO, 3, "VERTEX3", "EDGE3", None, 6, 6, _UPPER6,
         "id x y z roll pitch yaw", "i j x y z roll pitch yaw and 21 information numbers",
     ),
 }  # fmt: skip
 #: Each tag's format and dimension (None: either dimension).
 _KIND_OF_TAG: dict[str, tuple[GraphFormat, int | None]] = {
-    "VERTEX_SE2": ("g2o", 2),
-    "EDGE_SE2": ("g2o", 2),
-    "FIX": ("g2o", None),
-    "VERTEX_SE3:QUAT": ("g2o", 3),
-    "EDGE_SE3:QUAT": ("g2o", 3),
-    "VERTEX2": ("toro", 2),
-    "EDGE2": ("toro", 2),
-    "VERTEX3": ("toro", 3),
-    "EDGE3": ("toro", 3),
+    "VERTEX_SE2": (GraphFormat.G2O, 2),
+    "EDGE_SE2": (GraphFormat.G2O, 2),
+    "FIX": (GraphFormat.G2O, None),
+    "VERTEX_SE3:QUAT": (GraphFormat.G2O, 3),
+    "EDGE_SE3:QUAT": (GraphFormat.G2O, 3),
+    "VERTEX2": (GraphFormat.TORO, 2),
+    "EDGE2": (GraphFormat.TORO, 2),
+    "VERTEX3": (GraphFormat.TORO, 3),
+    "EDGE3": (GraphFormat.TORO, 3),
 }
 _INT = re.compile(r"[+-]?[0-9]+")
 # Rotation matrices handed to write_graph must be orthonormal to this (as relmap.AT3's input).
@@ -190,8 +199,8 @@ class PoseGraph(NamedTuple):
     (:meth:`index_of`, :meth:`edge_indices` map ids to rows). :attr:`group` tells the dimension.
     """
 
-    #: ``"g2o"`` or ``"toro"``: the file's format, used again by :func:`write_graph` (with
-    #: :attr:`group`: ``"toro"`` in 3-D is the legacy ``EDGE3`` format).
+    #: The file's :class:`GraphFormat` (``"g2o"`` or ``"toro"``), used again by
+    #: :func:`write_graph` (with :attr:`group`: ``"toro"`` in 3-D is the legacy ``EDGE3``).
     format: GraphFormat
     #: ``(n,)`` int64 vertex ids, in file order.
     vertex_ids: IntArray
@@ -515,7 +524,7 @@ def read_graph(path: str | os.PathLike[str] | Input) -> PoseGraph:
     accepted: :func:`relmap.io.textfile.read_input`); a file in another format is refused naming
     it (:func:`relmap.io.formats.read`).
     """
-    graph: PoseGraph = formats.read(path, ("graph",))[1]
+    graph: PoseGraph = formats.read(path, (formats.Kind.GRAPH,))[1]
     return graph
 
 
@@ -583,7 +592,7 @@ def graph_from_text(p: Path, text: str) -> PoseGraph:
         measurements = _validated(p, spec.edge, edg.lines, lambda k: AT(z[k], cov[k]))
         poses = poses.copy()
         poses[:, 2] = se2.wrap_angle(poses[:, 2])
-    elif spec.format == "g2o":
+    elif spec.format is GraphFormat.G2O:
         vertex_quaternions = _quaternions(p, spec.vertex, poses[:, 3:], vtx.lines)
         edge_quaternions = _quaternions(p, spec.edge, z[:, 3:], edg.lines)
         Rz = _rotations(edge_quaternions)
@@ -669,7 +678,7 @@ def write_graph(
     see the module docstring). Nothing is written if anything is invalid. The writer is the
     registered one of the graph's format (:mod:`relmap.io.formats`).
     """
-    formats.writer(graph.format, "graph")(path, graph, poses=poses)
+    formats.writer(graph.format, formats.Kind.GRAPH)(path, graph, poses=poses)
 
 
 def as_format(graph: PoseGraph, format: GraphFormat | None = None) -> PoseGraph:
@@ -681,11 +690,11 @@ def as_format(graph: PoseGraph, format: GraphFormat | None = None) -> PoseGraph:
     measurements (:class:`ParameterError` at once if a covariance has none) and no kept
     quaternions.
     """
-    legacy = graph.group is SE3 and graph.format == "toro"
-    target = format or ("g2o" if legacy else graph.format)
-    if legacy and target == "g2o":
+    legacy = graph.group is SE3 and graph.format == GraphFormat.TORO
+    target = format or (GraphFormat.G2O if legacy else graph.format)
+    if legacy and target == GraphFormat.G2O:
         return graph._replace(
-            format="g2o",
+            format=GraphFormat.G2O,
             information=file_information(graph.measurements),
             vertex_quaternions=None,
             edge_quaternions=None,
@@ -706,9 +715,7 @@ def _write_as(
 def _write(path: str | os.PathLike[str], graph: PoseGraph, poses: ArrayLike | None) -> None:
     group = getattr(graph.measurements, "group", None)
     dim = 3 if group is SE3 else 2
-    spec = _SPECS.get((graph.format, dim))
-    if spec is None:
-        raise ParameterError(f"unknown pose-graph format {graph.format!r} (expected g2o or toro)")
+    spec = _SPECS[(GraphFormat.parse(graph.format, "the pose graph's format"), dim)]
     if spec.edge == "EDGE3":
         raise ParameterError(
             "the legacy 3-D EDGE3/VERTEX3 format is read only: its information is tied to the "
@@ -783,7 +790,9 @@ _BODY_TO_FILE = {
 }
 
 
-def file_information(measurements: AT | AT3, format: GraphFormat = "g2o") -> FloatArray:
+def file_information(
+    measurements: AT | AT3, format: GraphFormat | str = GraphFormat.G2O
+) -> FloatArray:
     """The information matrices a file holds for ``measurements`` (batch ``(m,)``, or one):
     the inverse of :func:`read_graph`'s conversion, for writing graphs built in relmap.
 
@@ -795,15 +804,14 @@ def file_information(measurements: AT | AT3, format: GraphFormat = "g2o") -> Flo
     """
     if not isinstance(measurements, UncertainPose):
         raise TypeError(f"expected an AT or AT3, got {type(measurements).__name__}")
-    if measurements.dim == 3 and format != "g2o":
+    format = GraphFormat.parse(format, "format")
+    if measurements.dim == 3 and format is not GraphFormat.G2O:
         raise ParameterError(
-            f"3-D information can be written for format 'g2o' only; got {format!r} (the "
+            f"3-D information can be written for format 'g2o' only; got {format.value!r} (the "
             "legacy EDGE3 format is read only)"
         )
     body_to_file = _BODY_TO_FILE[measurements.group.name]
     cov_file = gaussian.congruence(body_to_file, measurements.to_body())
-    if format not in ("g2o", "toro"):
-        raise ParameterError(f"unknown pose-graph format {format!r} (expected g2o or toro)")
     if not cov_file.size:
         return cov_file.copy()
     bad = gaussian.not_positive_definite(cov_file)
@@ -819,7 +827,7 @@ def file_information(measurements: AT | AT3, format: GraphFormat = "g2o") -> Flo
 # ----------------------------------------------------------------------------------- the formats
 #: A record's tag, as g2o and TORO write them (upper case, ``:`` inside: ``EDGE_SE3:QUAT``).
 _TAG = re.compile(r"[A-Z][A-Z0-9_]*(?::[A-Z0-9_]+)*")
-_TORO_TAGS = frozenset(tag for tag, (fmt, _) in _KIND_OF_TAG.items() if fmt == "toro")
+_TORO_TAGS = frozenset(tag for tag, (fmt, _) in _KIND_OF_TAG.items() if fmt is GraphFormat.TORO)
 
 
 def _first_tag(head: formats.Head) -> str | None:
@@ -846,22 +854,22 @@ def _read(source: Input) -> PoseGraph:
 
 formats.register(
     formats.Format(
-        "g2o",
-        "graph",
+        GraphFormat.G2O,
+        formats.Kind.GRAPH,
         "VERTEX_SE2/EDGE_SE2, VERTEX_SE3:QUAT/EDGE_SE3:QUAT, FIX records",
         _is_g2o,
         _read,
-        functools.partial(_write_as, "g2o"),
+        functools.partial(_write_as, GraphFormat.G2O),
         fallback=True,
     )
 )
 formats.register(
     formats.Format(
-        "toro",
-        "graph",
+        GraphFormat.TORO,
+        formats.Kind.GRAPH,
         "VERTEX2/EDGE2 records; VERTEX3/EDGE3 read only",
         _is_toro,
         _read,
-        functools.partial(_write_as, "toro"),
+        functools.partial(_write_as, GraphFormat.TORO),
     )
 )

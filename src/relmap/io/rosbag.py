@@ -32,7 +32,8 @@ import numpy as np
 from relmap.errors import FileFormatError, ParameterError, RelmapError
 from relmap.io import formats
 from relmap.io.textfile import Input
-from relmap.lie import SE3, se3, so3
+from relmap.lie import se3, so3
+from relmap.lie.group import SE3
 from relmap.typing import FloatArray
 from relmap.uncertain.trajectory import Trajectory
 
@@ -319,7 +320,7 @@ def _read(source: Input, topic: str | None = None) -> Trajectory:
 formats.register(
     formats.Format(
         "bag",
-        "trajectory",
+        formats.Kind.TRAJECTORY,
         "ROS 1 .bag, ROS 2 .db3 or .mcap, or a ROS 2 bag folder with metadata.yaml",
         _is_bag,
         _read,

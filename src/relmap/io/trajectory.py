@@ -262,7 +262,7 @@ def _read_times(path: Path) -> FloatArray:
 
 
 #: What a trajectory is read from: a trajectory format, or the vertices of a pose graph.
-_KINDS: tuple[formats.Kind, ...] = ("trajectory", "graph")
+_KINDS = (formats.Kind.TRAJECTORY, formats.Kind.GRAPH)
 
 
 def recognise_trajectory(path: str | os.PathLike[str] | Input) -> str:
@@ -290,7 +290,7 @@ def read_trajectory(
     source = read_input(path)
     p = source.path
     fmt, traj = formats.read(source, _KINDS, **({} if topic is None else {"topic": topic}))
-    if fmt.holds == "graph":
+    if fmt.holds is formats.Kind.GRAPH:
         traj = _vertices(p, traj)
     if times is not None:
         if traj.stamps is not None:
@@ -388,7 +388,7 @@ def write_trajectory(
     if not target.resolve().parent.is_dir():
         raise ParameterError(f"cannot write {target}: its folder does not exist")
     name = format or ("euroc" if target.suffix.lower() == ".csv" else "relmap")
-    formats.writer(name, "trajectory")(target, traj)
+    formats.writer(name, formats.Kind.TRAJECTORY)(target, traj)
     return name
 
 
@@ -418,21 +418,22 @@ def _is_euroc(head: formats.Head) -> bool:
 
 
 _TUM = "t x y z qx qy qz qw"
-formats.register(formats.Format("tum", "trajectory", _TUM, _is_tum, _read_tum, _write_tum))
+_TRAJECTORY = formats.Kind.TRAJECTORY
+formats.register(formats.Format("tum", _TRAJECTORY, _TUM, _is_tum, _read_tum, _write_tum))
 formats.register(
     formats.Format(
-        "kitti", "trajectory", "3×4 [R t], 12 numbers", _is_kitti, _read_kitti, _write_kitti
+        "kitti", _TRAJECTORY, "3×4 [R t], 12 numbers", _is_kitti, _read_kitti, _write_kitti
     )
 )
 formats.register(
     formats.Format(
-        "euroc", "trajectory", "CSV t[ns],x,y,z,qw,qx,qy,qz", _is_euroc, _read_euroc, _write_euroc
+        "euroc", _TRAJECTORY, "CSV t[ns],x,y,z,qw,qx,qy,qz", _is_euroc, _read_euroc, _write_euroc
     )
 )
 formats.register(
     formats.Format(
         "relmap",
-        "trajectory",
+        _TRAJECTORY,
         "t x y θ [+ 6 cov.], or TUM + 21 cov.",
         _is_relmap,
         _read_relmap,

@@ -22,7 +22,8 @@ from relmap.errors import ParameterError, ShapeError
 from relmap.lie import se2
 from relmap.models.odometry import DistanceNoise, increment, increments_from_velocities
 from relmap.typing import ArrayLike, FloatArray
-from relmap.uncertain.at import AT, compound_chain
+from relmap.uncertain.algebra import compound_chain
+from relmap.uncertain.at import AT
 
 __all__ = ["NoiseFit", "fit_distance_noise"]
 

@@ -49,7 +49,8 @@ from relmap.errors import ParameterError, ShapeError
 from relmap.lie import se2
 from relmap.models.base import Model, RelativeMotion, positive
 from relmap.typing import ArrayLike, FloatArray, Option
-from relmap.uncertain.at import AT, compound, compound_chain
+from relmap.uncertain.algebra import compound, compound_chain
+from relmap.uncertain.at import AT
 from relmap.uncertain.gaussian import check_finite, congruence, real_array
 from relmap.uncertain.pose import check_result
 

@@ -28,7 +28,7 @@ from relmap.errors import (
     UnknownATError,
     UnknownFrameError,
 )
-from relmap.lie import Group
+from relmap.lie.group import Group
 from relmap.network.parts import Edge, JointGroup
 from relmap.typing import ArrayLike, FloatArray
 from relmap.uncertain import gaussian
@@ -38,10 +38,11 @@ from relmap.uncertain.pose import UncertainPose
 
 if TYPE_CHECKING:
     from relmap.network.optimal import Progress, Solution
-    from relmap.network.query import Estimate
+    from relmap.network.query import Estimate, QueryMethod
     from relmap.network.sensing import SensingDecision, SensingForecast
+    from relmap.uncertain.moments import MomentsMethod
 
-__all__ = ["Edge", "JointGroup", "RelationalMap"]
+__all__ = ["RelationalMap"]
 
 Frame = Hashable
 
@@ -489,7 +490,7 @@ class RelationalMap:
         sensor_cov: ArrayLike,
         of_interest: tuple[Frame, Frame],
         *,
-        method: str = "auto",
+        method: QueryMethod | str = "auto",
     ) -> SensingForecast:
         """The relation ``of_interest`` before and after a proposed sensing of ``sensed``
         (:func:`relmap.network.sensing.forecast_sensing`); the map is not changed."""
@@ -502,15 +503,17 @@ class RelationalMap:
         self,
         src: Frame,
         dst: Frame,
-        method: str = "auto",
+        method: QueryMethod | str = "auto",
         *,
-        moments: str = "first_order",
+        moments: MomentsMethod | str = "first_order",
         diagnose: bool = False,
         **options: object,
     ) -> Estimate:
         """The AT of frame ``dst`` seen from frame ``src`` (:func:`relmap.network.query.query`).
 
-        ``moments`` (``"first_order"``, ``"exact"``, ``"unscented"``; SE(2), reduction) sets
+        ``method`` is a :class:`~relmap.network.query.QueryMethod` (``"auto"``, ``"reduce"``,
+        ``"optimal"``); ``moments`` (a :class:`~relmap.uncertain.moments.MomentsMethod`:
+        ``"first_order"``, ``"exact"``, ``"unscented"``; SE(2), reduction) sets
         how the reduction compounds; ``diagnose=True`` adds the predicted error of the
         first-order answer as ``Estimate.linearization``.
         """
@@ -527,7 +530,10 @@ class RelationalMap:
         )
 
     def query_many(
-        self, pairs: Iterable[tuple[Frame, Frame]], method: str = "auto", **options: object
+        self,
+        pairs: Iterable[tuple[Frame, Frame]],
+        method: QueryMethod | str = "auto",
+        **options: object,
     ) -> list[Estimate]:
         """:meth:`query` for each ``(src, dst)`` pair. Joint solves are kept on the map (until
         it changes), so pairs within one solved part of the network cost one solve in all."""

@@ -28,7 +28,7 @@ import numpy as np
 
 from relmap import _core
 from relmap.errors import NumericalError, SolverError, UnknownFrameError
-from relmap.lie import SE2, Group
+from relmap.lie.group import SE2, Group
 from relmap.network.problem import Parameterization, Problem, parameterize
 from relmap.network.sparse import SymmetricFactor, SymmetricPattern, selected_inverse_blocks
 from relmap.typing import FloatArray, IntArray

@@ -32,7 +32,8 @@ from typing import NamedTuple
 import numpy as np
 
 from relmap.errors import InconsistentMapError, SolverError
-from relmap.lie import SE2, Group, se2
+from relmap.lie import se2
+from relmap.lie.group import SE2, Group
 from relmap.typing import FloatArray, IntArray
 from relmap.uncertain.gaussian import max_over_last
 

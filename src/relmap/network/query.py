@@ -33,18 +33,29 @@ import numpy as np
 from relmap.errors import NumericalError, ParameterError, UnknownFrameError
 from relmap.lie import se2
 from relmap.network.blocks import blocks_between
-from relmap.network.reduce import Reduction, position_trace, reduce_network
-from relmap.uncertain.at import AT, compound, reverse
+from relmap.network.reduce import DeltaY, OnIrreducible, Reduction, position_trace, reduce_network
+from relmap.typing import Option
+from relmap.uncertain.algebra import compound, reverse
+from relmap.uncertain.at import AT
 from relmap.uncertain.at3 import AT3
-from relmap.uncertain.moments import check_method
+from relmap.uncertain.moments import MomentsMethod
 
 if TYPE_CHECKING:
     from relmap.network.parts import MapView
 
-__all__ = ["METHODS", "Estimate", "LinearizationCheck", "linearization_check", "query"]
+__all__ = ["Estimate", "LinearizationCheck", "QueryMethod", "linearization_check", "query"]
 
 Frame = Hashable
-METHODS = ("auto", "reduce", "optimal")
+
+
+class QueryMethod(Option):
+    """How :func:`query` estimates an AT (the module docstring): the paper's reduction
+    (``"reduce"``), the optimal joint estimate (``"optimal"``), or the first wherever no loop lies
+    in the way and the second elsewhere (``"auto"``)."""
+
+    AUTO = "auto"
+    REDUCE = "reduce"
+    OPTIMAL = "optimal"
 
 
 class LinearizationCheck(NamedTuple):
@@ -84,14 +95,14 @@ class Estimate(NamedTuple):
     """The estimated AT of frame ``dst`` seen from frame ``src``, and how it was obtained."""
 
     at: AT | AT3
-    method: str  #: "reduce" or "optimal": the method actually used
+    method: QueryMethod  #: ``REDUCE`` or ``OPTIMAL``: the method actually used
     expression: str | None  #: the reduction evaluated (AT names, ⊕ ⊗ ᴿ); None when optimal
     src: Frame
     dst: Frame
     dropped: tuple[str, ...] = ()  #: ATs deleted by best deletion (reduce)
     definitions: dict[str, str] = {}  #: Delta-Y star ATs in the expression (reduce)  # noqa: RUF012
     iterations: int | None = None  #: Gauss-Newton/LM iterations (optimal)
-    moments: str = "first_order"  #: how compoundings were evaluated (reduce)
+    moments: MomentsMethod = MomentsMethod.FIRST_ORDER  #: how compoundings were evaluated (reduce)
     linearization: LinearizationCheck | None = None  #: with ``diagnose=True`` (reduce, SE(2))
     converged: bool | None = None  #: whether the joint solve met its stopping rule (optimal)
 
@@ -101,24 +112,27 @@ def query(
     src: Frame,
     dst: Frame,
     *,
-    method: str = "auto",
-    on_irreducible: str = "raise",
+    method: QueryMethod | str = QueryMethod.AUTO,
+    on_irreducible: OnIrreducible | str = OnIrreducible.RAISE,
     criterion: Callable[[AT | AT3], float] = position_trace,
-    moments: str = "first_order",
+    moments: MomentsMethod | str = MomentsMethod.FIRST_ORDER,
     diagnose: bool = False,
-    delta_y: str = "consistent",
+    delta_y: DeltaY | str = DeltaY.CONSISTENT,
     progress: Callable[[int, int], None] | None = None,
 ) -> Estimate:
     """The AT of frame ``dst`` seen from frame ``src`` (mean in ``src``'s frame, covariance
     on ``(x, y, θ)`` in ``src``'s frame).
 
-    ``method`` is ``"auto"``, ``"reduce"`` or ``"optimal"`` (see the module docstring).
-    ``on_irreducible`` (reduce only) is ``"raise"`` or ``"drop"``: delete the loop-forming AT
-    whose deletion minimizes ``criterion`` of the result (default: trace of the position
-    covariance, m²) when even Delta-Y cannot reduce the network. Raises
+    ``method`` is a :class:`QueryMethod`: ``"auto"``, ``"reduce"`` or ``"optimal"`` (see the
+    module docstring). ``on_irreducible`` (reduce only, an
+    :class:`~relmap.network.reduce.OnIrreducible`) is ``"raise"`` or ``"drop"``: delete the
+    loop-forming AT whose deletion minimizes ``criterion`` of the result (default: trace of the
+    position covariance, m²) when even Delta-Y cannot reduce the network; ``delta_y`` (a
+    :class:`~relmap.network.reduce.DeltaY`) chooses Delta-Y's star. Raises
     :class:`relmap.errors.UnknownFrameError` or :class:`relmap.errors.DisconnectedError`.
 
-    ``moments`` (SE(2) maps, reduction only): ``"first_order"`` (Eqs. 1-7, default),
+    ``moments`` (a :class:`~relmap.uncertain.moments.MomentsMethod`; SE(2) maps, reduction
+    only): ``"first_order"`` (Eqs. 1-7, default),
     ``"exact"`` or ``"unscented"`` for every compounding and reversal of the reduction.
     Exact: a serial chain gets the exact mean and covariance of its true distribution for
     Gaussian ATs (as ``compound_chain(..., moments="exact")``). Merges remain the Gaussian
@@ -134,27 +148,27 @@ def query(
     reductions and reports their difference as ``Estimate.linearization``
     (:class:`LinearizationCheck`); it roughly doubles the cost of the query.
     """
-    if method not in METHODS:
-        raise ParameterError(f"method must be one of {', '.join(METHODS)}; got {method!r}")
-    check_method(moments)
+    method = QueryMethod.parse(method, "method")
+    moments = MomentsMethod.parse(moments, "moments")
     src = src.item() if isinstance(src, np.generic) else src  # np.int64(5) is frame 5
     dst = dst.item() if isinstance(dst, np.generic) else dst
     for frame in (src, dst):
         if not g.has_frame(frame):
             raise UnknownFrameError(f"no frame {frame!r} in the map")
-    beyond = moments != "first_order" or diagnose
-    what = f"moments={moments!r}" if moments != "first_order" else "diagnose=True"
+    first_order = moments is MomentsMethod.FIRST_ORDER
+    beyond = not first_order or diagnose
+    what = f"moments={moments.value!r}" if not first_order else "diagnose=True"
     if beyond and g.at_type.dim != 2:
         raise ParameterError(
             f"{what} is available for SE(2) maps only; this map holds 3-D ATs (first order)"
         )
-    if beyond and method == "optimal":
+    if beyond and method is QueryMethod.OPTIMAL:
         raise ParameterError(
             f"{what} applies to method='reduce': the optimal method's covariance is the "
             "inverse information matrix at the least-squares optimum, first order by "
             "construction; use method='reduce' (or 'auto' on a map without loops)"
         )
-    if method in ("auto", "optimal") and not beyond:
+    if method is not QueryMethod.REDUCE and not beyond:
         kept = _from_kept_solve(g, src, dst)  # a joint solve of a part holding both frames
         if kept is not None:
             return kept
@@ -163,22 +177,23 @@ def query(
     if not blocks:
         at = g.at_type.identity()
         check = LinearizationCheck(0.0, np.zeros(3), 0.0, at) if diagnose else None  # type: ignore[arg-type]
-        return Estimate(at, "reduce", "I", src, dst, moments=moments, linearization=check)
-    if method == "auto":
-        method = "reduce" if all(len(b.names) == 1 for b in blocks) else "optimal"
-        if beyond and method == "optimal":
+        return Estimate(at, QueryMethod.REDUCE, "I", src, dst, moments=moments, linearization=check)
+    if method is QueryMethod.AUTO:
+        serial = all(len(b.names) == 1 for b in blocks)
+        method = QueryMethod.REDUCE if serial else QueryMethod.OPTIMAL
+        if beyond and method is QueryMethod.OPTIMAL:
             raise ParameterError(
                 f"{what} applies to the reduction, and method='auto' chose the optimal method "
                 "(a loop lies between the frames); ask for method='reduce'"
             )
     order = g.order()
     names = sorted((n for b in blocks for n in b.names), key=order.__getitem__)
-    if method == "reduce":
+    if method is QueryMethod.REDUCE:
         in_play = set(names)
         groups = [(grp.names, grp.cov) for grp in g.groups if in_play & set(grp.names)]
         edges = [(n, *ends[n], g.edge(n).at) for n in names]
 
-        def run(how: str) -> Reduction:
+        def run(how: MomentsMethod) -> Reduction:
             return reduce_network(
                 edges,
                 src,
@@ -195,12 +210,12 @@ def query(
         _check_finite(result.at, src, dst)
         check = None
         if diagnose:
-            first = result if moments == "first_order" else run("first_order")
-            exact = result if moments == "exact" else run("exact")
+            first = result if first_order else run(MomentsMethod.FIRST_ORDER)
+            exact = result if moments is MomentsMethod.EXACT else run(MomentsMethod.EXACT)
             check = _compare(first.at, exact.at)  # type: ignore[arg-type]
         return Estimate(
             result.at,
-            "reduce",
+            QueryMethod.REDUCE,
             result.expression,
             src,
             dst,
@@ -226,7 +241,9 @@ def query(
         total = at if total is None else compound(total, at)
     assert total is not None
     _check_finite(total, src, dst)
-    return Estimate(total, "optimal", None, src, dst, iterations=iterations, converged=converged)
+    return Estimate(
+        total, QueryMethod.OPTIMAL, None, src, dst, iterations=iterations, converged=converged
+    )
 
 
 def _from_kept_solve(g: MapView, src: Frame, dst: Frame) -> Estimate | None:
@@ -241,7 +258,7 @@ def _from_kept_solve(g: MapView, src: Frame, dst: Frame) -> Estimate | None:
                 _check_finite(at, src, dst)
                 return Estimate(
                     at,
-                    "optimal",
+                    QueryMethod.OPTIMAL,
                     None,
                     src,
                     dst,
@@ -269,11 +286,13 @@ def _compare(first: AT, exact: AT) -> LinearizationCheck:
 
 
 def linearization_check(
-    g: MapView, src: Frame, dst: Frame, *, on_irreducible: str = "raise"
+    g: MapView, src: Frame, dst: Frame, *, on_irreducible: OnIrreducible | str = OnIrreducible.RAISE
 ) -> LinearizationCheck:
     """Predicted error of the first-order reduction from ``src`` to ``dst`` (SE(2) maps):
     ``query(g, src, dst, method="reduce", diagnose=True).linearization``."""
-    est = query(g, src, dst, method="reduce", on_irreducible=on_irreducible, diagnose=True)
+    est = query(
+        g, src, dst, method=QueryMethod.REDUCE, on_irreducible=on_irreducible, diagnose=True
+    )
     assert est.linearization is not None
     return est.linearization
 

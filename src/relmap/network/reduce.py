@@ -149,16 +149,35 @@ from relmap.errors import (
     NumericalError,
     ParameterError,
 )
-from relmap.lie import Group
-from relmap.typing import FloatArray
+from relmap.lie.group import Group
+from relmap.typing import FloatArray, Option
 from relmap.uncertain import moments as _moments
-from relmap.uncertain.at import AT, compound, merge, reverse
+from relmap.uncertain.algebra import compound, merge, reverse
+from relmap.uncertain.at import AT
 from relmap.uncertain.at3 import AT3
 from relmap.uncertain.gaussian import congruence, difference_merge_gain, generalized_inverse
+from relmap.uncertain.moments import MomentsMethod
 
-__all__ = ["Reduction", "reduce_network"]
+__all__ = ["DeltaY", "OnIrreducible", "Reduction", "reduce_network"]
 
 Frame = Hashable
+
+
+class DeltaY(Option):
+    """The star Delta-Y puts in place of a triangle (module docstring): the first-order
+    consistent one (``"consistent"``, default) or the paper's formulas (``"paper"``)."""
+
+    CONSISTENT = "consistent"
+    PAPER = "paper"
+
+
+class OnIrreducible(Option):
+    """What :func:`reduce_network` does with a network that even Delta-Y cannot reduce:
+    ``"raise"`` an :class:`~relmap.errors.IrreducibleNetworkError`, or ``"drop"`` the
+    loop-forming ATs one at a time (best deletion)."""
+
+    RAISE = "raise"
+    DROP = "drop"
 
 
 # --------------------------------------------------------------------- expressions
@@ -298,8 +317,8 @@ class _Reducer:
         t: Frame,
         cross: dict[frozenset[str], tuple[str, str, np.ndarray]],
         definitions: dict[str, str],
-        moments: str = "first_order",
-        delta_y: str = "consistent",
+        moments: MomentsMethod = MomentsMethod.FIRST_ORDER,
+        delta_y: DeltaY = DeltaY.CONSISTENT,
     ):
         self.s, self.t = s, t
         self.moments = moments
@@ -320,9 +339,9 @@ class _Reducer:
         e = st.edges[k]
         if e.u == a:
             return e.at, e.expr
-        if self.moments == "first_order":
+        if self.moments is MomentsMethod.FIRST_ORDER:
             return reverse(e.at), _rev(e.expr)
-        if self.moments == "unscented":
+        if self.moments is MomentsMethod.UNSCENTED:
             return AT._trusted(*_moments.unscented_reverse(e.at.mean, e.at.cov)), _rev(e.expr)
         return self.chain(self.factors(st, k, a)), _rev(e.expr)
 
@@ -347,12 +366,12 @@ class _Reducer:
 
     def series(self, st: _State, legs: Sequence[tuple[int, Frame]]) -> AT | AT3:
         """The ATs ``legs`` (id, frame each leaves from) compounded in order."""
-        if self.moments == "exact":
+        if self.moments is MomentsMethod.EXACT:
             return self.chain([f for k, a in legs for f in self.factors(st, k, a)])
         ats = [self.oriented(st, k, a)[0] for k, a in legs]
         out = ats[0]
         for x in ats[1:]:
-            out = compound(out, x, moments=self.moments)  # type: ignore[arg-type]
+            out = compound(out, x, moments=self.moments)
         return out
 
     def first(self, st: _State, a: Frame, b: Frame) -> tuple[Frame, Frame]:
@@ -469,15 +488,15 @@ class _Reducer:
         if cross is not None:
             before, second = self.oriented(st, k1, a)[0], self.oriented(st, k2, m)[0]
             try:
-                at = compound(before, second, cross_cov=cross, moments=self.moments)  # type: ignore[arg-type]
+                at = compound(before, second, cross_cov=cross, moments=self.moments)
             except NotPositiveSemidefiniteError:
                 if not self.decorrelate(st, {n for n, _ in (*l1, *l2)}):
                     raise
                 return self.compound_at(st, m)
-        elif self.moments == "first_order":
+        elif self.moments is MomentsMethod.FIRST_ORDER:
             first, second = self.oriented(st, k1, m)[0], self.oriented(st, k2, m)[0]
             at = compound(reverse(first), second)
-        elif self.moments == "exact":
+        elif self.moments is MomentsMethod.EXACT:
             factors = (*self.factors(st, k1, a), *self.factors(st, k2, m))
             at = self.chain(factors)
         else:
@@ -589,15 +608,15 @@ class _Reducer:
         A, eA = self.oriented(st, kA, w)
         B, eB = self.oriented(st, kB, w)
         C, eC = self.oriented(st, kC, t)
-        if self.moments == "first_order":
+        if self.moments is MomentsMethod.FIRST_ORDER:
             A1 = merge(A, compound(B, reverse(C)))
             B1 = merge(B, compound(A, C))
         else:  # the same compoundings with exact or unscented moments
             A1 = merge(A, self.series(st, [(kB, w), (kC, v)]))
             B1 = merge(B, self.series(st, [(kA, w), (kC, t)]))
         group, kind = A.group, type(A)
-        if self.delta_y_rule == "paper":
-            if self.moments == "first_order":
+        if self.delta_y_rule is DeltaY.PAPER:
+            if self.moments is MomentsMethod.FIRST_ORDER:
                 C1 = merge(C, compound(reverse(A), B))
             else:
                 C1 = merge(C, self.series(st, [(kA, t), (kB, w)]))
@@ -620,12 +639,12 @@ class _Reducer:
             f"{_short(_render(eC))} ({t!r}→{v!r})"
         )
         o_name = f"o{_sub(n)}"
-        rule = "" if self.delta_y_rule == "consistent" else " (the paper's formulas)"
+        rule = "" if self.delta_y_rule is DeltaY.CONSISTENT else " (the paper's formulas)"
         self.definitions[names[0]] = f"Y{rule} of {triangle}: {w!r}→{o_name}, identity mean"
         self.definitions[names[1]] = f"Y of {triangle}: {o_name}→{v!r}, mean of B' = B ⊗ (A ⊕ C)"
         self.definitions[names[2]] = f"Y of {triangle}: {o_name}→{t!r}, mean of A' = A ⊗ (B ⊕ Cᴿ)"
         star_links: list[tuple[tuple[str, FloatArray], ...]] = [(), (), ()]
-        if self.delta_y_rule == "consistent":
+        if self.delta_y_rule is DeltaY.CONSISTENT:
             self.cross[frozenset(names[1:])] = (names[2], names[1], cross_zy)
             self.star_members.update(names[1:])
             self.partner.update({names[1]: names[2], names[2]: names[1]})
@@ -933,7 +952,6 @@ def position_trace(at: AT | AT3) -> float:
     return float(np.trace(at.position_cov, axis1=-2, axis2=-1))
 
 
-DELTA_Y = ("consistent", "paper")
 #: the most ATs a frame may have for star-mesh elimination when nothing else applies
 MESH_MAX_DEGREE = 8
 _LETTERS = "abcdefghijklmnopqrstuvwxyz"
@@ -948,44 +966,42 @@ def reduce_network(
     s: Frame,
     t: Frame,
     *,
-    on_irreducible: str = "raise",
+    on_irreducible: OnIrreducible | str = OnIrreducible.RAISE,
     criterion: Callable[[AT | AT3], float] = position_trace,
     groups: Sequence[tuple[Sequence[str], np.ndarray]] = (),
-    moments: str = "first_order",
-    delta_y: str = "consistent",
+    moments: MomentsMethod | str = MomentsMethod.FIRST_ORDER,
+    delta_y: DeltaY | str = DeltaY.CONSISTENT,
     progress: Callable[[int, int], None] | None = None,
 ) -> Reduction:
     """Reduce ``edges`` (``(name, src, dst, AT)``) to the AT of frame t seen from frame s.
 
-    ``on_irreducible`` is ``"raise"`` or ``"drop"`` (best deletion, judged by ``criterion``,
-    by default the trace of the result's position covariance, m²; greedy, one AT at a time,
-    and refused at once, pointing to ``method='optimal'``, when more than
-    :data:`DROP_MAX_LOOPS` independent loops are left). ``groups`` lists dependent
+    ``on_irreducible`` (an :class:`OnIrreducible`) is ``"raise"`` or ``"drop"`` (best
+    deletion, judged by ``criterion``, by default the trace of the result's position covariance,
+    m²; greedy, one AT at a time, and refused at once, pointing to ``method='optimal'``, when
+    more than :data:`DROP_MAX_LOOPS` independent loops are left). ``groups`` lists dependent
     ATs as ``(names, joint covariance)``; ATs containing them compound with their
     cross-covariance (§3.2) and merge with their joint covariance (§4.2); Delta-Y on a
-    triangle with one of them raises (module docstring). ``moments`` is
-    ``"first_order"`` (Eqs. 1-7), ``"exact"`` or ``"unscented"`` (SE(2) only; module
-    docstring: what they mean where merging follows compounding). ``delta_y`` is
-    ``"consistent"`` (default: the first-order-consistent star) or ``"paper"`` (the paper's
-    formulas, to reproduce it). ``progress(done, total)`` is called as Delta-Y / Y→Δ rounds
-    go on (ATs reduced of those left after series-parallel steps) and during best deletion
-    (deletions tried).
+    triangle with one of them raises (module docstring). ``moments`` (a
+    :class:`~relmap.uncertain.moments.MomentsMethod`) is ``"first_order"`` (Eqs. 1-7),
+    ``"exact"`` or ``"unscented"`` (SE(2) only; module docstring: what they mean where merging
+    follows compounding). ``delta_y`` (a :class:`DeltaY`) is ``"consistent"`` (default: the
+    first-order-consistent star) or ``"paper"`` (the paper's formulas, to reproduce it).
+    ``progress(done, total)`` is called as Delta-Y / Y→Δ rounds go on (ATs reduced of those
+    left after series-parallel steps) and during best deletion (deletions tried).
 
     The result's covariance is symmetric PSD (rounding below 1e-9 of its scale clipped);
     when the approximations of Delta-Y / Y→Δ give an indefinite one,
     :class:`IrreducibleNetworkError` names the steps instead.
     """
-    if on_irreducible not in ("raise", "drop"):
-        raise ParameterError(f"on_irreducible must be 'raise' or 'drop'; got {on_irreducible!r}")
+    on_irreducible = OnIrreducible.parse(on_irreducible, "on_irreducible")
     s, t = _plain(s), _plain(t)
     edges = [(name, _plain(u), _plain(v), at) for name, u, v, at in edges]
-    if delta_y not in DELTA_Y:
-        raise ParameterError(f"delta_y must be one of {', '.join(DELTA_Y)}; got {delta_y!r}")
-    _moments.check_method(moments)
-    if moments != "first_order" and any(e[3].dim != 2 for e in edges):
+    delta_y = DeltaY.parse(delta_y, "delta_y")
+    moments = MomentsMethod.parse(moments, "moments")
+    if moments is not MomentsMethod.FIRST_ORDER and any(e[3].dim != 2 for e in edges):
         raise ParameterError(
-            f"moments={moments!r} is available for SE(2) maps only (3-D ATs compound to first "
-            "order); use moments='first_order'"
+            f"moments={moments.value!r} is available for SE(2) maps only (3-D ATs compound to "
+            "first order); use moments='first_order'"
         )
     group_of: dict[str, tuple[str, ...]] = {}
     cross: dict[frozenset[str], tuple[str, str, np.ndarray]] = {}
@@ -1011,7 +1027,7 @@ def reduce_network(
         rank,
     )
     loops = len(edges) - len({f for e in edges for f in e[1:3]}) + 1
-    if on_irreducible == "drop" and loops > DROP_MAX_INPUT_LOOPS:
+    if on_irreducible is OnIrreducible.DROP and loops > DROP_MAX_INPUT_LOOPS:
         raise IrreducibleNetworkError(
             f"best deletion refused: the network between {s!r} and {t!r} has {len(edges)} ATs "
             f"and {loops} independent loops (more than {DROP_MAX_INPUT_LOOPS}); deleting ATs "
@@ -1075,7 +1091,7 @@ def _listing(remaining: Sequence[str], limit: int = 6) -> str:
 def _reduce_or_drop(
     reducer: _Reducer,
     st: _State,
-    on_irreducible: str,
+    on_irreducible: OnIrreducible,
     criterion: Callable[[AT | AT3], float],
     progress: Callable[[int, int], None] | None = None,
 ) -> tuple[AT | AT3, object, tuple[str, ...]]:
@@ -1089,7 +1105,7 @@ def _reduce_or_drop(
         frames = len(st.incident)
         loops = len(st.edges) - frames + 1
         core = f"{len(remaining)} ATs among {frames} frames, {loops} independent loops"
-        if on_irreducible == "raise":
+        if on_irreducible is OnIrreducible.RAISE:
             raise IrreducibleNetworkError(
                 f"the paper's reduction (with Delta-Y) cannot reduce the network left ({core}: "
                 f"{_listing(remaining)}); use method='optimal', or on_irreducible='drop' to "

@@ -21,10 +21,11 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 from relmap.errors import DisconnectedError, ParameterError, ShapeError, UnknownFrameError
-from relmap.network.query import Estimate, query
+from relmap.network.query import Estimate, QueryMethod, query
 from relmap.typing import ArrayLike, FloatArray
 from relmap.uncertain import gaussian
-from relmap.uncertain.at import AT, merge
+from relmap.uncertain.algebra import merge
+from relmap.uncertain.at import AT
 from relmap.uncertain.at3 import AT3
 from relmap.uncertain.pose import UncertainPose
 
@@ -110,7 +111,7 @@ def forecast_sensing(
     sensor_cov: ArrayLike,
     of_interest: tuple[Frame, Frame],
     *,
-    method: str = "auto",
+    method: QueryMethod | str = QueryMethod.AUTO,
 ) -> SensingForecast:
     """How much would sensing the relation ``sensed = (a, b)`` improve ``of_interest = (c, d)``?
 
@@ -158,7 +159,7 @@ def sense(
     fov: float | None = None,
     max_range: float | None = None,
     min_visible: float = 0.9,
-    method: str = "auto",
+    method: QueryMethod | str = QueryMethod.AUTO,
 ) -> SensingDecision:
     """Perform §6.2: predict the sensed relation, check it can be sensed, test the reading,
     and add it to the map as an AT from ``src`` (the sensor's frame) to ``dst``.

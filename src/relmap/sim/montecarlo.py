@@ -4,10 +4,11 @@ Draw every input AT from its Gaussian, push the samples through the same operati
 (nonlinear) arithmetic, and compare the empirical distribution with relmap's estimate:
 
 >>> import relmap as rm
->>> from relmap.lie import SE2, Group
+>>> from relmap.lie import se2
+>>> from relmap.sim import montecarlo
 >>> a = rm.AT.from_sigmas([1.0, 0.0, 0.3], [0.05, 0.05, 0.03])
 >>> b = rm.AT.from_sigmas([2.0, 0.5, 0.1], [0.05, 0.05, 0.03])
->>> mc = rm.montecarlo.simulate(se2.compose, a, b, n=100_000, seed=1)
+>>> mc = montecarlo.simulate(se2.compose, a, b, n=100_000, seed=1)
 >>> report = mc.compare(a @ b)
 >>> bool(report.cov_rel_error < 0.02)
 True
@@ -26,10 +27,11 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from relmap.errors import ArgumentTypeError, ChunkError, ParameterError, ShapeError
-from relmap.lie import SE2, Group
+from relmap.lie.group import SE2, Group
 from relmap.typing import FloatArray, SeedLike
 from relmap.uncertain import gaussian
-from relmap.uncertain.at import AT, merge
+from relmap.uncertain.algebra import merge
+from relmap.uncertain.at import AT
 from relmap.uncertain.at3 import AT3
 from relmap.uncertain.pose import UncertainPose
 

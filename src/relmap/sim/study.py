@@ -1,6 +1,6 @@
 """Batch studies: one function over a grid of parameters, here or on a Dask cluster.
 
->>> from relmap import study
+>>> from relmap.sim import study
 >>> def area(side, scale):
 ...     return {"area": (side * scale) ** 2}
 >>> t = study.run(area, study.grid(side=[1.0, 2.0], scale=[1, 10]))
@@ -25,8 +25,18 @@ from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from typing import Any, NamedTuple
 
 from relmap.errors import ChunkError, ParameterError
+from relmap.typing import Option
 
-__all__ = ["Table", "grid", "run"]
+__all__ = ["OnError", "Table", "grid", "run"]
+
+
+class OnError(Option):
+    """What :func:`run` does when a point raises: ``"raise"`` (stop, naming the point) or
+    ``"record"`` (the error in an ``error`` column, and go on)."""
+
+    RAISE = "raise"
+    RECORD = "record"
+
 
 Row = dict[str, Any]
 
@@ -139,24 +149,24 @@ def run(
     client: Any = None,
     shared: Mapping[str, Any] | None = None,
     progress: Callable[[int, int], None] | None = None,
-    on_error: str = "raise",
+    on_error: OnError | str = OnError.RAISE,
 ) -> Table:
     """``fn(**point, **shared)`` for every point, as a :class:`Table` (module docstring).
 
     ``points``: a list of parameter dicts, or a dict of axes (→ :func:`grid`). ``fn`` returns
     a dict (or a NamedTuple, or one value: column ``value``); it must be picklable for a
-    cluster (a module-level function). ``on_error``: ``"raise"`` stops at the first point that
-    raises (:class:`relmap.errors.ChunkError` naming the point), ``"record"`` puts the error in
-    an ``error`` column and goes on. ``progress(k, n)`` is called as chunks complete.
+    cluster (a module-level function). ``on_error`` (an :class:`OnError`): ``"raise"`` stops at
+    the first point that raises (:class:`relmap.errors.ChunkError` naming the point),
+    ``"record"`` puts the error in an ``error`` column and goes on. ``progress(k, n)`` is called
+    as chunks complete.
     """
     from relmap.sim import distributed
 
-    if on_error not in ("raise", "record"):
-        raise ParameterError(f"on_error must be 'raise' or 'record'; got {on_error!r}")
+    on_error = OnError.parse(on_error, "on_error")
     pts = tuple(dict(p) for p in (grid(**points) if isinstance(points, Mapping) else points))
     if not pts:
         raise ParameterError("the study has no points")
-    job = _Study(fn, pts, dict(shared or {}), on_error == "record")
+    job = _Study(fn, pts, dict(shared or {}), on_error is OnError.RECORD)
     rows: list[Row | None] = [None] * len(pts)
     done = [0]
 

@@ -9,34 +9,36 @@ perturbation applied on the left in the parent frame, ``T' = (t + δt, Exp(δφ)
 the §7 "poles" belong to Euler angles, which exist here only as a conversion
 (:meth:`AT3.to_euler`, :meth:`AT3.from_euler`) that detects them.
 
-Compounding, reversal and merging follow Eqs. (1)-(10) with the 3-D Jacobians; batch axes
-broadcast like numpy. Batches are stored entry-major (:mod:`relmap._layout`). Compounding and
-reversal run in relmap's compiled core (``relmap._core.compound3`` and ``reverse3``,
-``src/core/se3.cpp``), one implementation for a single pair and for any batch: one pass over the
-batch, each element's propagation on 3×3 blocks (the Jacobians' structure, a shear and a
-rotation, rather than 6×6 matrix products).
+This module holds the whole SE(3) algebra: compounding (``a @ b``), reversal (``a.reverse()``),
+merging at a common pose and chains follow Eqs. (1)-(10) with the 3-D Jacobians; batch axes
+broadcast like numpy; the free functions that take either kind (:func:`relmap.compound`,
+:func:`relmap.reverse`, :func:`relmap.merge`, :func:`relmap.compound_chain`) are
+:mod:`relmap.uncertain.algebra`'s. Batches are stored entry-major (:mod:`relmap._layout`).
+Compounding and reversal run in relmap's compiled core (``relmap._core.compound3`` and
+``reverse3``, ``src/core/se3.cpp``), one implementation for a single pair and for any batch: one
+pass over the batch, each element's propagation on 3×3 blocks (the Jacobians' structure, a shear
+and a rotation, rather than 6×6 matrix products).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Literal, overload
 
 import numpy as np
 
 from relmap import _core
 from relmap._layout import compact, components_outermost
 from relmap.errors import ArgumentTypeError, ParameterError, ShapeError
-from relmap.lie import SE2, SE3, se3, so3
+from relmap.lie import se3, so3
+from relmap.lie.group import SE2, SE3
 from relmap.lie.so3 import ROTATION_ATOL
 from relmap.typing import ArrayLike, FloatArray
 from relmap.uncertain import gaussian
-from relmap.uncertain import pose as uncertain
 from relmap.uncertain.gaussian import DEFAULT_RTOL
-from relmap.uncertain.pose import UncertainPose, chain_axis, check_result, checked_cross_cov
+from relmap.uncertain.pose import UncertainPose, broadcast_error, check_result, overflow_error
 
-__all__ = ["AT3", "compound3", "compound_chain3", "ellipsoid", "merge3", "reverse3"]
+__all__ = ["AT3", "PoleWarning", "ellipsoid"]
 
 
 def _rotation(rotation: ArrayLike, *, atol: float) -> FloatArray:
@@ -75,6 +77,7 @@ class AT3(UncertainPose):
 
     __slots__ = ()
     group = SE3  #: the pose group (generic code reads it)
+    _translation = (Ellipsis, slice(0, 3), 3)
 
     def __init__(
         self,
@@ -178,18 +181,14 @@ class AT3(UncertainPose):
 
     # ----------------------------------------------------------------- accessors
     @property
-    def mean(self) -> FloatArray:
-        """The mean pose: homogeneous matrices (..., 4, 4) (read-only)."""
-        return self._mean
-
-    @property
     def matrix(self) -> FloatArray:
         """(..., 4, 4) homogeneous matrices (read-only); the same as :attr:`mean`."""
         return self._mean
 
     @property
     def translation(self) -> FloatArray:
-        return self._mean[..., :3, 3]
+        """(..., 3) the child origin in the parent frame (read-only)."""
+        return self._position()
 
     @property
     def rotation(self) -> FloatArray:
@@ -284,11 +283,23 @@ class AT3(UncertainPose):
             c = c.reshape(*c.shape[:-1], 6, 6)
         return cls(translation, quaternion, c)
 
-    # --------------------------------------------------- the operations (relmap.uncertain.pose)
-    def _position(self) -> FloatArray:
-        return self.translation
+    # ------------------------------------------- the algebra (relmap.uncertain.algebra calls it)
+    def __matmul__(self, other: AT3) -> AT3:
+        """``a @ b`` is :func:`relmap.compound` ``(a, b)``: frame b's pose given in frame a,
+        chained."""
+        if not isinstance(other, AT3):
+            return NotImplemented
+        return self._compound(other, None)
+
+    def reverse(self) -> AT3:
+        """The reversed pose ``Aᴿ`` (:func:`relmap.reverse`): where A's parent frame is, seen
+        from A's child frame."""
+        return self._reverse(False)  # type: ignore[return-value]
 
     def _compound(self, other: AT3, cross_cov: FloatArray | None) -> AT3:
+        """``C = J_a C_a J_aᵀ + J_b C_b J_bᵀ`` (+ the cross terms of a dependent pair), with
+        ``J_a = [[I, -[R_a t_b]×], [0, I]]``, ``J_b = blkdiag(R_a, R_a)``
+        (:func:`relmap.lie.se3.compose`), in the compiled core."""
         batch = self._mean.shape[:-2]
         try:
             if other._mean.shape[:-2] != batch:
@@ -297,22 +308,27 @@ class AT3(UncertainPose):
                 batch = np.broadcast_shapes(batch, cross_cov.shape[:-2])
         except ValueError:
             shapes = [self.batch_shape, other.batch_shape]
-            raise uncertain.broadcast_error(
+            raise broadcast_error(
                 "compound", *shapes, *([] if cross_cov is None else [cross_cov.shape[:-2]])
             ) from None
         return _compound_batched(self, other, cross_cov, batch)
 
-    def _reverse(self, jacobian: bool) -> AT3 | tuple[AT3, FloatArray]:
+    def _reverse(self, jacobians: bool) -> AT3 | tuple[AT3, FloatArray]:
+        """``C' = J C Jᵀ`` with J the inverse's Jacobian (:func:`relmap.lie.se3.inverse`),
+        in the compiled core; with ``jacobians`` J too."""
         out = _reverse_batched(self)
-        if jacobian:
+        if jacobians:
             return out, se3.inverse(self._mean, jacobians=True)[1]
         return out
 
     @classmethod
     def _merge(cls, ats: Sequence[AT3], atol: float) -> AT3:
+        """Eqs. (8)-(10) at a common pose (:func:`_merge_at_common_pose`)."""
         return _merge_at_common_pose(ats, atol, 50)
 
     def _chain(self, axis: int) -> AT3:
+        """Every prefix along ``axis``: compounding one step at a time, ``acc = acc @ step``,
+        one batched compound per step (vectorized across the chains)."""
         batch = self.batch_shape
         if 0 in batch:  # no chains: no prefixes either
             return self
@@ -385,7 +401,7 @@ def _compound_batched(a: AT3, b: AT3, X: FloatArray | None, batch: tuple[int, ..
         None if X is None else _planes(X, batch, N),
     )
     if not finite:  # the core watched its results for inf and NaN
-        raise uncertain.overflow_error("compound")
+        raise overflow_error("compound")
     return AT3._own(_logical(To, batch), _logical(Co, batch))
 
 
@@ -394,72 +410,22 @@ def _reverse_batched(a: AT3) -> AT3:
     N = math.prod(batch)
     To, Co, finite = _core.reverse3(_planes(a._mean, batch, N), _planes(a._cov, batch, N))
     if not finite:
-        raise uncertain.overflow_error("reverse")
+        raise overflow_error("reverse")
     return AT3._own(_logical(To, batch), _logical(Co, batch))
 
 
-def _check3(items: Sequence[object]) -> None:
-    for i, x in enumerate(items):
-        if not isinstance(x, AT3):
-            raise ArgumentTypeError(f"argument {i} is a {type(x).__name__}, not an AT3")
-
-
-def compound3(a: AT3, b: AT3, *, cross_cov: ArrayLike | None = None) -> AT3:
-    """``a ⊕ b`` in 3-D: ``C = J_a C_a J_aᵀ + J_b C_b J_bᵀ`` (+ the cross terms of a dependent
-    pair, ``cross_cov = E[δa δbᵀ]`` (..., 6, 6)), with ``J_a = [[I, -[R_a t_b]×], [0, I]]``,
-    ``J_b = blkdiag(R_a, R_a)`` (:func:`relmap.lie.se3.compose`)."""
-    _check3((a, b))
-    X = None if cross_cov is None else checked_cross_cov(a._cov, b._cov, cross_cov, 6)
-    return a._compound(b, X)
-
-
-def compound_chain3(steps: AT3, *, axis: int = -1) -> AT3:
-    """Every prefix ``A₁ ⊕ A₂ ⊕ … ⊕ A_k`` of the chains laid along batch ``axis`` of ``steps``.
-
-    Returns an AT3 of the same batch shape whose element k along ``axis`` is frame k in the
-    chain's first parent frame, for independent steps (Eq. 4's assumption): compounding one step
-    at a time, ``acc = acc @ step``, one batched :func:`compound3` per step along ``axis``
-    (vectorized across the chains).
-    """
-    _check3((steps,))
-    return steps._chain(chain_axis(steps, axis, "compound_chain3"))
-
-
-@overload
-def reverse3(a: AT3, *, jacobian: Literal[False] = ...) -> AT3: ...
-@overload
-def reverse3(a: AT3, *, jacobian: Literal[True]) -> tuple[AT3, FloatArray]: ...
-def reverse3(a: AT3, *, jacobian: bool = False) -> AT3 | tuple[AT3, FloatArray]:
-    """``Aᴿ`` in 3-D: ``C' = J C Jᵀ`` with J the inverse's Jacobian (returned too with
-    ``jacobian=True``; A's cross-covariance with its reversal is then ``C Jᵀ``)."""
-    _check3((a,))
-    return a._reverse(bool(jacobian))  # type: ignore[no-any-return]
-
-
-def merge3(*ats: AT3, atol: float = 1e-9, max_iterations: int = 50) -> AT3:
-    """Merge parallel AT3s (Eqs. 8-10), order-independent.
+def _merge_at_common_pose(ats: Sequence[AT3], atol: float, max_iterations: int) -> AT3:
+    """The merge of two or more checked, independent AT3s (Eqs. 8-10), order-independent.
 
     The rotation chart is curved, so fusing pairwise in each AT's own chart would depend on the
     order at second order in the spread of the means. Instead every mean is expressed in the
     chart at a common pose X (``δᵢ = minus(Tᵢ, X)``), the δᵢ are fused linearly with
     :func:`relmap.uncertain.gaussian.fuse` (Joseph form, exact components allowed; the same as the
     information-weighted mean, which does not depend on the order), X moves by the result, and
-    this repeats until the step is at rounding level (a fixed point symmetric in the inputs).
-    Inputs are assumed independent; contradictions along exactly known directions raise
+    this repeats until the step is at rounding level (a fixed point symmetric in the inputs),
+    at most ``max_iterations`` times. Contradictions along exactly known directions raise
     :class:`relmap.errors.InconsistentMergeError`.
     """
-    if not ats:
-        raise ShapeError("merge3 needs at least one AT3")
-    _check3(ats)
-    atol = gaussian.check_tolerance(atol, "atol")
-    if len(ats) == 1:
-        return ats[0]
-    uncertain.common_batch("merge", ats)
-    return _merge_at_common_pose(ats, atol, max_iterations)
-
-
-def _merge_at_common_pose(ats: Sequence[AT3], atol: float, max_iterations: int) -> AT3:
-    """:func:`merge3` of two or more checked AT3s."""
     # the gains depend on the covariances only: compute them once
     # (on the covariances' own batch shape: once for a covariance the batch shares)
     gains, C = [], compact(ats[0]._cov, 2)

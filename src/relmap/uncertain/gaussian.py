@@ -388,7 +388,7 @@ def congruence(J: FloatArray, C: FloatArray) -> FloatArray:
     """``J C Jᵀ``, symmetrized, ``(..., m, m)`` for ``J`` ``(..., m, n)`` and ``C`` ``(..., n, n)``
     (batch axes broadcast): the covariance of ``J x`` when ``x`` has covariance ``C`` — first-order
     propagation (the paper's Eq. 4, the lecture's ``Σy = J Σx Jᵀ``). SE(2)'s fused 3×3 cases are
-    in :mod:`relmap.uncertain._sym3`."""
+    in :mod:`relmap.uncertain.at`."""
     out = J @ C @ np.swapaxes(J, -1, -2)
     return 0.5 * (out + np.swapaxes(out, -1, -2))
 

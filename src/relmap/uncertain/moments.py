@@ -35,19 +35,20 @@ uncertainty is tiny next to the chain's length.
 
 from __future__ import annotations
 
-from typing import Literal, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
 from relmap.errors import ParameterError, ShapeError
 from relmap.lie import se2
 from relmap.lie.group import SE2 as SE2_GROUP
-from relmap.typing import ArrayLike, FloatArray
+from relmap.typing import ArrayLike, FloatArray, Option
 from relmap.uncertain.gaussian import check_finite, real_array, validate_covariance
 from relmap.uncertain.pose import UncertainPose, chain_axis, chain_batch_axis, same_kind
 from relmap.uncertain.propagate import EUCLIDEAN, SE2, Chart, Moments, unscented
 
 __all__ = [
+    "ChainScheme",
     "Linearization",
     "MomentsMethod",
     "chain_moments",
@@ -59,18 +60,27 @@ __all__ = [
     "unscented_reverse",
 ]
 
-#: How ``compound`` / ``compound_chain`` compute the result's moments.
-MomentsMethod = Literal["first_order", "exact", "unscented"]
-METHODS: tuple[str, ...] = ("first_order", "exact", "unscented")
+
+class MomentsMethod(Option):
+    """How ``compound`` / ``compound_chain`` (and a map's reduction) compute the result's
+    moments: Eqs. (1)-(4) (``"first_order"``), the exact mean and covariance for Gaussian inputs
+    (``"exact"``: :func:`compound_moments`, :func:`chain_moments`), or the unscented transform
+    (``"unscented"``: :func:`unscented_compound`, :func:`unscented_chain`)."""
+
+    FIRST_ORDER = "first_order"
+    EXACT = "exact"
+    UNSCENTED = "unscented"
+
+
+class ChainScheme(Option):
+    """How :func:`unscented_chain` transforms a chain: one link after the other
+    (``"sequential"``) or all links in one transform (``"joint"``)."""
+
+    SEQUENTIAL = "sequential"
+    JOINT = "joint"
+
 
 ComplexArray = np.ndarray
-
-
-# ----------------------------------------------------------------------------- helpers
-def check_method(method: str) -> None:
-    """Raise :class:`ParameterError` unless ``method`` is one of :data:`MomentsMethod`."""
-    if method not in METHODS:
-        raise ParameterError(f"moments must be one of {METHODS}; got {method!r}")
 
 
 def _poses(mean: ArrayLike, cov: ArrayLike, name: str) -> tuple[FloatArray, FloatArray]:
@@ -418,7 +428,7 @@ def unscented_chain(
     cov: ArrayLike,
     *,
     axis: int = -1,
-    scheme: Literal["sequential", "joint"] = "sequential",
+    scheme: ChainScheme | str = ChainScheme.SEQUENTIAL,
 ) -> Moments:
     """Every prefix of a chain of independent links by the unscented transform.
 
@@ -439,16 +449,15 @@ def unscented_chain(
     Both average the output in the SE(2) chart (heading wrapped). :func:`chain_moments` is
     exact and O(n log n).
     """
+    scheme = ChainScheme.parse(scheme, "scheme")
     m, C, axis = _links(mean, cov, axis, "unscented_chain")
-    if scheme == "sequential":
+    if scheme is ChainScheme.SEQUENTIAL:
         m, C = np.moveaxis(m, axis, 0), np.moveaxis(C, axis, 0)
         out_m, out_C = np.empty_like(m), np.empty_like(C)
         out_m[0], out_C[0] = m[0], C[0]
         for k in range(1, m.shape[0]):
             out_m[k], out_C[k] = unscented_compound(out_m[k - 1], out_C[k - 1], m[k], C[k])
         return Moments(np.moveaxis(out_m, 0, axis), np.moveaxis(out_C, 0, axis))
-    if scheme != "joint":
-        raise ParameterError(f"scheme must be 'sequential' or 'joint'; got {scheme!r}")
     m = np.moveaxis(m, axis, -2)  # (..., n, 3)
     C = np.moveaxis(C, axis, -3)  # (..., n, 3, 3)
     n = m.shape[-2]

@@ -7,13 +7,11 @@ covariance ``(dof, dof)`` in that group's chart (the translation first, in the p
 with the same leading batch axes. The base does what is the same for both: storage (read-only
 views), pickling, the identity, stacking, indexing and iterating the batch axes, sampling through
 the chart (``group.plus``), standard deviations, and the confidence ellipse of the horizontal
-position (Appendix A). Each kind supplies its operations as four hooks — ``_compound``,
-``_reverse``, ``_merge``, ``_chain`` — which the free functions of :mod:`relmap.uncertain.at`
-(:func:`~relmap.uncertain.at.compound`, :func:`~relmap.uncertain.at.reverse`,
-:func:`~relmap.uncertain.at.merge`,
-:func:`~relmap.uncertain.at.compound_chain`) and ``a @ b`` call after the shared checks, so no
-function
-chooses a kind by ``isinstance``.
+position (Appendix A). It states, and never calls, the four operations each kind writes in its
+own module — ``_compound``, ``_reverse``, ``_merge``, ``_chain`` —, which the free functions of
+:mod:`relmap.uncertain.algebra` (``compound``, ``reverse``, ``merge``, ``compound_chain``) call
+after the shared checks, and the kind's ``a @ b`` and ``a.reverse()`` call directly: no function
+chooses a kind by ``isinstance``, and nothing here calls up into a kind.
 
 The helpers below validate once, at the edge: :func:`same_kind` (arguments of one kind),
 :func:`checked_cross_cov` (a dependent pair's cross-covariance), :func:`chain_axis` (a chain's
@@ -29,9 +27,8 @@ from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 
-from relmap._layout import read_only
 from relmap.errors import ArgumentTypeError, NumericalError, ParameterError, ShapeError
-from relmap.lie import Group
+from relmap.lie.group import Group
 from relmap.typing import ArrayLike, FloatArray, SeedLike
 from relmap.uncertain import gaussian
 from relmap.uncertain.gaussian import Ellipse
@@ -46,6 +43,9 @@ class UncertainPose:
 
     __slots__ = ("_cov", "_mean")
     group: ClassVar[Group]  #: the pose group (generic code reads it)
+    #: where the translation sits in a mean (the kind states it: ``[..., :2]`` of SE(2)'s
+    #: ``(x, y, θ)``, ``[..., :3, 3]`` of SE(3)'s matrices)
+    _translation: ClassVar[tuple[Any, ...]]
     #: the dimension n of the space the poses move in (SE(n): 2 for AT, 3 for AT3); the
     #: covariance's position block is its first n × n (:attr:`position_cov`)
     dim: ClassVar[int]
@@ -67,8 +67,8 @@ class UncertainPose:
     # ------------------------------------------------------------------- storage
     def _set(self, mean: FloatArray, cov: FloatArray, batch: tuple[int, ...]) -> None:
         # read-only views: the arrays cannot be modified through the pose
-        object.__setattr__(self, "_mean", read_only(mean, (*batch, *self._point_shape)))
-        object.__setattr__(self, "_cov", read_only(cov, (*batch, *self._cov_shape)))
+        object.__setattr__(self, "_mean", _read_only(mean, (*batch, *self._point_shape)))
+        object.__setattr__(self, "_cov", _read_only(cov, (*batch, *self._cov_shape)))
 
     @classmethod
     def _trusted(cls: type[P], mean: FloatArray, cov: FloatArray) -> P:
@@ -126,6 +126,12 @@ class UncertainPose:
 
     # ------------------------------------------------------------------ accessors
     @property
+    def mean(self) -> FloatArray:
+        """The read-only mean, a point of :attr:`group`: ``(..., 3)`` ``(x, y, θ)`` for an AT,
+        ``(..., 4, 4)`` homogeneous matrices for an AT3."""
+        return self._mean
+
+    @property
     def cov(self) -> FloatArray:
         """``(..., dof, dof)`` read-only covariance in the chart, translation first, in the
         parent frame."""
@@ -161,8 +167,8 @@ class UncertainPose:
         return self._mean
 
     def _position(self) -> FloatArray:
-        """``(..., n)`` the child origin in the parent frame (n = 2 or 3)."""
-        raise NotImplementedError
+        """``(..., n)`` the child origin in the parent frame (n = :attr:`dim`)."""
+        return self._mean[self._translation]
 
     def __getitem__(self: P, index: object) -> P:
         """Index the batch axes (never the trailing pose axes)."""
@@ -191,16 +197,6 @@ class UncertainPose:
         return (self[i] for i in range(self.batch_shape[0]))
 
     # ----------------------------------------------------------------- operations
-    def __matmul__(self: P, other: P) -> P:
-        """``a @ b`` is ``compound(a, b)``: frame b's pose given in frame a, chained."""
-        if not isinstance(other, type(self)):
-            return NotImplemented
-        return self._compound(other, None)
-
-    def reverse(self: P) -> P:
-        """The reversed pose ``Aᴿ``: where A's parent frame is, seen from A's child frame."""
-        return self._reverse(False)  # type: ignore[no-any-return]
-
     def sample(self, n: int, seed: SeedLike = None) -> FloatArray:
         """``n`` draws of the pose from ``N(mean, cov)`` in the chart, ``(n, ..., *point)``."""
         delta = gaussian._sample(np.zeros(self.group.dof), self._cov, n, seed)
@@ -211,13 +207,15 @@ class UncertainPose:
         frame (Appendix A, N = 2)."""
         return gaussian._ellipse(self._position()[..., :2], self._cov[..., :2, :2], probability)
 
-    # The kinds' operations, called after the shared checks (relmap.uncertain.at's free functions).
+    # The operations each kind writes in its own module (relmap.uncertain.at, .at3), called by
+    # relmap.uncertain.algebra's free functions after the shared checks and by the kind's own
+    # ``a @ b`` and ``a.reverse()``; the base never calls them.
     def _compound(self: P, other: P, cross_cov: FloatArray | None) -> P:
         """``self ⊕ other`` (batches broadcast; ``cross_cov`` already checked, or None)."""
         raise NotImplementedError
 
-    def _reverse(self, jacobian: bool) -> Any:
-        """``selfᴿ``, with the reversal's Jacobian when ``jacobian``."""
+    def _reverse(self, jacobians: bool) -> Any:
+        """``selfᴿ``, and with ``jacobians`` the reversal's Jacobian too."""
         raise NotImplementedError
 
     @classmethod
@@ -366,3 +364,16 @@ def _stack_axis(ats: Sequence[UncertainPose], axis: object, what: str) -> int:
     if not -ndim - 1 <= axis <= ndim:
         raise ShapeError(f"{what}: axis {axis} is out of range for {ndim + 1} batch axes")
     return int(axis) if axis >= 0 else int(axis) + ndim + 1
+
+
+def _read_only(arr: FloatArray, shape: tuple[int, ...]) -> FloatArray:
+    """A read-only view of ``arr`` broadcast to ``shape`` (a plain view when it has that shape:
+    np.broadcast_to costs microseconds, which matter for single values; ``arr`` itself when it
+    is read-only already, e.g. a result of the compiled core)."""
+    if arr.shape != shape:
+        return np.broadcast_to(arr, shape)
+    if not arr.flags.writeable:
+        return arr
+    view = arr.view()
+    view.setflags(write=False)  # (not view.flags.writeable = False: that builds a flags object)
+    return view

@@ -138,7 +138,9 @@ def propagate(
     """First-order moments of ``y = f(x)``: ``ŷ = f(x̂)``, ``Σy = J Σx Jᵀ`` (lecture Eqs. 7-8).
 
     ``jacobian`` is the ``(..., m, n)`` matrix, a function of x returning it, or None for the
-    numeric one (in the given charts). Exact when f is linear.
+    numeric one (in the given charts). Exact when f is linear. (relmap's names: ``jacobian=``
+    *gives* the one Jacobian to use, as here; a flag ``jacobians=True`` *asks* an operation to
+    return its Jacobians too, as :func:`relmap.lie.se2.compose` and :func:`relmap.reverse`.)
     """
     mean, cov = _checked_input(mean, cov)
     if cov.shape[-2:] != (mean.shape[-1], mean.shape[-1]):

@@ -17,8 +17,9 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from relmap import filter as ekf
 from relmap.filter import autocalibration
+from relmap.filter.landmarks import Status
+from relmap.filter.logs import Trace
 from relmap.lie import se2
 from relmap.typing import FloatArray
 from relmap.uncertain import gaussian
@@ -53,7 +54,7 @@ class Run(Protocol):
     calibration: Calibration  #: the noise (its Student-t dof ``nu``)
     score: Score  #: the filter's score
     baseline: Score  #: dead reckoning's
-    trace: ekf.Trace  #: the filter's trace
+    trace: Trace  #: the filter's trace
     reading_t: FloatArray  #: (M,) the readings' times
 
     @property
@@ -137,7 +138,7 @@ def figure(run: Run, *, ellipses: int = 12) -> Figure:
     ax_nees.legend(loc="upper right", fontsize="x-small")
 
     tr = run.trace
-    used = tr.status == ekf.Status.USED
+    used = tr.status == Status.USED
     y, S = tr.y, tr.S
     if y.ndim == 1:  # range only
         y, S = y[:, None], S[:, None, None]

@@ -27,6 +27,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
 
     from relmap.network.graph import RelationalMap
+    from relmap.network.query import QueryMethod
     from relmap.sim.montecarlo import SampleSet
     from relmap.uncertain.at3 import AT3
 
@@ -145,7 +146,7 @@ def relational_map(
     reference: Hashable,
     probability: float = 0.9,
     *,
-    method: str = "auto",
+    method: QueryMethod | str = "auto",
     ellipses: bool = True,
     labels: bool = True,
     color: str = "C0",
