@@ -39,9 +39,9 @@ __all__ = [
     "State",
     "correct",
     "correct_pose",
-    "innovations_given",
     "predict",
     "update",
+    "Update",
 ]
 
 
@@ -84,66 +84,78 @@ def predict(state: State, u: ArrayLike, motion: Motion) -> State:
     return _like(state, motion.f(x, u), 0.5 * (P + _T(P)))
 
 
-def update(
-    P: FloatArray, y: FloatArray, H: FloatArray, R: FloatArray
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """The stacked update (Eqs. 26-28) of m independent readings: ``(δ, P⁺, nis, logdet)``.
+class Update(NamedTuple):
+    """What :func:`update` gives (leading axes: the batch)."""
 
-    ``P`` (..., n, n); ``y`` (..., m, d), ``H`` (..., m, d, n), ``R`` (..., m, d, d) positive
-    definite. Returns the correction ``δ = K y`` (..., n) of the mean (the caller moves x by it in
-    the state's chart), the covariance ``P⁺`` (..., n, n), and the stacked innovation's
-    ``yᵀ S⁻¹ y`` and ``log det S`` (...), for ``S = H P Hᵀ + R`` and ``K = P Hᵀ S⁻¹``.
+    delta: FloatArray  #: (..., n) the mean's correction ``K y``
+    P: FloatArray  #: (..., n, n) the corrected covariance (Joseph form)
+    nis: FloatArray  #: (...) the stacked innovation's ``yᵀ S⁻¹ y``
+    logdet: FloatArray  #: (...) its ``log det S``
+    #: (..., m, d), (..., m, d, d): each reading's innovation and its covariance given the
+    #: readings before it (``given=True``; else empty)
+    y_given: FloatArray
+    S_given: FloatArray
+
+
+def update(
+    P: FloatArray,
+    y: FloatArray,
+    H: FloatArray,
+    R: FloatArray,
+    used: np.ndarray | None = None,
+    *,
+    given: bool = False,
+) -> Update:
+    """The stacked update (Eqs. 26-28) of m independent readings.
+
+    ``P`` (..., n, n); innovations ``y`` (..., m, d), ``H`` (..., m, d, n), noises ``R``
+    (..., m, d, d) positive definite; ``used`` (..., m): the readings in the update (default
+    all; the others carry no information). ``S = H P Hᵀ + R`` and ``K = P Hᵀ S⁻¹``; the caller
+    moves the mean by ``delta`` in the state's chart. ``given``: also each reading's innovation
+    and covariance given the used ones before it, ``y_i - H_i δ_(i)`` and ``H_i P_(i) H_iᵀ + R_i``
+    with ``δ_(i)``, ``P_(i)`` the update by those (the prediction-error decomposition, Schweppe
+    1965: their Gaussian densities multiply to the stacked innovation's).
     """
-    n = P.shape[-1]
+    n, m = P.shape[-1], y.shape[-2]
     I = np.eye(n)
+    if used is not None:  # (an unused reading's numbers may be anything, NaN too)
+        y, H = np.where(used[..., None], y, 0.0), np.where(used[..., None, None], H, 0.0)
+        R = np.where(used[..., None, None], R, np.eye(R.shape[-1]))
     Ri = inverse_pd(R)
+    if used is not None:
+        Ri = np.where(used[..., None, None], Ri, 0.0)
     HtRi = _T(H) @ Ri  # (..., m, n, d)
-    A = (HtRi @ H).sum(axis=-3)  # Hᵀ R⁻¹ H, the readings' information about the state
-    b = (HtRi @ y[..., None]).sum(axis=-3)  # Hᵀ R⁻¹ y, (..., n, 1)
+    info, vec = HtRi @ H, HtRi @ y[..., None]  # each reading's Hᵀ R⁻¹ H and Hᵀ R⁻¹ y
+    if given:  # the information of the readings before each, and of all: (..., m + 1, ...)
+        zero = np.zeros((*info.shape[:-3], 1, n, n))
+        A = np.concatenate([zero, np.cumsum(info, axis=-3)], axis=-3)
+        b = np.concatenate([zero[..., :1], np.cumsum(vec, axis=-3)], axis=-3)
+        P_each = P[..., None, :, :]
+    else:
+        A, b = info.sum(axis=-3), vec.sum(axis=-3)
     # The readings are independent (R block diagonal), so the gain is taken through the
     # push-through identity Hᵀ S⁻¹ = (I + Hᵀ R⁻¹ H P)⁻¹ Hᵀ R⁻¹: K = P Hᵀ S⁻¹ = P⁺ Hᵀ R⁻¹ with
-    # P⁺ = P (I + A P)⁻¹, inverting R's d×d blocks and one n×n matrix, never the (md)×(md) S
-    # (nor P: a singular P is fine).
-    Pp = _T(np.linalg.solve(_T(I + A @ P), P))
+    # P⁺ = P (I + A P)⁻¹ (A = Hᵀ R⁻¹ H), inverting R's d×d blocks and one n×n matrix, never the
+    # (md)×(md) S (nor P: a singular P is fine).
+    P_b = P_each if given else P
+    I_AP = I + A @ P_b
+    Pp = _T(np.linalg.solve(_T(I_AP), P_b))
     delta = Pp @ b
+    y_given = S_given = np.empty(0)
+    if given:
+        y_given = y - (H @ delta[..., :m, :, :])[..., 0]
+        S_given = H @ Pp[..., :m, :, :] @ _T(H) + R
+        A, b, Pp, delta, I_AP = (v[..., m, :, :] for v in (A, b, Pp, delta, I_AP))
     # Joseph form P = (I - KH) P (I - KH)ᵀ + K R Kᵀ (here KH = P⁺ A and K R Kᵀ = P⁺ A P⁺) rather
     # than Eq. 28's P - K S Kᵀ: a sum of two congruences, so P stays symmetric positive
     # semi-definite under rounding, even after a reading far more precise than the prior.
     I_KH = I - Pp @ A
     P_new = I_KH @ P @ _T(I_KH) + Pp @ A @ _T(Pp)
     # yᵀ S⁻¹ y = yᵀ R⁻¹ y - bᵀ P⁺ b (Woodbury) and det S = det R det(I + A P) (Sylvester)
-    nis = (y[..., None, :] @ Ri @ y[..., :, None]).sum(axis=(-3, -2, -1)) - (_T(b) @ delta)[
-        ..., 0, 0
-    ]
-    logdet = np.linalg.slogdet(R)[1].sum(axis=-1) + np.linalg.slogdet(I + A @ P)[1]
-    return delta[..., 0], 0.5 * (P_new + _T(P_new)), nis, logdet
-
-
-def innovations_given(
-    P: FloatArray, y: FloatArray, H: FloatArray, R: FloatArray
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """Each reading's innovation and its covariance given the readings before it in the
-    stacked update: ``(y_given, S_given, δ, P⁺)``, shapes (..., m, d), (..., m, d, d), and the
-    correction and covariance given all m (:func:`update`'s, with these R).
-
-    Reading i, given the readings j < i: ``y_i - H_i δ_(i)`` and ``H_i P_(i) H_iᵀ + R_i`` where
-    ``P_(i) = P (I + A_(i) P)⁻¹`` and ``δ_(i) = P_(i) b_(i)`` are the update with the information
-    ``A_(i) = Σ_{j<i} H_jᵀ R_j⁻¹ H_j``, ``b_(i) = Σ_{j<i} H_jᵀ R_j⁻¹ y_j`` of those before it: the
-    prediction-error decomposition (Schweppe 1965), whose Gaussian densities multiply to the
-    stacked innovation's (Σ of their NIS and log det is the stacked yᵀS⁻¹y and log det S).
-    """
-    n, m = P.shape[-1], y.shape[-2]
-    HtRi = _T(H) @ inverse_pd(R)
-    lead = HtRi.shape[:-3]
-    info = np.concatenate([np.zeros((*lead, 1, n, n)), HtRi @ H], axis=-3)
-    vec = np.concatenate([np.zeros((*lead, 1, n, 1)), HtRi @ y[..., None]], axis=-3)
-    A, b = np.cumsum(info, axis=-3), np.cumsum(vec, axis=-3)  # (..., m + 1, ...): before each
-    P_b = P[..., None, :, :]
-    P_i = _T(np.linalg.solve(_T(np.eye(n) + A @ P_b), P_b))
-    delta = P_i @ b
-    y_given = y - (H @ delta[..., :m, :, :])[..., 0]
-    S_given = H @ P_i[..., :m, :, :] @ _T(H) + R
-    return y_given, 0.5 * (S_given + _T(S_given)), delta[..., m, :, 0], P_i[..., m, :, :]
+    nis = (y[..., None, :] @ Ri @ y[..., :, None]).sum(axis=(-3, -2, -1)) - (_T(b) @ delta)[..., 0, 0]
+    logdet = np.linalg.slogdet(R)[1].sum(axis=-1) + np.linalg.slogdet(I_AP)[1]
+    return Update(delta[..., 0], 0.5 * (P_new + _T(P_new)), nis, logdet, y_given,
+                  0.5 * (S_given + _T(S_given)) if given else S_given)  # fmt: skip
 
 
 class Correction(NamedTuple):
@@ -176,8 +188,8 @@ def correct(
     if not (np.isfinite(y).all() and np.isfinite(H).all() and np.isfinite(R).all()):
         raise ParameterError("the innovation, H and R must be finite (a landmark at the sensor?)")
     S = H @ P @ _T(H) + R
-    delta, P_new, nis, _ = update(P, y[..., None, :], H[..., None, :, :], R[..., None, :, :])
-    return Correction(_like(state, chart.plus(x, delta), P_new), y, S, nis)
+    up = update(P, y[..., None, :], H[..., None, :, :], R[..., None, :, :])
+    return Correction(_like(state, chart.plus(x, up.delta), up.P), y, S, up.nis)
 
 
 class PoseUpdate(NamedTuple):

@@ -37,7 +37,7 @@ import numpy as np
 
 from relmap import _core
 from relmap.errors import NonFiniteError, ParameterError, ShapeError
-from relmap.filter.ekf import State, _arrays, _like, _T, innovations_given, update
+from relmap.filter.ekf import State, Update, _arrays, _like, _T, update
 from relmap.models.base import Measurement
 from relmap.typing import ArrayLike, FloatArray, IntArray, Option
 from relmap.uncertain.gaussian import check_probability, confidence_k2, inverse_pd, log_density
@@ -498,23 +498,23 @@ def _correct(
     else:
         y_u, H_u, R_u, S_u, d2_u = y, H, R, S, pair_d2
     weights = _weights(d2_u, S_u, d, s.nu, s.inflation, s.clutter) if s.reweighted else None
-    up = _stacked(P, pair_used, y_u, H_u, R_u, weights, s.nu[:, 0], s.given)
+    gain, stats, loglik, dof = _stacked(P, pair_used, y_u, H_u, R_u, weights, s.nu[:, 0], s.given)
     # a reading's innovation given the used ones before it (a gated one: given all of them)
     y_given = np.full((B, m, d), np.nan)
     S_given = np.full((B, m, d, d), np.nan)
     if s.given:
         b, u = np.nonzero(pair_used)
-        y_given[b, pair_reading[b, u]] = up.y_given[b, u]
-        S_given[b, pair_reading[b, u]] = up.S_given[b, u]
+        y_given[b, pair_reading[b, u]] = stats.y_given[b, u]
+        S_given[b, pair_reading[b, u]] = stats.S_given[b, u]
         b, i = np.nonzero((status == Status.GATED) & got)
-        y_given[b, i] = y[b, i] - (H[b, i] @ up.delta_all[b][..., None])[..., 0]
-        S_given[b, i] = H[b, i] @ up.P_all[b] @ _T(H[b, i]) + R[b, i]
-    used_any = up.dof > 0
-    x_new = np.where(used_any[:, None], chart.plus(x, up.delta), x)
+        y_given[b, i] = y[b, i] - (H[b, i] @ stats.delta[b][..., None])[..., 0]
+        S_given[b, i] = H[b, i] @ stats.P[b] @ _T(H[b, i]) + R[b, i]
+    used_any = dof > 0
+    x_new = np.where(used_any[:, None], chart.plus(x, gain.delta), x)
     return _Result(
-        x_new, np.where(used_any[:, None, None], up.P, P), landmark, pair_d2, status,
+        x_new, np.where(used_any[:, None, None], gain.P, P), landmark, pair_d2, status,
         np.where(got[..., None], y, np.nan), np.where(got[..., None, None], S, np.nan),
-        y_given, S_given, up.loglik, up.nis, up.dof, ambiguous,
+        y_given, S_given, loglik, np.where(used_any, stats.nis, 0.0), dof, ambiguous,
     )  # fmt: skip
 
 
@@ -550,40 +550,19 @@ def _weights(
     return w
 
 
-class _Stacked(NamedTuple):
-    delta: FloatArray  #: (B, n) the mean's correction
-    P: FloatArray  #: (B, n, n)
-    loglik: FloatArray  #: (B,)
-    nis: FloatArray  #: (B,)
-    dof: IntArray  #: (B,)
-    y_given: FloatArray  #: (B, U, d)
-    S_given: FloatArray  #: (B, U, d, d)
-    delta_all: FloatArray  #: (B, n): the correction with every used pair (R itself)
-    P_all: FloatArray  #: (B, n, n): ... and its covariance
-
-
 def _stacked(
     P: FloatArray, used: np.ndarray, y: FloatArray, H: FloatArray, R: FloatArray,
     weights: FloatArray | None, nu: FloatArray, given: bool,
-) -> _Stacked:  # fmt: skip
-    """The stacked update of the used pairs (B, U) with their noises divided by ``weights``,
-    and the likelihood of their stacked innovation with R itself (Gaussian, or the multivariate
-    Student-t of scale S for a finite ``nu``). A pair not in the update enters as an empty block
-    (y = 0, H = 0, R = I: no information, nothing to the NIS nor to log det S)."""
-    d = y.shape[-1]
-    y0, H0 = np.where(used[..., None], y, 0.0), np.where(used[..., None, None], H, 0.0)
-    R0 = np.where(used[..., None, None], R, np.eye(d))
-    if weights is None:  # the update's noise is the readings'
-        delta, P_new, nis, logdet = update(P, y0, H0, R0)
-    else:
-        with np.errstate(divide="ignore", invalid="ignore"):  # (a weight of 0: no information)
-            R_gain = np.where(used[..., None, None], R / weights[..., None, None], R0)
-        delta, P_new, _, _ = update(P, y0, H0, R_gain)
-        _, _, nis, logdet = update(P, y0, H0, R0)  # the likelihood: with R itself
-    dof = d * used.sum(axis=-1)
-    loglik = np.where(dof > 0, log_density(nis, logdet, dof, nu), 0.0)
-    if given:
-        y_g, S_g, delta_all, P_all = innovations_given(P, y0, H0, R0)
-    else:
-        y_g = S_g = delta_all = P_all = np.empty(0)
-    return _Stacked(delta, P_new, loglik, nis, dof, y_g, S_g, delta_all, P_all)
+) -> tuple[Update, Update, FloatArray, IntArray]:  # fmt: skip
+    """The stacked update of the used pairs (B, U) — their noises divided by ``weights`` when
+    given — and the statistics of their stacked innovation with R itself: ``(the update, the
+    statistics, the log-likelihood (Gaussian, or the multivariate Student-t of scale S for a
+    finite ``nu``), its dimension)``."""
+    stats = update(P, y, H, R, used, given=given)
+    gain = stats
+    if weights is not None:  # the update's noise: R / w (a weight of 0: no information)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            gain = update(P, y, H, R / weights[..., None, None], used & (weights > 0))
+    dof = y.shape[-1] * used.sum(axis=-1)
+    loglik = np.where(dof > 0, log_density(stats.nis, stats.logdet, dof, nu), 0.0)
+    return gain, stats, loglik, dof

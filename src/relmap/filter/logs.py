@@ -111,7 +111,11 @@ class Log(NamedTuple):
         motion = np.column_stack([vv[k[:-1]] * dt, ww[k[:-1]] * dt])
         index = np.searchsorted(t, rt[keep])
         sig = None if signature is None else np.asarray(signature, dtype=np.int64)[keep]
-        return cls(t, motion, index, zz[keep], sig)
+        log = cls(t, motion, index, zz[keep], sig)
+        for a in log:
+            if a is not None:
+                a.flags.writeable = False  # (a log is a value; its steps' chains are memoized)
+        return log
 
 
 class Trace(NamedTuple):
@@ -308,7 +312,7 @@ class _Prediction:
         self.ends = ends
         self.steps: dict[int, AT] = {}  # stepped states by time index (keep_all)
         if self.relative and len(ends):
-            self.seg = chains(motion.batched(1), u, cut, ends)
+            self.seg = chains(motion, u, cut, ends)
 
     def advance(self, x: AT, done: int, k: int) -> AT:
         """The filters at time ``done`` moved to time ``k``."""
@@ -349,7 +353,7 @@ def _kept(
     at_reading[times] = True
     last = np.searchsorted(times, np.arange(T), side="left")  # readings strictly before k
     if moves.relative:
-        ch = chains(moves.motion.batched(1), u, cut)  # the chain from the last cut before k
+        ch = chains(moves.motion, u, cut)  # the chain from the last cut before k
         moved = compound(AT._trusted(a_mean[:, last], a_cov[:, last]),
                          AT._trusted(ch.mean, ch.cov))  # fmt: skip
         mean, cov = np.array(moved.mean), np.array(moved.cov)

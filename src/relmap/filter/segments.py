@@ -18,6 +18,7 @@ vectorized pass over the whole log, for a whole batch of noise parameters.
 
 from __future__ import annotations
 
+import weakref
 from typing import NamedTuple
 
 import numpy as np
@@ -35,65 +36,109 @@ class Chains(NamedTuple):
     last cut before k) to k, in the segment's start frame."""
 
     mean: FloatArray  #: (K, 3) the composed step (x, y, θ)
-    cov: FloatArray  #: (*batch, K, 3, 3) its covariance
+    cov: FloatArray  #: (*β, K, 3, 3) its covariance (β: the motion's batch of parameters)
 
 
-def _restart_cumsum(a: FloatArray, start: np.ndarray, axis: int) -> FloatArray:
-    """Prefix sums of ``a`` along ``axis`` that restart wherever ``start`` (along that axis) is
-    True: each restart's entry has the previous segment's total (``np.add.reduceat``) taken
-    off, so the running sum never carries more than one segment's."""
-    a = np.moveaxis(np.array(a, dtype=np.float64), axis, -1)
-    starts = np.flatnonzero(start)
+def _restart_cumsum(a: FloatArray, starts: IntArray) -> FloatArray:
+    """Prefix sums of ``a`` (..., N) along its last axis that restart at the indices ``starts``
+    (increasing, from 0): each restart's entry has the previous segment's total
+    (``np.add.reduceat``) taken off, so the running sum never carries more than one segment's."""
+    a = np.array(a, dtype=np.float64)
     totals = np.add.reduceat(a, starts, axis=-1)
     a[..., starts[1:]] -= totals[..., :-1]
-    return np.moveaxis(np.cumsum(a, axis=-1), -1, axis)
+    return np.cumsum(a, axis=-1)
 
 
 def chains(
     motion: RelativeMotion, u: FloatArray, cut: np.ndarray, at: IntArray | None = None
 ) -> Chains:
-    """The chains of the steps ``u`` (N, k) of ``motion`` (its parameters: any batch shape),
+    """The chains of the steps ``u`` (N, k) of ``motion`` (its parameters: a batch shape β),
     restarting at the time indices where ``cut`` (N + 1,) is True (module docstring): at time
     k the chain of steps ``c..k-1``, c the last cut before k (a cut at k itself ends there).
-    ``at``: the time indices (≥ 1) to return (default all, 0..N, with the identity at 0)."""
+    ``at``: the time indices (≥ 1) to return (default all, 0..N, with the identity at 0).
+
+    A motion whose step covariance is linear in its noise parameters (``linear_basis``) has
+    its chains' covariances computed once for each basis element and combined."""
+    basis = motion.linear_basis()
+    if basis is None:
+        return Chains(*_chains(motion.batched(1), u, cut, at))
+    unit, weights = basis  # the model with the basis's parameters (P,), and (..., P)
+    # a log's chains on the basis serve every parameter set: kept while its steps live (when
+    # they cannot change: a read-only array, as Log.from_velocities makes)
+    key = (repr(unit), cut.tobytes(), None if at is None else np.asarray(at).tobytes())
+    memo = _memo(u)
+    if key not in memo:
+        memo[key] = _chains(unit.batched(1), u, cut, at)
+    mean, cov = memo[key]
+    return Chains(mean, np.tensordot(weights, cov, axes=(-1, 0)))
+
+
+Memo = dict[tuple[object, ...], tuple[FloatArray, FloatArray]]
+#: The chains on a linear basis, by the id of the steps' array (while it lives), then the model
+#: and the cuts.
+_MEMO: dict[int, Memo] = {}
+
+
+def _memo(u: FloatArray) -> Memo:
+    """The memo of the steps ``u``: kept while ``u`` lives, when it cannot change (read-only)."""
+    if u.flags.writeable:
+        return {}
+    if id(u) not in _MEMO:
+        _MEMO[id(u)] = {}
+        weakref.finalize(u, _MEMO.pop, id(u), None)
+    return _MEMO[id(u)]
+
+
+def _chains(
+    motion: RelativeMotion, u: FloatArray, cut: np.ndarray, at: IntArray | None
+) -> tuple[FloatArray, FloatArray]:
+    """:func:`chains`, on the motion's own parameters."""
     N = len(u)
     delta, Jw, Qw = motion.step(u)  # (N, 3), (N, 3, w), (*batch, N, w, w)
-    seg_start = cut[:N].copy()  # step j starts a chain when its time j is a cut
-    seg_start[0] = True
+    start = cut[:N].copy()  # step j starts a chain when its time j is a cut
+    start[0] = True
+    starts = np.flatnonzero(start)
     # the headings and positions after each step, in its segment's start frame
-    theta = _restart_cumsum(delta[:, 2], seg_start, 0)
+    theta = _restart_cumsum(delta[:, 2], starts)
     before = theta - delta[:, 2]  # the heading at each step's start
     c, s = np.cos(before), np.sin(before)
-    rot = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)  # (N, 2, 2)
-    t = _restart_cumsum((rot @ delta[:, :2, None])[..., 0], seg_start, 0)  # (N, 2)
+    t = np.stack([_restart_cumsum(c * delta[:, 0] - s * delta[:, 1], starts),
+                  _restart_cumsum(s * delta[:, 0] + c * delta[:, 1], starts)])  # (2, N)
     # each step's covariance in its segment's frame: C' = M Q_w Mᵀ, M = blkdiag(R, 1) J_w
-    M = Jw.copy()
-    M[:, :2] = rot @ Jw[:, :2]
-    C = M @ Qw @ np.swapaxes(M, -1, -2)
-    q, cv, Ctt = C[..., 2, 2], C[..., :2, 2], C[..., :2, :2]
-    # the lever's prefix sums: Σq, Σq t_j, Σq t_j t_jᵀ, Σc', Σ t_j c'ᵀ, ΣC'_tt (over j ≤ k)
-    tt = t[:, :, None] * t[:, None, :]
-    parts = [q[..., None], q[..., None] * t, (q[..., None, None] * tt).reshape(*q.shape, 4),
-             cv, (t[:, :, None] * cv[..., None, :]).reshape(*q.shape, 4), Ctt.reshape(*q.shape, 4)]  # fmt: skip
-    parts = [np.broadcast_to(x, (*q.shape, x.shape[-1])) for x in parts]
-    sums = _restart_cumsum(np.concatenate(parts, axis=-1), seg_start, -2)
+    Jt = np.moveaxis(Jw, 0, -1)  # (3, w, N)
+    M = np.stack([c * Jt[0] - s * Jt[1], s * Jt[0] + c * Jt[1], Jt[2]])
+    Qt = np.moveaxis(Qw, -3, -1)  # (*batch, w, w, N)
+    MQ = (M[:, :, None] * Qt[..., None, :, :, :]).sum(axis=-3)  # (*batch, 3, w, N)
+    C = (MQ[..., :, None, :, :] * M).sum(axis=-2)  # (*batch, 3, 3, N)
+    q, cv, Ctt = C[..., 2, 2, :], C[..., :2, 2, :], C[..., :2, :2, :]
+    # the lever's prefix sums over the steps j ≤ k: Σq, Σq t_j, Σq t_j t_jᵀ, Σc', Σ t_j c'ᵀ,
+    # ΣC'_tt, as channels (*batch, 15, N)
+    parts = np.concatenate([q[..., None, :], q[..., None, :] * t, (q[..., None, None, :] * t[:, None] * t[None]).reshape(*q.shape[:-1], 4, N)[..., [0, 1, 3], :],
+                            cv, (t[:, None] * cv[..., None, :, :]).reshape(*q.shape[:-1], 4, N),
+                            Ctt.reshape(*q.shape[:-1], 4, N)[..., [0, 1, 3], :]], axis=-2)  # fmt: skip
+    sums = _restart_cumsum(parts, starts)
     if at is not None:  # the chains ending at these times: after step k - 1
-        sums, t, theta = sums[..., at - 1, :], t[at - 1], theta[at - 1]
-    Q0, Q1, Q2 = sums[..., 0], sums[..., 1:3], sums[..., 3:7].reshape(*sums.shape[:-1], 2, 2)
-    C0, C1 = sums[..., 7:9], sums[..., 9:13].reshape(*sums.shape[:-1], 2, 2)
-    A0 = sums[..., 13:17].reshape(*sums.shape[:-1], 2, 2)
-    # Σ_j T_jk C'_j T_jkᵀ with ℓ = t_k - t_j, at k = each step's end
-    tk = t
-    outer_q = Q0[..., None, None] * (tk[:, :, None] * tk[:, None, :]) - tk[:, :, None] * Q1[..., None, :]
-    outer_q = outer_q - Q1[..., :, None] * tk[:, None, :] + Q2
-    lever_c = tk[:, :, None] * C0[..., None, :] - C1  # Σ ℓ_j c'_jᵀ
-    P_tt = A0 + _J @ lever_c + np.swapaxes(_J @ lever_c, -1, -2) + _J @ outer_q @ _J.T
-    P_tq = C0 + (_J @ (Q0[..., None] * tk - Q1)[..., None])[..., 0]
+        sums, t, theta = sums[..., at - 1], t[:, at - 1], theta[at - 1]
+    Q0, Q1 = sums[..., 0, :], sums[..., 1:3, :]
+    Q2 = sums[..., [3, 4, 4, 5], :].reshape(*sums.shape[:-2], 2, 2, -1)
+    C0, C1 = sums[..., 6:8, :], sums[..., 8:12, :].reshape(*sums.shape[:-2], 2, 2, -1)
+    A0 = sums[..., [12, 13, 13, 14], :].reshape(*sums.shape[:-2], 2, 2, -1)
+    # Σ_j T_jk C'_j T_jkᵀ with ℓ = t_k - t_j (J ℓ = (-ℓy, ℓx)): the (x, y) block is
+    # A0 + J L + (J L)ᵀ + J O Jᵀ with L = Σ ℓ c'ᵀ = t_k C0ᵀ - C1 and O = Σ q ℓ ℓᵀ
+    L = t[:, None] * C0[..., None, :, :] - C1
+    O = Q0[..., None, None, :] * t[:, None] * t[None] - t[:, None] * Q1[..., None, :, :]
+    O = O - Q1[..., :, None, :] * t[None] + Q2
+    JL = np.stack([-L[..., 1, :, :], L[..., 0, :, :]], axis=-3)
+    JOJ = np.stack([np.stack([O[..., 1, 1, :], -O[..., 1, 0, :]], -2),
+                    np.stack([-O[..., 0, 1, :], O[..., 0, 0, :]], -2)], -3)  # fmt: skip
+    Ptt = A0 + JL + np.swapaxes(JL, -3, -2) + JOJ
+    Ptq = C0 + np.stack([-(Q0 * t[1] - Q1[..., 1, :]), Q0 * t[0] - Q1[..., 0, :]], axis=-2)
     first = 0 if at is not None else 1  # (all times: the identity at 0 first)
-    cov = np.zeros((*P_tt.shape[:-3], len(t) + first, 3, 3))
-    cov[..., first:, :2, :2] = 0.5 * (P_tt + np.swapaxes(P_tt, -1, -2))
-    cov[..., first:, :2, 2] = cov[..., first:, 2, :2] = P_tq
+    K = t.shape[-1]
+    cov = np.zeros((*Q0.shape[:-1], K + first, 3, 3))
+    cov[..., first:, :2, :2] = np.moveaxis(0.5 * (Ptt + np.swapaxes(Ptt, -3, -2)), -1, -3)
+    cov[..., first:, :2, 2] = cov[..., first:, 2, :2] = np.moveaxis(Ptq, -1, -2)
     cov[..., first:, 2, 2] = Q0
-    mean = np.zeros((len(t) + first, 3))
-    mean[first:, :2], mean[first:, 2] = t, theta
-    return Chains(mean, cov)
+    mean = np.zeros((K + first, 3))
+    mean[first:, :2], mean[first:, 2] = t.T, theta
+    return mean, cov

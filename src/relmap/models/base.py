@@ -86,6 +86,12 @@ class Model:
         """The broadcast shape of the noise parameters: the batch of filters they describe."""
         return np.broadcast_shapes(*(np.shape(getattr(self, k)) for k in self.noise_parameters))
 
+    def linear_basis(self: _M) -> tuple[_M, FloatArray] | None:
+        """``(basis, weights)`` when the model's noise covariance is linear in (functions of)
+        its noise parameters — ``Q(θ) = Σ_p w_p(θ) Q(basis_p)`` — else None: the model at the
+        basis's P parameter sets (parameters of shape (P,)) and the weights (*batch, P)."""
+        return None
+
     def batched(self: _M, axes: int) -> _M:
         """The model with each array parameter given ``axes`` trailing length-1 axes: for inputs
         shaped ``(*batch, k₁, …, k_axes, ...)`` (say, a batch of filters × their readings)."""
@@ -133,8 +139,10 @@ class RelativeMotion(Motion):
     (Eqs. 1-4) with the step's AT, in SE(2) — whose noise enters through the step: ``Δ``'s
     covariance is ``J_w Q_w J_wᵀ`` for its noise sources ``w ~ N(0, Q_w)``.
 
-    A subclass writes :meth:`step`. Steps compound without the state, so a filter may compose
-    the steps between two readings before it meets them (:mod:`relmap.filter.segments`).
+    A subclass writes :meth:`step` (and :meth:`Model.linear_basis` when ``Q_w`` is linear in
+    its noise parameters: the runner then composes a log's steps once for all parameter sets).
+    Steps compound without the state, so a filter may compose the steps between two readings
+    before it meets them (:mod:`relmap.filter.segments`).
     """
 
     def step(self, u: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:

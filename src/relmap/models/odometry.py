@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import ClassVar
+from typing import ClassVar, TypeVar
 
 import numpy as np
 
@@ -78,6 +78,7 @@ class Integration(Option):
 
 
 Sym2 = tuple[FloatArray, FloatArray, FloatArray]
+_N = TypeVar("_N", bound=Model)
 
 
 def _sym2(e: Sym2) -> FloatArray:
@@ -240,6 +241,11 @@ class WheelNoise(Model):
         """``(J_w, Q_w)``: the noise enters through ``(Δs, Δθ)``, ``J_w = ∂Δ/∂(Δs, Δθ)``."""
         return _increment(motion, integration, True)[1], self.covariance(motion, drive)
 
+    def linear_basis(self) -> tuple[WheelNoise, FloatArray]:
+        """Σu is linear in ``(σ², k)``."""
+        weights = np.stack(np.broadcast_arrays(np.square(self.sigma), self.k), axis=-1)
+        return WheelNoise(np.array([1.0, 0.0]), np.array([0.0, 1.0])), weights
+
 
 @dataclasses.dataclass(frozen=True)
 class DistanceNoise(Model):
@@ -270,6 +276,19 @@ class DistanceNoise(Model):
     ) -> tuple[FloatArray, FloatArray]:
         """``(J_w, Q_w)``: the noise enters through ``(Δs, Δθ)``, ``J_w = ∂Δ/∂(Δs, Δθ)``."""
         return _increment(motion, integration, True)[1], self.covariance(motion, drive)
+
+    def linear_basis(self) -> tuple[DistanceNoise, FloatArray]:
+        """The variances are linear in ``(k_s, k_theta, k_theta_s)``."""
+        return _unit_basis(self)
+
+
+def _unit_basis(noise: _N) -> tuple[_N, FloatArray]:
+    """A noise linear in its parameters: the model at the unit parameter sets, and the
+    parameters as the weights."""
+    names = noise.noise_parameters
+    eye = np.eye(len(names))
+    weights = np.stack(np.broadcast_arrays(*(getattr(noise, k) for k in names)), axis=-1)
+    return noise.replace(**{k: eye[i] for i, k in enumerate(names)}), weights
 
 
 @dataclasses.dataclass(frozen=True)
@@ -303,6 +322,10 @@ class AlphaNoise(Model):
         zero = np.zeros(np.broadcast_shapes(np.shape(v_rot), np.shape(v_trans)))
         Q = matrix([[v_rot, zero, zero], [zero, v_trans, zero], [zero, zero, v_rot]], zero.shape)
         return J, Q
+
+    def linear_basis(self) -> tuple[AlphaNoise, FloatArray]:
+        """The variances are linear in ``(a1, a2, a3, a4)``."""
+        return _unit_basis(self)
 
 
 Noise = WheelNoise | DistanceNoise | AlphaNoise
@@ -344,6 +367,13 @@ class Odometry(RelativeMotion):
 
     def batched(self, axes: int) -> Odometry:
         return dataclasses.replace(self, noise=self.noise.batched(axes))
+
+    def linear_basis(self) -> tuple[Odometry, FloatArray] | None:
+        """The noise model's (the step's covariance is linear in Q_w)."""
+        basis = self.noise.linear_basis()
+        if basis is None:
+            return None
+        return dataclasses.replace(self, noise=basis[0]), basis[1]
 
     def step(self, u: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
         """``(Δ, J_w, Q_w)``: the step ``(..., 3)`` in the robot frame, its Jacobian in its noise
