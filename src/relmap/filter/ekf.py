@@ -120,32 +120,20 @@ def update(
     I = np.eye(n)
     if used is not None:  # (an unused reading's numbers may be anything, NaN too)
         y, H = np.where(used[..., None], y, 0.0), np.where(used[..., None, None], H, 0.0)
-        R = np.where(used[..., None, None], R, np.eye(R.shape[-1]))
+        R = np.where(used[..., None, None], R, I[:1, :1] if R.shape[-1] == 1 else np.eye(R.shape[-1]))
     Ri = inverse_pd(R)
     if used is not None:
         Ri = np.where(used[..., None, None], Ri, 0.0)
     HtRi = _T(H) @ Ri  # (..., m, n, d)
     info, vec = HtRi @ H, HtRi @ y[..., None]  # each reading's Hᵀ R⁻¹ H and Hᵀ R⁻¹ y
-    if given:  # the information of the readings before each, and of all: (..., m + 1, ...)
-        zero = np.zeros((*info.shape[:-3], 1, n, n))
-        A = np.concatenate([zero, np.cumsum(info, axis=-3)], axis=-3)
-        b = np.concatenate([zero[..., :1], np.cumsum(vec, axis=-3)], axis=-3)
-        P_each = P[..., None, :, :]
-    else:
-        A, b = info.sum(axis=-3), vec.sum(axis=-3)
+    A, b = info.sum(axis=-3), vec.sum(axis=-3)  # the readings' information about the state
     # The readings are independent (R block diagonal), so the gain is taken through the
     # push-through identity Hᵀ S⁻¹ = (I + Hᵀ R⁻¹ H P)⁻¹ Hᵀ R⁻¹: K = P Hᵀ S⁻¹ = P⁺ Hᵀ R⁻¹ with
     # P⁺ = P (I + A P)⁻¹ (A = Hᵀ R⁻¹ H), inverting R's d×d blocks and one n×n matrix, never the
     # (md)×(md) S (nor P: a singular P is fine).
-    P_b = P_each if given else P
-    I_AP = I + A @ P_b
-    Pp = _T(np.linalg.solve(_T(I_AP), P_b))
+    I_AP = I + A @ P
+    Pp = _T(np.linalg.solve(_T(I_AP), P))
     delta = Pp @ b
-    y_given = S_given = np.empty(0)
-    if given:
-        y_given = y - (H @ delta[..., :m, :, :])[..., 0]
-        S_given = H @ Pp[..., :m, :, :] @ _T(H) + R
-        A, b, Pp, delta, I_AP = (v[..., m, :, :] for v in (A, b, Pp, delta, I_AP))
     # Joseph form P = (I - KH) P (I - KH)ᵀ + K R Kᵀ (here KH = P⁺ A and K R Kᵀ = P⁺ A P⁺) rather
     # than Eq. 28's P - K S Kᵀ: a sum of two congruences, so P stays symmetric positive
     # semi-definite under rounding, even after a reading far more precise than the prior.
@@ -154,8 +142,18 @@ def update(
     # yᵀ S⁻¹ y = yᵀ R⁻¹ y - bᵀ P⁺ b (Woodbury) and det S = det R det(I + A P) (Sylvester)
     nis = (y[..., None, :] @ Ri @ y[..., :, None]).sum(axis=(-3, -2, -1)) - (_T(b) @ delta)[..., 0, 0]
     logdet = np.linalg.slogdet(R)[1].sum(axis=-1) + np.linalg.slogdet(I_AP)[1]
-    return Update(delta[..., 0], 0.5 * (P_new + _T(P_new)), nis, logdet, y_given,
-                  0.5 * (S_given + _T(S_given)) if given else S_given)  # fmt: skip
+    y_given = S_given = np.empty(0)
+    if given:  # each reading given those before it: the update by their information A_(i)
+        P_b = P[..., None, :, :]
+        if m > 1:
+            zero = np.zeros((*info.shape[:-3], 1, n, n))
+            A_i = np.concatenate([zero, np.cumsum(info[..., :-1, :, :], axis=-3)], axis=-3)
+            b_i = np.concatenate([zero[..., :1], np.cumsum(vec[..., :-1, :, :], axis=-3)], axis=-3)
+            P_b = _T(np.linalg.solve(_T(I + A_i @ P_b), P_b))
+            y = y - (H @ (P_b @ b_i))[..., 0]
+        S_given = H @ P_b @ _T(H) + R
+        y_given, S_given = y, 0.5 * (S_given + _T(S_given))
+    return Update(delta[..., 0], 0.5 * (P_new + _T(P_new)), nis, logdet, y_given, S_given)
 
 
 class Correction(NamedTuple):

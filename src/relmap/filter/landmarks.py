@@ -207,11 +207,12 @@ class _Predicted(NamedTuple):
     R: FloatArray
     S: FloatArray
     S_inv: FloatArray
-    ok: np.ndarray
 
     def at(self, name: str, i: IntArray, k: IntArray) -> FloatArray:
         """``name``'s entries of the pairs (reading i, candidate k), both (B, U): (B, U, ...)."""
         arr = getattr(self, name)
+        if arr.shape[1:3] == (i.shape[-1], 1):  # one candidate a reading: its own
+            return arr[:, :, 0]
         b = np.arange(len(arr))[:, None]
         return arr[b, i if arr.shape[1] > 1 else 0, k]
 
@@ -220,17 +221,15 @@ def _predict(
     x: FloatArray, P: FloatArray, rows: IntArray, lmap: LandmarkMap, sensor: Measurement
 ) -> _Predicted:
     """The readings of the landmarks ``rows`` (B, m', K) predicted from each filter's state
-    ``x`` (B, n), ``P`` (B, n, n): ``ẑ = h(x, l)``, ``H``, ``R`` and ``S = H P Hᵀ + R``."""
-    xy = lmap.xy[np.maximum(rows, 0)]  # (B, m', K, p)
+    ``x`` (B, n), ``P`` (B, n, n): ``ẑ = h(x, l)``, ``H``, ``R`` and ``S = H P Hᵀ + R`` (NaN
+    where a landmark has no prediction: at the sensor)."""
+    xy = lmap.xy[np.maximum(rows, 0)]  # (B', m', K, p)
     with np.errstate(invalid="ignore", divide="ignore"):
         h, H, _ = sensor.linearize(x[:, None, None, :], xy)
-        R = np.broadcast_to(sensor.noise(h), (*h.shape, h.shape[-1]))
+        R = sensor.noise(h)
         S = H @ P[:, None, None] @ _T(H) + R
-        ok = (rows >= 0) & np.isfinite(S).all(axis=(-2, -1)) & np.isfinite(h).all(axis=-1)
-    if not (np.linalg.eigvalsh(R[ok]) > 0).all():
-        raise ParameterError("the sensor's noise covariance R must be positive definite")
-    S_inv = inverse_pd(np.where(ok[..., None, None], S, np.eye(h.shape[-1])))
-    return _Predicted(rows, h, H, R, S, S_inv, ok)
+        S_inv = inverse_pd(S)
+    return _Predicted(rows, h, H, R, S, S_inv)
 
 
 def _mixtures(
@@ -242,8 +241,9 @@ def _mixtures(
     mixed = used & (inside.sum(axis=-1) >= 2)
     b, i = np.nonzero(mixed)
     j = i if pred.h.shape[1] > 1 else np.zeros_like(i)
-    h, H, R = pred.h[b, j], pred.H[b, j], pred.R[b, j]  # (k, K, ...)
-    logw = np.where(inside[b, i], -0.5 * d2[b, i] - 0.5 * np.linalg.slogdet(pred.S[b, j])[1],
+    b_pred = b if len(pred.h) > 1 else np.zeros_like(b)
+    h, H, R = pred.h[b_pred, j], pred.H[b_pred, j], pred.R[b_pred, j]  # (k, K, ...)
+    logw = np.where(inside[b, i], -0.5 * d2[b, i] - 0.5 * np.linalg.slogdet(pred.S[b_pred, j])[1],
                     -np.inf)  # fmt: skip
     beta = np.exp(logw - logw.max(axis=-1, keepdims=True))
     beta /= beta.sum(axis=-1, keepdims=True)
@@ -324,16 +324,17 @@ def _setup(
 def _candidates(
     s: _Setup, signatures: IntArray | None, m: int
 ) -> tuple[IntArray, np.ndarray]:
-    """Each reading's candidates: ``rows`` (..., m', K) of the map (-1: none; m' = 1 when every
-    reading has every landmark) and ``cand`` (..., m, K): its signature's landmarks under
-    signature association, else every landmark (of its signature, when given)."""
+    """Each reading's candidates, for readings of signatures (..., m) or of none: ``rows``
+    (..., m, K) of the map (-1: none), or (1, L) when every reading has every landmark, and
+    ``cand`` (..., m, K): its signature's landmarks under signature association, else every
+    landmark (of its signature, when given)."""
     L = len(s.lmap)
     if s.association is Association.SIGNATURES:
         rows = s.lmap.candidates(signatures)
         return rows, rows >= 0
-    rows = np.arange(L)[None, None, :]
+    rows = np.arange(L)[None, :]
     if signatures is None:
-        return rows, np.ones((1, m, L), bool)
+        return rows, np.ones((m, L), bool)
     return rows, s.lmap.signatures == signatures[..., None]
 
 
@@ -383,8 +384,10 @@ def correct_landmarks(
         pending &= _flat(valid, batch, (m,), bool)
     sig = None if signatures is None else _flat(signatures, batch, (m,), np.int64)
     rows, cand = _candidates(s, sig, m)
+    if s.association is not Association.SIGNATURES:  # (every reading has every landmark)
+        rows = rows[None]
     r = _correct(s, chart, _flat(x0, batch, (n,), float), _flat(P0, batch, (n, n), float), zf,
-                 pending, rows, cand)  # fmt: skip
+                 pending, rows, cand if cand.ndim == 3 else cand[None])  # fmt: skip
     if valid is not None:
         r.status[~_flat(valid, batch, (m,), bool)] = Status.ABSENT
     shape = (*batch, m)
@@ -392,14 +395,17 @@ def correct_landmarks(
     return LandmarkUpdate(
         _like(state, x_new.reshape(*batch, n), r.P.reshape(*batch, n, n)),
         r.landmark.reshape(shape), r.d2.reshape(shape), r.status.reshape(shape),
-        r.y.reshape(*shape, d), r.S.reshape(*shape, d, d), r.y_given.reshape(*shape, d),
-        r.S_given.reshape(*shape, d, d), r.loglik.reshape(batch), r.nis.reshape(batch),
+        r.y.reshape(*shape, d), r.S.reshape(*shape, d, d),
+        np.full((*shape, d), np.nan) if r.y_given is None else r.y_given.reshape(*shape, d),
+        np.full((*shape, d, d), np.nan) if r.S_given is None else r.S_given.reshape(*shape, d, d),
+        r.loglik.reshape(batch), r.nis.reshape(batch),
         r.dof.reshape(batch), r.ambiguous.reshape(batch),
     )  # fmt: skip
 
 
 class _Result(NamedTuple):
-    """One correction of a batch of B filters with m readings (flat: (B, ...))."""
+    """One correction of a batch of B filters with m readings (flat: (B, ...); ``y_given`` and
+    ``S_given`` None unless asked)."""
 
     x: FloatArray
     P: FloatArray
@@ -408,8 +414,8 @@ class _Result(NamedTuple):
     status: np.ndarray
     y: FloatArray
     S: FloatArray
-    y_given: FloatArray
-    S_given: FloatArray
+    y_given: FloatArray | None
+    S_given: FloatArray | None
     loglik: FloatArray
     nis: FloatArray
     dof: IntArray
@@ -420,45 +426,45 @@ def _correct(
     s: _Setup, chart: Chart, x: FloatArray, P: FloatArray, z: FloatArray, pending: np.ndarray,
     rows: IntArray, cand: np.ndarray,
 ) -> _Result:  # fmt: skip
-    """The correction of the filters ``x`` (B, n), ``P`` (B, n, n) in ``chart`` with readings ``z``
-    (B', m, d) — B' 1 (shared) or B — of which ``pending`` (B', m) are usable, each with its
-    candidates ``rows`` (B', m', K) and ``cand`` (B', m, K) (:func:`_candidates`)."""
-    sensor, L = s.sensor, len(s.lmap)
+    """The correction of the filters ``x`` (B, n), ``P`` (B, n, n) in ``chart`` with readings
+    ``z`` (B', m, d) — B' 1 (shared) or B — of which ``pending`` (B', m) are usable, each with
+    its candidates ``rows`` (B', m', K) and ``cand`` (B', m, K) (:func:`_candidates`)."""
+    sensor, a = s.sensor, s.association
     B, m, d = len(x), z.shape[-2], z.shape[-1]
-    a = s.association
-    status = np.where(pending, np.int8(Status.UNKNOWN), np.int8(Status.INVALID))
-    status = np.broadcast_to(status, (B, m)).copy()
     pred = _predict(x, P, rows, s.lmap, sensor)
     K = rows.shape[-1]
-    pair = pending[..., None] & cand & pred.ok  # (B, m, K)
-    v = sensor.innovation(z[:, :, None, :], pred.h)  # (B, m, K, d)
+    v = sensor.innovation(z[:, :, None, :], pred.h)  # (B, m, K, d): every candidate pair
     with np.errstate(invalid="ignore"):
-        d2 = np.where(pair, (v[..., None, :] @ pred.S_inv @ v[..., :, None])[..., 0, 0], np.inf)
-    cost = d2 if a is not Association.EUCLIDEAN else np.where(pair, (v * v).sum(axis=-1), np.inf)
+        d2 = (v[..., None, :] @ pred.S_inv @ v[..., :, None])[..., 0, 0]
+    pair = pending[..., None] & cand & np.isfinite(d2)  # a prediction exists (not at the sensor)
+    d2 = np.where(pair, d2, np.inf)
     inside = d2 <= s.gate2
     has = pair.any(axis=-1)
-    status[pending & cand.any(axis=-1) & ~has] = Status.DEGENERATE
+    status = np.where(pending, Status.UNKNOWN, Status.INVALID).astype(np.int8)
+    status = np.where(pending & cand.any(axis=-1) & ~has, np.int8(Status.DEGENERATE), status)
+    status = np.broadcast_to(status, (B, m)).copy()
 
-    # the pairing: each reading's candidate (B, m) (-1: none) and its status, and the update's
-    # pairs: readings (B, U), their candidates (B, U) and which are in the update (B, U)
-    landmark_rows = np.broadcast_to(rows, (B, m, K))
+    # the pairing: each reading's candidate (B, m) (-1: none) and its status; the update's
+    # pairs: readings (B, U), their candidates (B, U), and which are in the update (B, U)
     if s.per_landmark:
-        chosen, st, best, take = _per_landmark(cost, inside, has)
+        chosen, st, best, take = _per_landmark(d2 if a is not Association.EUCLIDEAN
+                                               else _euclid(v, pair), inside, has)  # fmt: skip
         status[has] = st[has]
         pair_reading, pair_k, pair_used = best, np.broadcast_to(np.arange(K), (B, K)), take
     else:
         if a is Association.JCBB:
-            choice = _core.jcbb(np.ascontiguousarray(np.broadcast_to(v, (B, m, K, d))),
-                                np.ascontiguousarray(pred.H[:, 0]), np.ascontiguousarray(pred.R[:, 0]),
-                                np.ascontiguousarray(P), np.ascontiguousarray(d2),
-                                np.ascontiguousarray(inside & pair), s.joint, JCBB_NODES)  # fmt: skip
+            choice = _core.jcbb(
+                np.ascontiguousarray(np.broadcast_to(v, (B, m, K, d))),
+                np.ascontiguousarray(np.broadcast_to(pred.H[:, 0], (B, K, d, P.shape[-1]))),
+                np.ascontiguousarray(np.broadcast_to(pred.R[:, 0], (B, K, d, d))),
+                np.ascontiguousarray(P), np.ascontiguousarray(d2),
+                np.ascontiguousarray(inside & pair), s.joint, JCBB_NODES,
+            )  # fmt: skip
             chosen = np.where(has & (choice < 0), d2.argmin(axis=-1), choice)  # nearest: gated
             status[has] = np.where(choice[has] >= 0, Status.USED, Status.GATED)
         else:
-            choice = _core.pair_one_to_one(_dense(cost, landmark_rows, L),
-                                           _dense(inside, landmark_rows, L),
-                                           a is not Association.EUCLIDEAN)  # fmt: skip
-            chosen = _column(choice, landmark_rows)
+            cost = d2 if a is not Association.EUCLIDEAN else _euclid(v, pair)
+            chosen = _one_to_one(cost, inside, rows, len(s.lmap), a is not Association.EUCLIDEAN)
             got = has & (chosen >= 0)
             ok = np.take_along_axis(inside, np.maximum(chosen, 0)[..., None], -1)[..., 0]
             status[got] = np.where(ok[got], Status.USED, Status.GATED)
@@ -469,59 +475,96 @@ def _correct(
     # each reading's report: its pair's landmark, d², y and S (no pair: the nearest d²)
     got = chosen >= 0
     k = np.maximum(chosen, 0)
-    i = np.broadcast_to(np.arange(m), (B, m))
-    landmark = np.where(got, np.take_along_axis(landmark_rows, k[..., None], -1)[..., 0], -1)
+    landmark = np.where(got, _pick(np.broadcast_to(rows, (B, m, K)), k), -1)
     # (no pair: the nearest candidate's d² — inf under Eq. 21, where a reading wants none)
     nearest = np.inf if s.per_landmark else d2.min(axis=-1)
-    pair_d2 = np.where(got, np.take_along_axis(d2, k[..., None], -1)[..., 0], nearest)
-    h, H, R, S = (pred.at(name, i, k) for name in ("h", "H", "R", "S"))
+    pair_d2 = np.where(got, _pick(d2, k), nearest)
+    i = np.broadcast_to(np.arange(m), (B, m))
+    y, H, R, S = _pick(v, k), pred.at("H", i, k), pred.at("R", i, k), pred.at("S", i, k)
     ambiguous = np.zeros(B, np.int64)
     if K > 1 and a is not Association.EUCLIDEAN and not s.per_landmark:
         mixed, h_mix, H_mix, R_mix = _mixtures(status == Status.USED, inside, pred, d2, sensor)
-        if mixed.any():
-            h, H, R, S = h.copy(), H.copy(), R.copy(), S.copy()
-            h[mixed], H[mixed], R[mixed] = h_mix, H_mix, R_mix
-            S[mixed] = H_mix @ P[np.nonzero(mixed)[0]] @ _T(H_mix) + R_mix
+        if mixed.any():  # an ambiguous reading: its virtual landmark's y, H, R, S and d²
+            y, H, R, S = y.copy(), H.copy(), R.copy(), S.copy()
+            b, j = np.nonzero(mixed)
+            y[b, j] = sensor.innovation(z[b if len(z) > 1 else 0, j], h_mix)
+            H[b, j], R[b, j] = H_mix, R_mix
+            S[b, j] = H_mix @ P[b] @ _T(H_mix) + R_mix
+            pair_d2 = pair_d2.copy()
+            pair_d2[b, j] = (y[b, j][:, None, :] @ inverse_pd(S[b, j]) @ y[b, j][:, :, None])[:, 0, 0]
             ambiguous = mixed.sum(axis=-1)
-    zb = np.broadcast_to(z, (B, m, d))
-    y = sensor.innovation(zb, h)
-    if ambiguous.any():  # an ambiguous reading reports its virtual landmark's d²
-        S_inv = inverse_pd(np.where(mixed[..., None, None], S, np.eye(d)))
-        pair_d2 = np.where(mixed, (y[..., None, :] @ S_inv @ y[..., :, None])[..., 0, 0], pair_d2)
 
     # the update's pairs in order (B, U, ...)
     if s.per_landmark:
-        b = np.arange(B)[:, None]
-        h_u = pred.at("h", pair_reading, pair_k)
-        y_u, d2_u = sensor.innovation(zb[b, pair_reading], h_u), d2[b, pair_reading, pair_k]
+        bb = np.arange(B)[:, None]
+        y_u, d2_u = v[bb, pair_reading, pair_k], d2[bb, pair_reading, pair_k]
         H_u, R_u, S_u = (pred.at(name, pair_reading, pair_k) for name in ("H", "R", "S"))
     else:
         y_u, H_u, R_u, S_u, d2_u = y, H, R, S, pair_d2
     weights = _weights(d2_u, S_u, d, s.nu, s.inflation, s.clutter) if s.reweighted else None
     gain, stats, loglik, dof = _stacked(P, pair_used, y_u, H_u, R_u, weights, s.nu[:, 0], s.given)
     # a reading's innovation given the used ones before it (a gated one: given all of them)
-    y_given = np.full((B, m, d), np.nan)
-    S_given = np.full((B, m, d, d), np.nan)
+    y_given = S_given = None
     if s.given:
-        b, u = np.nonzero(pair_used)
-        y_given[b, pair_reading[b, u]] = stats.y_given[b, u]
-        S_given[b, pair_reading[b, u]] = stats.S_given[b, u]
-        b, i = np.nonzero((status == Status.GATED) & got)
-        y_given[b, i] = y[b, i] - (H[b, i] @ stats.delta[b][..., None])[..., 0]
-        S_given[b, i] = H[b, i] @ stats.P[b] @ _T(H[b, i]) + R[b, i]
+        y_given, S_given = np.full((B, m, d), np.nan), np.full((B, m, d, d), np.nan)
+        if s.per_landmark:
+            b, u = np.nonzero(pair_used)
+            y_given[b, pair_reading[b, u]] = stats.y_given[b, u]
+            S_given[b, pair_reading[b, u]] = stats.S_given[b, u]
+        else:
+            y_given[pair_used], S_given[pair_used] = stats.y_given[pair_used], stats.S_given[pair_used]
+        gated = (status == Status.GATED) & got
+        if gated.any():
+            b, j = np.nonzero(gated)
+            y_given[b, j] = y[b, j] - (H[b, j] @ stats.delta[b][..., None])[..., 0]
+            S_given[b, j] = H[b, j] @ stats.P[b] @ _T(H[b, j]) + R[b, j]
     used_any = dof > 0
-    x_new = np.where(used_any[:, None], chart.plus(x, gain.delta), x)
     return _Result(
-        x_new, np.where(used_any[:, None, None], gain.P, P), landmark, pair_d2, status,
+        np.where(used_any[:, None], chart.plus(x, gain.delta), x),
+        np.where(used_any[:, None, None], gain.P, P), landmark, pair_d2, status,
         np.where(got[..., None], y, np.nan), np.where(got[..., None, None], S, np.nan),
         y_given, S_given, loglik, np.where(used_any, stats.nis, 0.0), dof, ambiguous,
     )  # fmt: skip
 
 
+def _pick(a: np.ndarray, k: IntArray) -> np.ndarray:
+    """``a[b, i, k[b, i]]`` of ``a`` (B, m, K, ...)."""
+    if a.shape[2] == 1:
+        return a[:, :, 0]
+    return np.take_along_axis(a, k.reshape(*k.shape, *(1,) * (a.ndim - 2)), axis=2)[:, :, 0]
+
+
+def _euclid(v: FloatArray, pair: np.ndarray) -> FloatArray:
+    """The Euclidean cost |v|² of the pairs (Eq. 22; inf where no pair)."""
+    return np.where(pair, (v * v).sum(axis=-1), np.inf)
+
+
+def _one_to_one(
+    cost: FloatArray, inside: np.ndarray, rows: IntArray, L: int, split: bool
+) -> IntArray:
+    """Greedy one-to-one pairing, cheapest pair first (the compiled search; with ``split`` the
+    pairs inside the gate first): each reading's candidate (B, m), -1 for none. Readings of one
+    candidate each, no two of them the same landmark, need no search: each takes its own."""
+    B, m, K = cost.shape
+    finite = np.isfinite(cost)
+    if K == 1:
+        own = rows[..., 0][..., :m] if rows.shape[1] == m else None
+        if own is not None and not _shared(np.where(finite[..., 0], own, -1 - np.arange(m))):
+            return np.where(finite[..., 0], 0, -1)
+    choice = _core.pair_one_to_one(_dense(cost, rows, L), _dense(inside, rows, L), split)
+    return _column(choice, rows)
+
+
+def _shared(ids: IntArray) -> bool:
+    """Whether two readings of a filter (B', m) name the same landmark."""
+    s = np.sort(ids, axis=-1)
+    return bool((s[..., 1:] == s[..., :-1]).any())
+
+
 def _dense(a: np.ndarray, rows: IntArray, L: int) -> np.ndarray:
     """Pair values ``a`` (B, m, K) over candidates ``rows`` as a dense (B, m, L) array of the
     map's landmarks (inf / False where a landmark is no candidate)."""
-    if rows.shape[-1] == L and (rows[..., :] == np.arange(L)).all():
+    if rows.shape[1] == 1:  # every landmark a candidate, in order
         return np.ascontiguousarray(np.broadcast_to(a, (*a.shape[:2], L)))
     out = np.full((*a.shape[:2], L), np.inf if a.dtype.kind == "f" else False, a.dtype)
     b, i, k = np.nonzero(rows >= 0)
@@ -531,6 +574,8 @@ def _dense(a: np.ndarray, rows: IntArray, L: int) -> np.ndarray:
 
 def _column(choice: IntArray, rows: IntArray) -> IntArray:
     """The candidate index (B, m) of each reading's chosen landmark row (-1: none)."""
+    if rows.shape[1] == 1:  # every landmark a candidate, in order: the row is the index
+        return choice
     hit = (rows == choice[..., None]) & (choice[..., None] >= 0)
     return np.where(hit.any(axis=-1), hit.argmax(axis=-1), -1)
 

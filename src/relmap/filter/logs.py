@@ -36,7 +36,7 @@ from relmap.filter.segments import chains
 from relmap.models.base import Measurement, Motion, RelativeMotion
 from relmap.typing import ArrayLike, FloatArray, IntArray, Option
 from relmap.uncertain.algebra import compound
-from relmap.uncertain.at import AT
+from relmap.uncertain.at import AT, compound_arrays
 from relmap.uncertain.propagate import SE2
 
 __all__ = ["Keep", "Log", "Trace", "run"]
@@ -230,43 +230,44 @@ def run(
              "d2": np.full((B, Mo), np.inf)}  # fmt: skip
     status = np.full((B, M), int(Status.ABSENT), np.int8)
     landmark = np.full((B, Mo), -1, np.int64)
-    loglik, nis = np.zeros(B), np.zeros(B)
-    dof, updates, ambiguous = (np.zeros(B, np.int64) for _ in range(3))
     cut = np.zeros(T, bool)
     cut[0] = cut[times] = True
     ends = np.unique(np.append(times, T - 1))
     moves = _Prediction(motion_b, u, cut, ends[ends > 0], kp is Keep.ALL)
     most = int(np.diff(bounds).max()) if M else 0
     setup = _setup(sensor, lmap, batch, a, pairing, gate, nu, inflation, clutter, readings, most)
-    usable = sensor.usable(z)
+    usable = sensor.usable(z)[None]
+    # every reading's candidates (the signatures label the readings only, unless they pair them)
     sig = None if log.signature is None else np.asarray(log.signature, dtype=np.int64)
-    if a is not Association.SIGNATURES:
-        sig = None  # (the signatures label the readings only)
-    posteriors: list[AT] = []
+    rows, cand = _candidates(setup, sig if a is Association.SIGNATURES else None, M)
+    shared = a is not Association.SIGNATURES  # (every reading has every landmark)
+    totals = []  # each time's (log-likelihood, NIS, dof, ambiguous) per filter
+    posteriors: list[tuple[FloatArray, FloatArray]] = []
     done = 0  # the time index the filters are at
+    x, P = x.mean, x.cov
     for e, k in enumerate(times):
-        x = moves.advance(x, done, int(k))
+        x, P = moves.advance(x, P, done, int(k))
         done = int(k)
-        _check_finite(x, t, done)
         sl = slice(bounds[e], bounds[e + 1])
-        rows, cand = _candidates(setup, None if sig is None else sig[sl][None], sl.stop - sl.start)
-        up = _correct(setup, SE2, x.mean, x.cov, z[None, sl], usable[None, sl], rows, cand)
-        x = AT._trusted(up.x, up.P)
-        _check_finite(x, t, done)
+        up = _correct(setup, SE2, x, P, z[None, sl], usable[:, sl],
+                      rows[None] if shared else rows[None, sl], cand[None, sl])  # fmt: skip
+        x, P = up.x, up.P
+        if not (np.isfinite(x).all() and np.isfinite(P).all()):
+            _overflow(x, P, t, done)
         status[:, sl] = up.status
-        used = up.dof > 0
-        loglik += up.loglik
-        nis += np.where(used, up.nis, 0.0)
-        dof += up.dof
-        updates += used
-        ambiguous += up.ambiguous
+        totals.append((up.loglik, up.nis, up.dof, up.ambiguous))
         if readings:
             out_f["y"][:, sl], out_f["S"][:, sl], out_f["d2"][:, sl] = up.y, up.S, up.d2
             out_f["y_given"][:, sl], out_f["S_given"][:, sl] = up.y_given, up.S_given
             landmark[:, sl] = up.landmark
-        posteriors.append(x)
-    x_end = moves.advance(x, done, T - 1)
-    _check_finite(x_end, t, T - 1)
+        if kp is not Keep.SUMMARY:
+            posteriors.append((x, P))
+    x_end = AT._trusted(*moves.advance(x, P, done, T - 1))
+    if not (np.isfinite(x_end.mean).all() and np.isfinite(x_end.cov).all()):
+        _overflow(x_end.mean, x_end.cov, t, T - 1)
+    loglik, nis, dof, ambiguous = (np.sum([r[j] for r in totals], axis=0) if totals else
+                                   np.zeros(B, int if j >= 2 else float) for j in range(4))  # fmt: skip
+    updates = np.sum([r[2] > 0 for r in totals], axis=0) if totals else np.zeros(B, np.int64)
     mean, cov, kept_t = _kept(kp, t, times, x_end, posteriors, moves, start, batch, B, u, cut)
     counts = np.stack([(status == s).sum(axis=-1) for s in Status], axis=-1)
     y, S, yg, Sg = out_f["y"], out_f["S"], out_f["y_given"], out_f["S_given"]
@@ -290,8 +291,9 @@ def _flat_params(model: Motion | Measurement, batch: tuple[int, ...], B: int) ->
             for k in model.noise_parameters}  # fmt: skip
 
 
-def _check_finite(x: AT, t: FloatArray, k: int) -> None:
-    bad = ~(np.isfinite(x.mean).all(axis=-1) & np.isfinite(x.cov).all(axis=(-2, -1)))
+def _overflow(x: FloatArray, P: FloatArray, t: FloatArray, k: int) -> None:
+    """The error of filters that left the floating-point range at time index ``k``."""
+    bad = ~(np.isfinite(x).all(axis=-1) & np.isfinite(P).all(axis=(-2, -1)))
     if bad.any():
         f = int(np.flatnonzero(bad)[0])
         raise NumericalError(
@@ -314,23 +316,24 @@ class _Prediction:
         if self.relative and len(ends):
             self.seg = chains(motion, u, cut, ends)
 
-    def advance(self, x: AT, done: int, k: int) -> AT:
-        """The filters at time ``done`` moved to time ``k``."""
+    def advance(self, x: FloatArray, P: FloatArray, done: int, k: int) -> tuple[FloatArray, FloatArray]:
+        """The filters ``(x, P)`` at time ``done`` moved to time ``k``."""
         if k == done:
-            return x
-        if self.relative:
+            return x, P
+        if self.relative:  # x ⊕ Δ_seg (Eqs. 1-4)
             row = int(np.searchsorted(self.ends, k))
-            step = AT._trusted(self.seg.mean[row], self.seg.cov[..., row, :, :])
-            return compound(x, step)
+            return compound_arrays(x, P, self.seg.mean[row], self.seg.cov[..., row, :, :])
+        state = AT._trusted(x, P)
         for j in range(done, k):
-            x = predict(x, self.u[j], self.motion)
+            state = predict(state, self.u[j], self.motion)
             if self.keep_all:
-                self.steps[j + 1] = x
-        return x
+                self.steps[j + 1] = state
+        return state.mean, state.cov
 
 
 def _kept(
-    kp: Keep, t: FloatArray, times: IntArray, x_end: AT, posteriors: list[AT],
+    kp: Keep, t: FloatArray, times: IntArray, x_end: AT,
+    posteriors: list[tuple[FloatArray, FloatArray]],
     moves: _Prediction, start: AT, batch: tuple[int, ...], B: int, u: FloatArray,
     cut: np.ndarray,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:  # fmt: skip
@@ -340,15 +343,13 @@ def _kept(
     if kp is Keep.SUMMARY:
         return x_end.mean[:, None], x_end.cov[:, None], t[-1:]
     if kp is Keep.EVENTS:
-        states = [x0, *posteriors]
-        mean = np.stack([s.mean for s in states], axis=1)
-        cov = np.stack([s.cov for s in states], axis=1)
+        mean = np.stack([x0.mean, *(x for x, _ in posteriors)], axis=1)
+        cov = np.stack([x0.cov, *(P for _, P in posteriors)], axis=1)
         return mean, cov, np.concatenate([t[:1], t[times]])
     T = len(t)
     # each time's anchor: the state after the last time with readings before it (or the start)
-    anchors = [x0, *posteriors]
-    a_mean = np.stack([s.mean for s in anchors], axis=1)  # (B, E + 1, 3)
-    a_cov = np.stack([s.cov for s in anchors], axis=1)
+    a_mean = np.stack([x0.mean, *(x for x, _ in posteriors)], axis=1)  # (B, E + 1, 3)
+    a_cov = np.stack([x0.cov, *(P for _, P in posteriors)], axis=1)
     at_reading = np.zeros(T, bool)
     at_reading[times] = True
     last = np.searchsorted(times, np.arange(T), side="left")  # readings strictly before k

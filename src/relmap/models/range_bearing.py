@@ -117,9 +117,10 @@ class _Polar(Measurement):
         ox, oy = c * mx - s * my, s * mx + c * my
         dx, dy = lm[..., 0] - (p[..., 0] + ox), lm[..., 1] - (p[..., 1] + oy)
         q = dx * dx + dy * dy
-        r = np.sqrt(q)
-        phi = se2.angle_difference(np.arctan2(dy, dx), p[..., 2] + mt)
-        return dx, dy, q, np.stack(np.broadcast_arrays(r, phi), axis=-1), ox, oy
+        z = np.empty((*q.shape, 2))
+        z[..., 0] = np.sqrt(q)
+        z[..., 1] = se2.angle_difference(np.arctan2(dy, dx), p[..., 2] + mt)
+        return dx, dy, q, z, ox, oy
 
     def h(self, x: FloatArray, landmark: FloatArray | None = None) -> FloatArray:
         """The reading of ``landmark`` (..., 2) from robot pose ``x`` (..., 3)."""
@@ -132,14 +133,16 @@ class _Polar(Measurement):
         the mount: the sensor sits at ``p ⊕ mount``) and ``∂z/∂l`` (..., d, 2) (lecture Eq. 24's
         H); a landmark at the sensor gives NaN (no bearing)."""
         dx, dy, q, z, ox, oy = self._geometry(x, landmark)
+        H = np.empty((*q.shape, 2, 3))
         with np.errstate(divide="ignore", invalid="ignore"):
-            r = np.sqrt(q)
-            H_l = np.stack([np.stack([dx / r, dy / r], -1), np.stack([-dy / q, dx / q], -1)], -2)
+            u, w = dx / z[..., 0], dy / z[..., 0]  # the unit vector to the landmark
+            H[..., 0, 0], H[..., 0, 1], H[..., 0, 2] = -u, -w, u * oy - w * ox
+            u, w = dx / q, dy / q
             # ∂z/∂p = -∂z/∂l on the position; the heading turns the mount's offset (-oy, ox)
             # and, for the bearing, the sensor's axis
-            turn = np.stack([(dx * oy - dy * ox) / r, -(dy * oy + dx * ox) / q - 1.0], -1)
-        H = np.concatenate([-H_l, turn[..., None]], axis=-1)
-        return z[..., self.rows], H[..., self.rows, :], H_l[..., self.rows, :]
+            H[..., 1, 0], H[..., 1, 1], H[..., 1, 2] = w, -u, -(w * oy + u * ox) - 1.0
+        rows = self.rows
+        return z[..., rows], H[..., rows, :], -H[..., rows, :2]
 
     def jacobians(
         self, x: FloatArray, landmark: FloatArray | None = None
@@ -187,8 +190,9 @@ class RangeBearingSensor(_Polar):
         z = np.asarray(z, dtype=np.float64)
         k = self._scale(z[..., 0])
         vr, vb = (self.sigma_range * k) ** 2, (self.sigma_bearing * k) ** 2
-        zero = np.zeros(np.broadcast_shapes(np.shape(vr), np.shape(vb), z.shape[:-1]))
-        return np.stack([np.stack([vr + zero, zero], -1), np.stack([zero, vb + zero], -1)], -2)
+        R = np.zeros((*np.broadcast_shapes(np.shape(vr), np.shape(vb), z.shape[:-1]), 2, 2))
+        R[..., 0, 0], R[..., 1, 1] = vr, vb
+        return R
 
 
 @dataclasses.dataclass(frozen=True)

@@ -216,7 +216,7 @@ class AT(UncertainPose):
         """Eqs. (1)-(4): ``C = H C_a Hᵀ + K C_b Kᵀ`` on the six entries; with ``cross_cov`` (a
         dependent pair, §3.2) ``+ H C_ab Kᵀ + K C_abᵀ Hᵀ``."""
         try:
-            mean, cov = _compound_arrays(self._mean, self._cov, other._mean, other._cov)
+            mean, cov = compound_arrays(self._mean, self._cov, other._mean, other._cov)
         except ValueError:
             raise broadcast_error("compound", self.batch_shape, other.batch_shape) from None
         if cross_cov is not None:
@@ -258,10 +258,12 @@ class AT(UncertainPose):
 _TWO_PI = 2.0 * np.pi
 
 
-def _compound_arrays(
+def compound_arrays(
     mean_a: FloatArray, cov_a: FloatArray, mean_b: FloatArray, cov_b: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
-    """Eqs. (1)-(4) on raw arrays: ``H C_a Hᵀ + K C_b Kᵀ`` written out elementwise."""
+    """Eqs. (1)-(4) on raw arrays — means (..., 3), covariances (..., 3, 3), broadcast — with
+    no checks (the caller's are valid): ``(a ∘ b, H C_a Hᵀ + K C_b Kᵀ)``, written out on the
+    covariances' six entries."""
     mean, c, s, dx, dy = se2._compose_terms(mean_a, mean_b)
     sheared, rotated = shear(entries(cov_a), dx, dy), rotate(entries(cov_b), c, s)
     total = tuple(p + q for p, q in zip(sheared, rotated, strict=True))
@@ -306,7 +308,7 @@ def _scan_parts(p: tuple[FloatArray, ...]) -> tuple[FloatArray, ...]:
 
 
 def _compound_parts(a: list[FloatArray], b: list[FloatArray]) -> tuple[FloatArray, ...]:
-    """:func:`_compound_arrays` on parts ``(x, y, θ, c00, c01, c02, c11, c12, c22)`` of wrapped
+    """:func:`compound_arrays` on parts ``(x, y, θ, c00, c01, c02, c11, c12, c22)`` of wrapped
     poses: their headings sum within [-2π, 2π), so one shift wraps them."""
     xa, ya, ta, *ca = a
     xb, yb, tb, *cb = b
