@@ -41,12 +41,16 @@ class Chains(NamedTuple):
 
 def _restart_cumsum(a: FloatArray, starts: IntArray) -> FloatArray:
     """Prefix sums of ``a`` (..., N) along its last axis that restart at the indices ``starts``
-    (increasing, from 0): each restart's entry has the previous segment's total
-    (``np.add.reduceat``) taken off, so the running sum never carries more than one segment's."""
-    a = np.array(a, dtype=np.float64)
-    totals = np.add.reduceat(a, starts, axis=-1)
-    a[..., starts[1:]] -= totals[..., :-1]
-    return np.cumsum(a, axis=-1)
+    (increasing, from 0). One cumsum over all: each restart's entry has the previous segment's
+    total (``np.add.reduceat``) taken off, so the running sum stays at one segment's size; the
+    rounding of that total, which the running sum would carry on, is then taken off each
+    segment (its first sum must be its first entry)."""
+    a = np.asarray(a, dtype=np.float64)
+    shifted = a.copy()
+    shifted[..., starts[1:]] -= np.add.reduceat(a, starts, axis=-1)[..., :-1]
+    sums = np.cumsum(shifted, axis=-1)
+    drift = sums[..., starts] - a[..., starts]
+    return sums - np.repeat(drift, np.diff(starts, append=a.shape[-1]), axis=-1)
 
 
 def chains(
