@@ -417,3 +417,19 @@ def test_huber_keeps_intel_near_its_optimum_despite_false_loop_closures(data_dir
     bent = _with_false_closures(graph, FALSE_CLOSURES)
     least, robust = solve_graph(bent), solve_graph(bent, loss=Huber(0.5))
     assert rmse(robust) < 1.5 < 4.0 < rmse(least)
+
+
+def test_a_cost_that_jumps_stops_the_damping_instead_of_overflowing_it(data_dir):
+    """Three false closures on intel, under Huber(0.5): where a heading residual wraps at ±π the
+    cost jumps (the chart covariance correlates heading and position), Levenberg-Marquardt's
+    accepted steps lower it by nothing, and the damping doubled on each until it overflowed (a
+    SolverError naming a parameter). The solve now stops there, below its starting cost."""
+    graph = read_graph(data_dir / "posegraph2d" / "intel.g2o")
+    closures = [  # docs/studies/huber_false_closures.py's, 3 closures, seed 1 (all digits)
+        (817, 151, (-0.22286666512801, 0.05031825170074167, 0.03444532805454603)),
+        (884, 1667, (-0.0010135476929851173, -0.07553641536792244, 0.04542309620345914)),
+        (1304, 846, (0.46666239538783827, -0.0419204395138808, 0.2024828530790429)),
+    ]
+    sol = solve_graph(_with_false_closures(graph, closures), loss=Huber(0.5), max_iterations=5000)
+    assert np.isfinite(sol.final_error) and sol.final_error < sol.initial_error
+    assert sol.iterations < 5000

@@ -795,6 +795,8 @@ def optimize(
                 lam = 0.0
             if progress:
                 progress(iterations, cost)
+            if lam > 1e12:  # steps accepted only for lowering nothing (a kink or a jump in
+                break  # the cost, e.g. a heading residual wrapping at ±π): as below
         elif new_cost - cost <= max(rtol, 1e-12) * max(cost, 1e-300):
             break  # no further decrease beyond rounding: the current point is the optimum
         else:
