@@ -191,8 +191,11 @@ def _robust_cost(p: Problem, loss, groups=()):
     return cost, poses
 
 
-@pytest.mark.parametrize("group", [SE2, SE3], ids=["SE2", "SE3"])
-@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize(
+    ("group", "seed"),
+    [(SE2, 0), (SE2, 1), (SE2, 2), (SE3, 2)],
+    ids=["SE2-0", "SE2-1", "SE2-2", "SE3"],
+)
 def test_huber_optimum_equals_scipys_minimizer_of_the_robust_cost(group, seed):
     """scipy's BFGS on Σ ρ(s²) (residuals from relmap.lie, no relmap solver): the same poses
     (1e-6; measured ≤ 5.6e-7, where most ATs are down-weighted and the cost is flat) and cost
@@ -231,7 +234,9 @@ def _covariance(p: Problem, sol, groups) -> np.ndarray:
     return np.linalg.inv(J.T @ omega @ J)
 
 
-@pytest.mark.parametrize("group", [SE2, SE3], ids=["SE2", "SE3"])
+@pytest.mark.parametrize(
+    "group", [SE2, pytest.param(SE3, marks=pytest.mark.slow)], ids=["SE2", "SE3"]
+)
 def test_huber_with_a_dependent_group_equals_scipys_minimizer(group):
     """A dependent pair is one residual under the loss, ρ of its joint s² (scipy, as above), with
     one weight; the covariance is the inverse of the weighted normal matrix (1e-6 relative)."""
