@@ -121,6 +121,7 @@ def parse_loss(text: str) -> Loss:
     except ValueError:
         raise ParameterError(f"loss parameters must be numbers; got {params!r}") from None
     try:
-        return cls(*args)  # type: ignore[no-any-return]
+        loss: Loss = cls(*args)
+        return loss
     except TypeError:
         raise ParameterError(f"loss {name!r} takes other parameters than {params!r}") from None

@@ -303,8 +303,10 @@ class _Losses(NamedTuple):
             extra += float(np.sum(loss.value(part) - weight * part))
         return W * w[:, None, None], w, extra
 
-    def every(self, plain: FloatArray, groups: Sequence[float]) -> FloatArray:
-        """The weights of all the problem's ATs (m,) from the plain ATs' and the groups'."""
+    def every(self, plain: FloatArray | None, groups: Sequence[float]) -> FloatArray:
+        """The weights of all the problem's ATs (m,) from the plain ATs' (:meth:`weigh`'s) and
+        the groups'."""
+        assert plain is not None
         out = np.ones(self.m)
         out[self.edges] = plain
         for members, weight in zip(self.members, groups, strict=True):
@@ -353,8 +355,9 @@ def _losses(p: Problem, w: _Weights, loss: LossChoice) -> _Losses | None:
             names = ", ".join(repr(p.names[k]) for k in members)
             raise ParameterError(f"the dependent ATs {names} are one residual: give them one loss")
         group_losses.append(kinds[chosen[0]] if chosen[0] >= 0 else None)
-    members = [np.asarray(members) for members, _ in w.groups]
-    return _Losses([part for part in parts if len(part[1])], group_losses, w.edges, members, m)
+    group_members = [np.asarray(members) for members, _ in w.groups]
+    kept = [part for part in parts if len(part[1])]
+    return _Losses(kept, group_losses, w.edges, group_members, m)
 
 
 def _group_weight(loss: Loss | None, e: FloatArray) -> tuple[float, float]:
