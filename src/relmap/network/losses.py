@@ -8,7 +8,8 @@ it is minimized by iteratively reweighted least squares: at every linearization 
 information ``Σ⁻¹`` is multiplied by its weight ``w = ρ'(s²)``, so that the Gauss-Newton
 gradient is that of ``Σ ρ(s_i²)`` (the Hessian drops the ``ρ''`` term; Triggs et al. 2000,
 "Bundle adjustment — a modern synthesis", on robustified least squares), and
-Levenberg-Marquardt accepts a step by the robust cost. Least squares is ``ρ(s²) = s²``, ``w = 1`` (:class:`L2`).
+Levenberg-Marquardt accepts a step by the robust cost. Least squares is ``ρ(s²) = s²``,
+``w = 1`` (:class:`L2`).
 
 A loss is any object with ``value`` and ``weight`` (:class:`Loss`), vectorized over ATs; a new
 one is a small class here and an entry in :data:`LOSSES` (its name for ``relmap solve --loss``).
