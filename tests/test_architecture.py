@@ -794,6 +794,28 @@ def test_the_walk_measure_sees_a_climb():
     assert not upward([hook]) and climbs([hook], ALGEBRA) == [hook] and switches([hook]) == 1
 
 
+# -------------------------------------------------------------- losses: one registration point
+def test_losses_have_one_registration_point():
+    """Every loss of the pose-graph optimizer (a class with ``value`` and ``weight`` methods) is
+    defined in ``relmap.network.losses`` and named in its ``LOSSES``, the one table that
+    ``parse_loss`` (and so ``relmap solve --loss``) reads; no other module reads that table."""
+    from relmap.network import losses
+
+    found = {}
+    for module in MODULES:
+        for node in ast.walk(tree(module)):
+            if isinstance(node, ast.ClassDef):
+                methods = {f.name for f in node.body if isinstance(f, ast.FunctionDef)}
+                if {"value", "weight"} <= methods and node.name != "Loss":
+                    found[node.name] = module
+    assert found and set(found.values()) == {"relmap.network.losses"}, found
+    assert {cls.__name__ for cls in losses.LOSSES.values()} == set(found)
+    for module in MODULES:
+        if module != "relmap.network.losses":
+            assert "LOSSES" not in MODULES[module].read_text(encoding="utf-8"), module
+    assert "parse_loss" in MODULES["relmap.app.cli"].read_text(encoding="utf-8")
+
+
 if __name__ == "__main__":  # the counts of the report: python tests/test_architecture.py
     import sys
     import tempfile

@@ -30,6 +30,7 @@ def test_every_note_is_run_here():
         "moments.py",
         "delta_y.py",
         "sphere2500_information.py",
+        "huber_false_closures.py",
     }
 
 
@@ -62,3 +63,22 @@ def test_sphere2500_is_whitened_by_its_numbers_read_as_square_root_information(d
     chi2 = [float(x) for x in re.findall(r"χ² of the truth ([\d.]+)", out)]
     assert len(chi2) == 2
     assert chi2[0] < 0.5 and chi2[1] == pytest.approx(6.0, abs=0.3)
+
+
+@pytest.mark.real_data
+def test_huber_keeps_intel_near_its_optimum_with_one_false_closure(data_dir):
+    out = run(
+        "huber_false_closures.py",
+        "--data",
+        str(data_dir),
+        "--graphs",
+        "intel",
+        "--counts",
+        "1",
+        "--seeds",
+        "1",
+    )
+    rows = [r.split("|")[1:-1] for r in out.splitlines() if r.startswith("| intel |")]
+    assert len(rows) == 1
+    least, huber, huber_small = (float(c.split()[0]) for c in rows[0][3:6])
+    assert least > 1.0 and huber < least / 5 and huber_small < least / 5

@@ -12,10 +12,10 @@ namespace relmap {
 
 namespace {
 
-// The measurements' contributions for b × b blocks (b = 3 in the plane, 6 in 3-D): per
-// measurement W r, W J_i, W J_j, then the blocks J_iᵀ W J_i, J_iᵀ W J_j, J_jᵀ W J_j (the
-// (j, i) block written as the transpose of (i, j): the matrix is exactly symmetric), each
-// loop running along rows so that it vectorizes.
+// The measurements' contributions for B × B blocks (B = 3: the plane; 3-D graphs accumulate in
+// linearize3.cpp, using their Jacobians' structure): per measurement W r, W J_i, W J_j, then the
+// blocks J_iᵀ W J_i, J_iᵀ W J_j, J_jᵀ W J_j (the (j, i) block written as the transpose of (i, j):
+// the matrix is exactly symmetric), each loop running along rows so that it vectorizes.
 template <int B>
 RELMAP_INLINE double accumulate(int64_t m, const double* r, const double* Ji, const double* Jj,
                                 const double* W, const int64_t* slots, const int64_t* g_index,
@@ -67,21 +67,6 @@ RELMAP_INLINE double accumulate(int64_t m, const double* r, const double* Ji, co
             }
     }
     return cost;
-}
-
-// Compiled per ISA (RELMAP_MULTIVERSION, dense.hpp).
-RELMAP_MULTIVERSION
-double accumulate3(int64_t m, const double* r, const double* Ji, const double* Jj,
-                   const double* W, const int64_t* slots, const int64_t* g_index, double* data,
-                   double* grad) {
-    return accumulate<3>(m, r, Ji, Jj, W, slots, g_index, data, grad);
-}
-
-RELMAP_MULTIVERSION
-double accumulate6(int64_t m, const double* r, const double* Ji, const double* Jj,
-                   const double* W, const int64_t* slots, const int64_t* g_index, double* data,
-                   double* grad) {
-    return accumulate<6>(m, r, Ji, Jj, W, slots, g_index, data, grad);
 }
 
 // ---- the planar residuals (SE(2), relmap's chart) ------------------------------------------
@@ -166,41 +151,6 @@ double se2_normal_equations(int64_t m, const double* poses, const int64_t* i, co
 }  // namespace
 
 void register_linearize(nb::module_& m) {
-    m.def(
-        "normal_equations",
-        [](Float2 r, Float3 Ji, Float3 Jj, Float3 W, Index2 slots, Index1 g_index, int64_t nnz,
-           int64_t size) {
-            const int64_t count = static_cast<int64_t>(r.shape(0));
-            const int64_t b = static_cast<int64_t>(r.shape(1));
-            auto square = [&](const Float3& x) {
-                return static_cast<int64_t>(x.shape(0)) == count &&
-                       static_cast<int64_t>(x.shape(1)) == b &&
-                       static_cast<int64_t>(x.shape(2)) == b;
-            };
-            if ((b != 3 && b != 6) || !square(Ji) || !square(Jj) || !square(W))
-                throw nb::value_error("r (m, b), Ji, Jj, W (m, b, b) with b = 3 or 6");
-            if (static_cast<int64_t>(slots.shape(0)) != count ||
-                static_cast<int64_t>(slots.shape(1)) != 4 * b * b ||
-                static_cast<int64_t>(g_index.shape(0)) != 2 * b * count)
-                throw nb::value_error("slots (m, 4 b²) and g_index (2 b m) expected");
-            check_targets(slots.data(), count * 4 * b * b, g_index.data(), 2 * b * count, nnz,
-                          size);
-            auto data = new_array({static_cast<size_t>(nnz + 1)});
-            auto grad = new_array({static_cast<size_t>(size + 1)});
-            double cost;
-            {
-                nb::gil_scoped_release unlocked;
-                auto run = b == 3 ? accumulate3 : accumulate6;
-                cost = run(count, r.data(), Ji.data(), Jj.data(), W.data(), slots.data(),
-                           g_index.data(), data.data(), grad.data());
-            }
-            return nb::make_tuple(cost, data, grad);
-        },
-        nb::arg("r"), nb::arg("Ji"), nb::arg("Jj"), nb::arg("W"), nb::arg("slots"),
-        nb::arg("g_index"), nb::arg("nnz"), nb::arg("size"),
-        "(cost, data (nnz + 1,), grad (size + 1,)) of the normal equations; the last entry of "
-        "data and grad collects the dropped contributions (slot nnz, index size).");
-
     // The planar pose graph: measurements (i[k], j[k], z[k]) at poses (n, 3), with F (n, 3, 3)
     // the frames' ∂pose/∂parameters or (0, 3, 3) for none.
     auto check_edges = [](const Float2& poses, const Index1& i, const Index1& j, const Float2& z,
@@ -262,7 +212,8 @@ void register_linearize(nb::module_& m) {
         nb::arg("poses"), nb::arg("i"), nb::arg("j"), nb::arg("z"), nb::arg("F"), nb::arg("W"),
         nb::arg("slots"), nb::arg("g_index"), nb::arg("nnz"), nb::arg("size"),
         "(cost, data (nnz + 1,), grad (size + 1,)): the planar residuals (residuals2) and the "
-        "normal equations (normal_equations) in one pass.");
+        "normal equations in one pass; the last entry of data and grad collects the dropped "
+        "contributions (slot nnz, index size).");
 }
 
 }  // namespace relmap

@@ -268,7 +268,8 @@ void register_linearize3(nb::module_& m) {
         nb::arg("poses"), nb::arg("i"), nb::arg("j"), nb::arg("z"), nb::arg("W"),
         nb::arg("slots"), nb::arg("g_index"), nb::arg("nnz"), nb::arg("size"),
         "(cost, data (nnz + 1,), grad (size + 1,)) of a 3-D pose graph's normal equations at "
-        "poses (n, 4, 4), as normal_equations of residuals3's r, Ji, Jj.");
+        "poses (n, 4, 4): cost Σ rᵀ W r, H = Σ Jᵀ W J, g = Σ Jᵀ W r of residuals3's r, Ji, Jj; the "
+        "last entry of data and grad collects the dropped contributions (slot nnz, index size).");
 }
 
 }  // namespace relmap

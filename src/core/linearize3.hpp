@@ -4,7 +4,7 @@
 //   J_i = ∂r/∂δ_i = -Jr blkdiag(R_iᵀ, R_iᵀ) [[I, -[t_j - t_i]×], [0, I]],
 //   J_j = ∂r/∂δ_j =  Jr blkdiag(R_iᵀ, R_iᵀ),  Jr = blkdiag(I, J_l(r_φ)⁻¹),
 // in relmap's chart on both sides (a pose moves as T ⊞ δ = (t + δt, Exp(δφ) R), lie/se3.py).
-// The normal equations are then accumulated by linearize.cpp's normal_equations.
+// The normal equations are accumulated in the same pass (normal_equations3), by blocks.
 #pragma once
 
 #include "core.hpp"

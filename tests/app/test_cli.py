@@ -3,6 +3,7 @@ prints is checked in test_demo_report.py)."""
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 
@@ -87,3 +88,19 @@ def test_validate_on_a_real_graph_prints_no_runaway_line(data_dir):
     assert max(len(line) for line in out.splitlines()) <= 400
     full = _run("validate", graph, "0", "1000", "-n", "2", "--verbose").stdout
     assert ", e2511" in full
+
+
+def test_solve_under_a_loss(tmp_path):
+    """`relmap solve --loss huber:K`: the JSON summary names the loss and counts the edges it
+    down-weighted (here the one false edge, whose pull Huber bounds)."""
+    g2o = (
+        "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nVERTEX_SE2 2 2 0 0\n"
+        "EDGE_SE2 0 1 1 0 0 100 0 0 100 0 1000\nEDGE_SE2 1 2 1 0 0 100 0 0 100 0 1000\n"
+        "EDGE_SE2 0 2 2 0 0 100 0 0 100 0 1000\nEDGE_SE2 0 2 5 0 0 100 0 0 100 0 1000\n"
+    )
+    path = tmp_path / "g.g2o"
+    path.write_text(g2o)
+    plain = json.loads(_run("solve", str(path), "--json").stdout)
+    robust = json.loads(_run("solve", str(path), "--json", "--loss", "huber:1").stdout)
+    assert "loss" not in plain
+    assert robust["loss"] == "Huber(k=1.0)" and robust["downweighted"] == 1

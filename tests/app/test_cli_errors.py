@@ -49,6 +49,8 @@ def assert_one_line_error(err: str, command: str) -> None:
         (["solve", "{g}", "--max-iterations", "-5"], "--max-iterations"),
         (["solve", "{g}", "--max-iterations", "0"], "--max-iterations"),
         (["solve", "{g}", "--max-iterations", "many"], "--max-iterations"),
+        (["solve", "{g}", "--loss", "cauchy"], "--loss"),
+        (["solve", "{g}", "--loss", "huber:0"], "--loss"),
         (["validate", "{g}", "0", "2", "--seed", "-1"], "--seed"),
         (["validate", "{g}", "0", "2", "-n", str(10**20)], "-n"),
         (["validate", "{g}", "0", "2", "-n", str(10**9)], "-n"),

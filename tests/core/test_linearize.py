@@ -1,6 +1,7 @@
-"""The pose-graph normal equations (relmap._core.normal_equations through relmap.network.optimal)
-against the mathematics: cost, gradient and Gauss-Newton matrix from residuals written with
-relmap.lie and Jacobians by central differences."""
+"""The pose-graph normal equations (relmap._core.normal_equations2 and normal_equations3 through
+relmap.network.optimal) against the mathematics: cost, gradient and Gauss-Newton matrix from
+residuals written with relmap.lie and Jacobians by central differences, under least squares and
+under a robust loss (the information of each AT weighted by ρ'(s²))."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import pytest
 
 from relmap.lie import SE2, SE3, se3, so3
 from relmap.network import optimal
+from relmap.network.losses import Huber
 from relmap.network.problem import Problem, parameterize
 from tests.helpers import random_covs
 
@@ -35,60 +37,84 @@ def _numeric(residual, x0: np.ndarray, h: float = 1e-6) -> np.ndarray:
     return np.stack(cols, axis=1)
 
 
-def _check(p: Problem, linearize, moved, pattern) -> None:
+def _check(p: Problem, linearize, moved, pattern, loss=None) -> None:
+    """The linearization against the mathematics: cost Σ ρ(s²) (s² = rᵀ Σ⁻¹ r, ρ(s²) = s² without
+    a loss), gradient ½ ∇ Σ ρ(s²) by central differences of that cost, normal matrix
+    Σ ρ'(s²) Jᵀ Σ⁻¹ J with J by central differences, and the weights ρ'(s²)."""
     group = p.group
     W = np.linalg.inv(p.cov)
 
     def residual(delta):
         poses = moved(delta)
-        return group.minus(group.between(poses[p.i], poses[p.j]), p.z).reshape(-1)
+        return group.minus(group.between(poses[p.i], poses[p.j]), p.z)
+
+    def cost_at(delta):
+        r = residual(delta)
+        s2 = np.einsum("ka,kab,kb->k", r, W, r)
+        return float(np.sum(s2 if loss is None else loss.value(s2)))
 
     size = pattern.size
     r = residual(np.zeros(size))
-    J = _numeric(residual, np.zeros(size))
-    Wbig = np.zeros((len(r), len(r)))
+    s2 = np.einsum("ka,kab,kb->k", r, W, r)
+    w = np.ones(len(s2)) if loss is None else loss.weight(s2)
+    J = _numeric(lambda d: residual(d).reshape(-1), np.zeros(size))
+    Wbig = np.zeros((J.shape[0], J.shape[0]))
     b = group.dof
     for k in range(len(p.i)):
-        Wbig[b * k : b * k + b, b * k : b * k + b] = W[k]
-    cost, _, data, grad = linearize()
-    assert cost == pytest.approx(r @ Wbig @ r, rel=1e-12)
-    np.testing.assert_allclose(grad, J.T @ Wbig @ r, rtol=1e-6, atol=1e-6 * abs(grad).max())
+        Wbig[b * k : b * k + b, b * k : b * k + b] = w[k] * W[k]
+    cost, _, data, grad, weights = linearize()
+    assert cost == pytest.approx(cost_at(np.zeros(size)), rel=1e-12)
+    if loss is None:
+        assert weights is None
+    else:
+        np.testing.assert_allclose(weights, w, rtol=1e-12)
+    grad_ref = 0.5 * np.array([(cost_at(h) - cost_at(-h)) / 2e-6 for h in 1e-6 * np.eye(size)])
+    np.testing.assert_allclose(grad, grad_ref, rtol=1e-6, atol=1e-6 * abs(grad).max())
     H = pattern.matrix(data).toarray()
     H_ref = J.T @ Wbig @ J
     np.testing.assert_allclose(H, H_ref, rtol=1e-6, atol=1e-6 * abs(H_ref).max())
 
 
 @pytest.mark.parametrize("seed", range(3))
-def test_planar_normal_equations_equal_numeric_jacobians(seed):
+@pytest.mark.parametrize("loss", [None, Huber(15.0)], ids=["l2", "huber"])
+def test_planar_normal_equations_equal_numeric_jacobians(seed, loss):
     p = _problem(SE2, seed)
     param = parameterize(p)
-    system = optimal._System(p, param, optimal._weights(p, param))
+    w = optimal._weights(p, param)
+    system = optimal._System(p, param, w, optimal._losses(p, w, loss))
     state = param.initial_state(p.guess, p.anchor)
     move = param.stepper()
     _check(
-        p, lambda: system.linearize(*state), lambda d: param.poses(*move(*state, d)), system.pattern
+        p,
+        lambda: system.linearize(*state),
+        lambda d: param.poses(*move(*state, d)),
+        system.pattern,
+        loss,
     )
 
 
 @pytest.mark.parametrize("seed", range(3))
-def test_3d_normal_equations_equal_numeric_jacobians(seed):
+@pytest.mark.parametrize("loss", [None, Huber(15.0)], ids=["l2", "huber"])
+def test_3d_normal_equations_equal_numeric_jacobians(seed, loss):
     p = _problem(SE3, seed)
     param = parameterize(p)
-    system = optimal._LieSystem(p, param, optimal._weights(p, param))
+    w = optimal._weights(p, param)
+    system = optimal._LieSystem(p, param, w, optimal._losses(p, w, loss))
     poses = np.array(p.guess)
-    _check(p, lambda: system.linearize(poses), lambda d: system.step(poses, d), system.pattern)
+    _check(
+        p, lambda: system.linearize(poses), lambda d: system.step(poses, d), system.pattern, loss
+    )
 
 
-def test_bad_arguments_are_refused_by_the_core():
-    from relmap import _core
-
-    r, J = np.zeros((2, 3)), np.zeros((2, 3, 3))
-    slots, g = np.zeros((2, 36), np.int64), np.zeros(12, np.int64)
-    _core.normal_equations(r, J, J, J, slots, g, 1, 1)
-    with pytest.raises(ValueError, match="slot"):
-        _core.normal_equations(r, J, J, J, slots + 5, g, 1, 1)
-    with pytest.raises(ValueError):
-        _core.normal_equations(np.zeros((2, 4)), J, J, J, slots, g, 1, 1)
+def test_the_robust_tests_down_weight_some_ats_and_not_others():
+    """What the two tests above rely on: at their guesses Huber(15.0) weights some ATs below 1
+    (s > k) and leaves others at 1 (s ≤ k), so both branches of the loss are exercised."""
+    for group in (SE2, SE3):
+        for seed in range(3):
+            p = _problem(group, seed)
+            r = group.minus(group.between(p.guess[p.i], p.guess[p.j]), p.z)
+            s = np.sqrt(np.einsum("ka,kab,kb->k", r, np.linalg.inv(p.cov), r))
+            assert (s > 15.0).any() and (s <= 15.0).any()
 
 
 def _rotation_near(angle: float, rng: np.random.Generator) -> np.ndarray:
@@ -183,7 +209,12 @@ def test_bad_planar_arguments_are_refused_by_the_core():
     poses, z, F0 = np.zeros((3, 3)), np.zeros((2, 3)), np.zeros((0, 3, 3))
     i, j = np.array([0, 1]), np.array([1, 2])
     W, slots, g = np.zeros((2, 3, 3)), np.zeros((2, 36), np.int64), np.zeros(12, np.int64)
-    _core.normal_equations2(poses, i, j, z, F0, W, slots, g, 1, 1)
+    cost, _, _ = _core.normal_equations2(poses, i, j, z, F0, W, slots, g, 1, 1)
+    assert cost == 0.0
+    with pytest.raises(ValueError, match="W"):
+        _core.normal_equations2(poses, i, j, z, F0, np.zeros((2, 4, 4)), slots, g, 1, 1)
+    with pytest.raises(ValueError, match="slots"):
+        _core.normal_equations2(poses, i, j, z, F0, W, slots[:, :30].copy(), g, 1, 1)
     with pytest.raises(ValueError, match="frame index"):
         _core.residuals2(poses, i, j + 1, z, F0)
     with pytest.raises(ValueError, match="F must be"):
@@ -199,11 +230,21 @@ def test_negative_targets_are_refused_by_the_core():
     gradient index anywhere, not only a too large one."""
     from relmap import _core
 
-    r, J = np.zeros((2, 3)), np.zeros((2, 3, 3))
-    slots, g = np.zeros((2, 36), np.int64), np.zeros(12, np.int64)
+    poses, z, F0 = np.zeros((3, 3)), np.zeros((2, 3)), np.zeros((0, 3, 3))
+    i, j = np.array([0, 1]), np.array([1, 2])
+    W, slots, g = np.zeros((2, 3, 3)), np.zeros((2, 36), np.int64), np.zeros(12, np.int64)
     bad_slots, bad_g = slots.copy(), g.copy()
     bad_slots[1, 35], bad_g[11] = -1, -1
     with pytest.raises(ValueError, match="slot"):
-        _core.normal_equations(r, J, J, J, bad_slots, g, 1, 1)
+        _core.normal_equations2(poses, i, j, z, F0, W, bad_slots, g, 1, 1)
     with pytest.raises(ValueError, match="gradient"):
-        _core.normal_equations(r, J, J, J, slots, bad_g, 1, 1)
+        _core.normal_equations2(poses, i, j, z, F0, W, slots, bad_g, 1, 1)
+    poses3, z3 = np.broadcast_to(np.eye(4), (3, 4, 4)).copy(), np.broadcast_to(np.eye(4), (2, 4, 4))
+    W3, slots3, g3 = np.zeros((2, 6, 6)), np.zeros((2, 144), np.int64), np.zeros(24, np.int64)
+    bad_slots3, bad_g3 = slots3.copy(), g3.copy()
+    bad_slots3[1, 143], bad_g3[23] = -1, -1
+    z3 = np.ascontiguousarray(z3)
+    with pytest.raises(ValueError, match="slot"):
+        _core.normal_equations3(poses3, i, j, z3, W3, bad_slots3, g3, 1, 1)
+    with pytest.raises(ValueError, match="gradient"):
+        _core.normal_equations3(poses3, i, j, z3, W3, slots3, bad_g3, 1, 1)

@@ -310,6 +310,7 @@ def _solve(args: argparse.Namespace) -> int:
             graph,
             progress=lambda k, err: bar.update(f"iteration {k}, error {err:.6g}", force=True),
             max_iterations=args.max_iterations,
+            loss=args.loss,
         )
     finally:
         bar.close()
@@ -329,6 +330,9 @@ def _solve(args: argparse.Namespace) -> int:
         "final_error": sol.final_error,
         "seconds": seconds,
     }
+    if args.loss is not None:  # the robust cost Σ ρ(s²), and how many edges it down-weighted
+        summary["loss"] = repr(args.loss)
+        summary["downweighted"] = int((sol.weights < 1.0).sum())
     if args.json:
         print(json.dumps(summary))
     else:
@@ -337,6 +341,11 @@ def _solve(args: argparse.Namespace) -> int:
             f"error {sol.initial_error:.6g} → {sol.final_error:.6g} "
             f"in {sol.iterations} iterations"
             + ("" if sol.converged else " (NOT converged: stopped at --max-iterations)")
+            + (
+                f" under {summary['loss']}, {summary['downweighted']} edges down-weighted"
+                if args.loss is not None
+                else ""
+            )
             + f", {seconds:.2f} s"
             + (f"; written to {args.out}" if args.out else "")
         )
@@ -508,6 +517,17 @@ def _output_file(text: str) -> str:
     except RelmapError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
     return text
+
+
+def _loss(text: str) -> object:
+    """An argparse type: a loss of the pose-graph optimizer, ``NAME[:PARAMETERS]``
+    (:func:`relmap.network.losses.parse_loss`)."""
+    from relmap.network.losses import parse_loss
+
+    try:
+        return parse_loss(text)
+    except RelmapError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _output_folder(text: str) -> str:
@@ -704,6 +724,13 @@ def _solve_arguments(solve: argparse.ArgumentParser) -> None:
     )
     solve.add_argument("--json", action="store_true", help="print a JSON summary")
     solve.add_argument("--max-iterations", type=_int_in(1, 1_000_000), default=100)
+    solve.add_argument(
+        "--loss",
+        metavar="NAME[:K]",
+        type=_loss,
+        help="a robust loss of each edge's normalized residual: huber[:k] (k in σ, default "
+        "1.345) or l2 (least squares, the default)",
+    )
     solve.set_defaults(run=_solve)
 
 

@@ -13,6 +13,7 @@ from relmap.io.textfile import Input
 from relmap.network.graph import RelationalMap
 
 if TYPE_CHECKING:
+    from relmap.network.losses import LossChoice
     from relmap.network.optimal import Progress, Solution
 
 __all__ = ["load_map", "save_map", "solve_graph"]
@@ -52,6 +53,7 @@ def solve_graph(
     progress: Progress | None = None,
     max_iterations: int = 100,
     rtol: float | None = None,
+    loss: LossChoice = None,
 ) -> Solution:
     """Optimize a whole pose graph from the file's initial guess (the network layer's
     :func:`relmap.network.optimal.solve_frames` on the graph's arrays; the same as
@@ -59,7 +61,9 @@ def solve_graph(
     if the file has one, else the first vertex; it stays at its file pose. Poses come in
     :attr:`PoseGraph.vertex_ids` order; :meth:`Solution.relative` and friends take vertex
     ids. A vertex without edges, or a part of the graph not linked to the anchor, is refused
-    with a :class:`relmap.errors.SolverError` naming them.
+    with a :class:`relmap.errors.SolverError` naming them. ``loss``
+    (:mod:`relmap.network.losses`): one for every edge, or by edge name (``e{k}``, k in file
+    order); the weights it gave each edge are :attr:`Solution.weights`.
     """
     from relmap.network.optimal import solve_frames
 
@@ -75,4 +79,5 @@ def solve_graph(
         progress=progress,
         max_iterations=max_iterations,
         rtol=rtol,
+        loss=loss,
     )

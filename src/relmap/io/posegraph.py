@@ -108,6 +108,7 @@ from relmap.io.atomic import write_text_atomic
 from relmap.io.textfile import Input
 from relmap.lie import se2, se3, so3
 from relmap.lie.group import SE3, Group
+from relmap.network.problem import compose_tree
 from relmap.typing import ArrayLike, FloatArray, IntArray, Option
 from relmap.uncertain import gaussian
 from relmap.uncertain.at import AT
@@ -431,33 +432,6 @@ def _g2o3_chart(R: FloatArray, rotation_scale: float = 2.0) -> FloatArray:
     return K
 
 
-def _compose_tree(n: int, a: IntArray, b: IntArray, Z: FloatArray) -> FloatArray:
-    """Poses ``(n, 4, 4)`` of vertices ``0..n-1`` from edges ``a → b`` with relative poses Z:
-    breadth first from the lowest unplaced vertex (at the identity) of each connected part,
-    one vectorized step per level of the tree."""
-    poses = np.empty((n, 4, 4))
-    seen = np.zeros(n, dtype=bool)
-    Zinv = se3.inverse(Z)
-    while not seen.all():
-        root = int(np.argmin(seen))
-        poses[root] = np.eye(4)
-        seen[root] = True
-        frontier = np.zeros(n, dtype=bool)
-        frontier[root] = True
-        while frontier.any():
-            forward = frontier[a] & ~seen[b]
-            backward = frontier[b] & ~seen[a]
-            child = np.concatenate([b[forward], a[backward]])
-            parent = np.concatenate([a[forward], b[backward]])
-            step = np.concatenate([Z[forward], Zinv[backward]])
-            child, first = np.unique(child, return_index=True)
-            poses[child] = poses[parent[first]] @ step[first]
-            seen[child] = True
-            frontier = np.zeros(n, dtype=bool)
-            frontier[child] = True
-    return poses
-
-
 #: The record tags, their ids and numbers per line (-1: FIX, any positive number of ids).
 _TAGS = list(_KIND_OF_TAG)
 _SHAPES = {"FIX": (-1, 0)}
@@ -616,7 +590,7 @@ def graph_from_text(p: Path, text: str) -> PoseGraph:
                 np.searchsorted(vertex_ids, edge_ids[:, 0]),
                 np.searchsorted(vertex_ids, edge_ids[:, 1]),
             )
-            poses = _compose_tree(len(vertex_ids), i, j, np.asarray(measurements.mean))
+            poses = compose_tree(len(vertex_ids), i, j, np.asarray(measurements.mean), SE3)
         else:
             poses = se3.from_parts(poses[:, :3], so3.from_euler(poses[:, 3:]))
     return PoseGraph(

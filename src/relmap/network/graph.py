@@ -37,6 +37,7 @@ from relmap.uncertain.at3 import AT3
 from relmap.uncertain.pose import UncertainPose
 
 if TYPE_CHECKING:
+    from relmap.network.losses import LossChoice
     from relmap.network.optimal import Progress, Solution
     from relmap.network.query import Estimate, QueryMethod
     from relmap.network.sensing import SensingDecision, SensingForecast
@@ -416,11 +417,17 @@ class RelationalMap:
         progress: Progress | None = None,
         max_iterations: int = 100,
         rtol: float | None = None,
+        loss: LossChoice = None,
     ) -> Solution:
-        """The joint estimate of every frame (:func:`relmap.network.optimal.solve_map`)."""
+        """The joint estimate of every frame (:func:`relmap.network.optimal.solve_map`);
+        ``loss`` (:mod:`relmap.network.losses`, e.g. ``Huber(2.0)``, or ``{AT name: loss}``)
+        makes it minimize ``Σ ρ(s²)`` of the ATs' normalized residuals, its weights on
+        :attr:`Solution.weights`."""
         from relmap.network.optimal import solve_map
 
-        return solve_map(self, anchor, progress=progress, max_iterations=max_iterations, rtol=rtol)
+        return solve_map(
+            self, anchor, progress=progress, max_iterations=max_iterations, rtol=rtol, loss=loss
+        )
 
     def arrays(self, names: Sequence[str]) -> tuple[FloatArray, FloatArray]:
         """Means ``(k, *point)`` and covariances ``(k, dof, dof)`` of the named ATs, gathered

@@ -7,29 +7,38 @@ joint covariance (the inverse of the normal matrix at the optimum), by solving f
 columns needed from the one sparse factorization. Exact in the linear case (no angular error),
 where one step reaches the optimum.
 
-Planar residuals and chart Jacobians come from :mod:`relmap.lie` (numpy, vectorized over the
-ATs) and their normal equations are accumulated straight into the sparse matrix's slots by one
-pass of relmap's compiled core (``relmap._core.normal_equations``); in 3-D the residuals, their
-Jacobians and the normal equations are one pass of the core (``relmap._core.normal_equations3``,
-:func:`residuals3`, ``src/core/linearize3.cpp``). The matrix is factorized by the core's sparse
-Cholesky (:mod:`relmap.network.sparse`); one Levenberg-Marquardt loop drives the planar
-(:class:`_System`: frames tied into rigid sets and exact headings) and the 3-D
-(:class:`_LieSystem`) problems.
+The residuals, their chart Jacobians and the normal equations, accumulated straight into the
+sparse matrix's slots, are one pass of relmap's compiled core over the ATs
+(``relmap._core.normal_equations2`` in the plane, ``src/core/linearize.cpp``;
+``relmap._core.normal_equations3`` and :func:`residuals3` in 3-D, ``src/core/linearize3.cpp``).
+The matrix is factorized by the core's sparse Cholesky (:mod:`relmap.network.sparse`); one
+Levenberg-Marquardt loop drives the planar (:class:`_System`: frames tied into rigid sets and
+exact headings) and the 3-D (:class:`_LieSystem`) problems.
 
+A loss (:mod:`relmap.network.losses`, e.g. Huber's) makes the cost ``Σ ρ(s²)`` of the ATs'
+normalized residuals: each AT's information is weighted by ``ρ'(s²)`` at every linearization
+(iteratively reweighted least squares); :attr:`Solution.weights` are those at the optimum.
 Residuals, weights and exact components: see :mod:`relmap.network.problem`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Hashable, Sequence
+from collections.abc import Callable, Hashable, Mapping, Sequence
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
 from relmap import _core
-from relmap.errors import NumericalError, SolverError, UnknownFrameError
+from relmap.errors import (
+    NumericalError,
+    ParameterError,
+    SolverError,
+    UnknownATError,
+    UnknownFrameError,
+)
 from relmap.lie.group import SE2, Group
-from relmap.network.problem import Parameterization, Problem, parameterize
+from relmap.network.losses import L2, Loss, LossChoice, restrict
+from relmap.network.problem import Parameterization, Problem, compose_tree, parameterize
 from relmap.network.sparse import SymmetricFactor, SymmetricPattern, selected_inverse_blocks
 from relmap.typing import FloatArray, IntArray
 from relmap.uncertain.at import AT
@@ -58,6 +67,16 @@ class Solved(NamedTuple):
 
     at: AT | AT3
     iterations: int
+
+
+class _Linearized(NamedTuple):
+    """A linearization of the cost at some poses."""
+
+    cost: float  #: Σ ρ(s²) (Σ rᵀ Σ⁻¹ r under least squares)
+    poses: FloatArray  #: the frames' poses
+    data: FloatArray  #: the normal matrix Σ w Jᵀ Σ⁻¹ J (the pattern's CSC data)
+    grad: FloatArray  #: the gradient Σ w Jᵀ Σ⁻¹ r
+    weights: FloatArray | None  #: every AT's w = ρ'(s²) (None: least squares)
 
 
 class _Weights(NamedTuple):
@@ -90,6 +109,8 @@ class Solution:
         data: FloatArray | None = None,
         converged: bool = True,
         stale: bool = False,
+        weights: FloatArray | None = None,
+        loss: LossChoice = None,
     ) -> None:
         self.problem = problem
         self.param = param
@@ -100,8 +121,10 @@ class Solution:
         # that wants only the poses never pays for it)
         self._stale = stale and factor is not None and data is not None
         self.iterations = iterations
-        self.initial_error = initial_error  #: Σ rᵀ Σ⁻¹ r at the initial guess
+        self.initial_error = initial_error  #: the cost Σ ρ(rᵀ Σ⁻¹ r) at the initial guess
         self.final_error = final_error  #: the same at the optimum
+        self.loss = loss  #: the loss(es) minimized (None: least squares)
+        self._weights = weights
         self._data = data  # the normal matrix at the optimum (pattern's CSC data)
         #: whether the stopping rule was met (False: stopped at max_iterations)
         self.converged = converged
@@ -110,6 +133,16 @@ class Solution:
             list(problem.frames) if problem.frames is not None else list(range(problem.n))
         )
         self._row = dict(zip(self.frames, range(len(self.frames)), strict=True))
+
+    @property
+    def weights(self) -> FloatArray:
+        """The weight ``ρ'(s²)`` of each AT at the optimum, ``(m,)`` in the order of
+        ``problem.names`` (a pose graph's edges in file order, a map's ATs as added): the factor
+        on its information in the normal matrix, so in the covariances. 1 under least squares;
+        a dependent group's ATs share their group's; exact ATs (held by construction) 1."""
+        if self._weights is None:
+            return np.ones(len(self.problem.i))
+        return self._weights
 
     @property
     def factor(self) -> SymmetricFactor | None:
@@ -245,37 +278,102 @@ def _weights(p: Problem, param: Parameterization) -> _Weights:
     return _Weights(edges, _information(p.cov[edges], param.kind[edges]), groups)
 
 
+class _Losses(NamedTuple):
+    """Which loss each soft AT takes, for the systems: per distinct loss, the rows of the plain
+    soft ATs (:attr:`_Weights.edges`) it applies to (the others keep least squares), and each
+    dependent group's loss (None: least squares)."""
+
+    parts: list[tuple[Loss, IntArray]]
+    groups: list[Loss | None]
+    edges: IntArray  #: the plain soft ATs (indices into the problem's ATs)
+    members: list[IntArray]  #: each group's ATs
+    m: int  #: the problem's number of ATs
+
+    def weigh(self, W: FloatArray, r: FloatArray) -> tuple[FloatArray, FloatArray, float]:
+        """At residuals ``r`` (k, b) of the plain ATs with information ``W`` (k, b, b): ``W``
+        times the weights ``ρ'(s²)``, the weights, and ``Σ (ρ(s²) - ρ'(s²) s²)``, what the cost
+        has beyond the weighted squares the normal equations sum (0 under least squares,
+        exactly: a loss of huge scale reproduces least squares bit for bit)."""
+        s2 = np.einsum("ka,kab,kb->k", r, W, r)
+        w = np.ones_like(s2)
+        extra = 0.0
+        for loss, rows in self.parts:
+            part = s2[rows]
+            w[rows] = weight = loss.weight(part)
+            extra += float(np.sum(loss.value(part) - weight * part))
+        return W * w[:, None, None], w, extra
+
+    def every(self, plain: FloatArray | None, groups: Sequence[float]) -> FloatArray:
+        """The weights of all the problem's ATs (m,) from the plain ATs' (:meth:`weigh`'s) and
+        the groups'."""
+        assert plain is not None
+        out = np.ones(self.m)
+        out[self.edges] = plain
+        for members, weight in zip(self.members, groups, strict=True):
+            out[members] = weight
+        return out
+
+
+def _losses(p: Problem, w: _Weights, loss: LossChoice) -> _Losses | None:
+    """Each soft AT's loss from ``loss`` (one for all, or by AT name); None when every AT is
+    least squares (the plain path, unchanged)."""
+    if loss is None or isinstance(loss, L2):
+        return None
+    m = len(p.i)
+    kinds: list[Loss] = []
+    which = np.full(m, -1, dtype=np.int64)  # index into kinds; -1: least squares
+
+    def kind(value: object) -> int:
+        if not isinstance(value, Loss):
+            raise ParameterError(
+                f"a loss must have value(s2) and weight(s2) (relmap.network.losses); got {value!r}"
+            )
+        if isinstance(value, L2):
+            return -1
+        for k, known in enumerate(kinds):
+            if known is value or known == value:
+                return k
+        kinds.append(value)
+        return len(kinds) - 1
+
+    if isinstance(loss, Mapping):
+        index = {name: k for k, name in enumerate(p.names)}
+        for name, value in loss.items():
+            if name not in index:
+                raise UnknownATError(f"no AT named {name!r} to take a loss")
+            which[index[name]] = kind(value)
+    else:
+        which[:] = kind(loss)
+    if not kinds:
+        return None
+    plain = which[w.edges]
+    parts = [(value, np.flatnonzero(plain == k)) for k, value in enumerate(kinds)]
+    group_losses: list[Loss | None] = []
+    for members, _ in w.groups:
+        chosen = np.unique(which[members])
+        if len(chosen) > 1:
+            names = ", ".join(repr(p.names[k]) for k in members)
+            raise ParameterError(f"the dependent ATs {names} are one residual: give them one loss")
+        group_losses.append(kinds[chosen[0]] if chosen[0] >= 0 else None)
+    group_members = [np.asarray(members) for members, _ in w.groups]
+    kept = [part for part in parts if len(part[1])]
+    return _Losses(kept, group_losses, w.edges, group_members, m)
+
+
+def _group_weight(loss: Loss | None, e: FloatArray) -> tuple[float, float]:
+    """(weight ``ρ'(s²)``, cost ``ρ(s²)``) of a dependent group's whitened joint residual ``e``,
+    ``s² = |e|²``; (1, s²) under least squares."""
+    s2 = float(e @ e)
+    if loss is None:
+        return 1.0, s2
+    at = np.array([s2])
+    return float(loss.weight(at)[0]), float(loss.value(at)[0])
+
+
 def _slots(position: IntArray) -> IntArray:
     """The CSC slots of every plain AT's four blocks, (m, 4·b²) contiguous int64."""
     m, b2 = position.shape[0], int(np.prod(position.shape[1:]))
     return np.ascontiguousarray(position.reshape(m, b2), dtype=np.int64)
-
-
-def _normal_equations(
-    r: FloatArray,
-    Ji: FloatArray,
-    Jj: FloatArray,
-    W: FloatArray,
-    slots: IntArray,
-    g_index: IntArray,
-    nnz: int,
-    size: int,
-) -> tuple[float, FloatArray, FloatArray]:
-    """(cost Σ rᵀ W r, normal-matrix CSC data Σ Jᵀ W J, gradient Σ Jᵀ W r) of the plain ATs,
-    from residuals r (m, b) and chart Jacobians Ji, Jj (m, b, b) with respect to frames i and
-    j: one pass of relmap's compiled core straight into the pattern's slots."""
-    c = np.ascontiguousarray
-    cost, data, grad = _core.normal_equations(
-        c(r, dtype=np.float64),
-        c(Ji, dtype=np.float64),
-        c(Jj, dtype=np.float64),
-        c(W, dtype=np.float64),
-        slots,
-        c(g_index, dtype=np.int64),
-        nnz,
-        size,
-    )
-    return float(cost), data[:nnz], grad[:size]
 
 
 _NO_FRAME_JACOBIAN = np.zeros((0, 3, 3))  # every frame its own root: ∂pose/∂parameters = I
@@ -304,11 +402,14 @@ class _System:
     The pattern's contributions are laid out component-major: for each of the four 3×3 blocks
     (i,i), (i,j), (j,i), (j,j) and each of its 9 entries, one slot per AT (then the dependent
     groups' blocks); entries of fixed parameters go to a discarded slot. The core fills the
-    plain ATs' slots in one pass with their residuals and Jacobians (:func:`_residuals2`).
+    plain ATs' slots in one pass with their residuals and Jacobians (:func:`_residuals2`);
+    under a loss, a first pass of residuals gives the weights.
     """
 
-    def __init__(self, p: Problem, param: Parameterization, w: _Weights):
-        self.p, self.param, self.w = p, param, w
+    def __init__(
+        self, p: Problem, param: Parameterization, w: _Weights, losses: _Losses | None = None
+    ):
+        self.p, self.param, self.w, self.losses = p, param, w, losses
         i = np.ascontiguousarray(p.i[w.edges], dtype=np.int64)
         j = np.ascontiguousarray(p.j[w.edges], dtype=np.int64)
         self.i, self.j = i, j
@@ -364,29 +465,36 @@ class _System:
         node[param.col[:, 2][free[:, 2]]] = heading_node[free[:, 2]]
         return SymmetricPattern(param.size, r, c, node)
 
-    def linearize(
-        self, xy: FloatArray, theta: FloatArray
-    ) -> tuple[float, FloatArray, FloatArray, FloatArray]:
-        """(cost, poses, normal-matrix CSC data, gradient)."""
-        param, w = self.param, self.w
+    def linearize(self, xy: FloatArray, theta: FloatArray) -> _Linearized:
+        """The cost, poses, normal equations and weights at the state ``(xy, theta)``."""
+        param, w, losses = self.param, self.w, self.losses
         poses = np.ascontiguousarray(param.poses(xy, theta), dtype=np.float64)
         Jf = param.frame_jacobian(poses)
         F = _NO_FRAME_JACOBIAN if Jf is None else np.ascontiguousarray(Jf)
         nnz = self.pattern.nnz
+        W, plain, beyond = self.W, None, 0.0
+        if losses is not None:
+            r = _residuals2(poses, self.i, self.j, self._z, None)[0]
+            W, plain, beyond = losses.weigh(self.W, r)
         cost, data, grad = _core.normal_equations2(
-            poses, self.i, self.j, self._z, F, self.W, self._slots, self.g_index, nnz, param.size
+            poses, self.i, self.j, self._z, F, W, self._slots, self.g_index, nnz, param.size
         )
-        cost, data, grad = float(cost), data[:nnz], grad[: param.size]
-        values = []
-        for (members, Lg), frames in zip(w.groups, self.group_frames, strict=True):
-            gcost, gvals, ggrad = self._group(poses, Jf, members, Lg, frames)
+        cost, data, grad = float(cost) + beyond, data[:nnz], grad[: param.size]
+        values, group_weights = [], []
+        group_losses = losses.groups if losses is not None else [None] * len(w.groups)
+        for (members, Lg), frames, loss in zip(
+            w.groups, self.group_frames, group_losses, strict=True
+        ):
+            gcost, gvals, ggrad, gweight = self._group(poses, Jf, members, Lg, frames, loss)
             cost += gcost
             values.extend(gvals)
             grad += ggrad
+            group_weights.append(gweight)
         if values:
             extra = self.pattern.position[36 * len(self.i) :]
             data = data + np.bincount(extra, np.concatenate(values), self.pattern.nnz + 1)[:-1]
-        return cost, poses, data, grad
+        weights = None if losses is None else losses.every(plain, group_weights)
+        return _Linearized(cost, poses, data, grad, weights)
 
     def _group(
         self,
@@ -395,7 +503,8 @@ class _System:
         members: IntArray,
         Lg: FloatArray,
         frames: IntArray,
-    ) -> tuple[float, list[FloatArray], FloatArray]:
+        loss: Loss | None,
+    ) -> tuple[float, list[FloatArray], FloatArray, float]:
         p, param = self.p, self.param
         k = len(members)
         where = {int(f): a for a, f in enumerate(frames)}
@@ -408,8 +517,9 @@ class _System:
             J[3 * row : 3 * row + 3, 3 * where[fi] : 3 * where[fi] + 3] += Jik[row]
             J[3 * row : 3 * row + 3, 3 * where[fj] : 3 * where[fj] + 3] += Jjk[row]
         e, LJ = Lg @ r, Lg @ J
-        H = LJ.T @ LJ
-        g = LJ.T @ e
+        weight, cost = _group_weight(loss, e)
+        H = weight * (LJ.T @ LJ)
+        g = weight * (LJ.T @ e)
         vals = [
             H[3 * a : 3 * a + 3, 3 * b : 3 * b + 3].reshape(-1)
             for a in range(len(frames))
@@ -419,7 +529,7 @@ class _System:
         cols = param.col[frames].reshape(-1)
         ok = cols >= 0
         np.add.at(grad, cols[ok], g[ok])
-        return float(e @ e), vals, grad
+        return cost, vals, grad, weight
 
 
 def residuals3(
@@ -455,10 +565,13 @@ class _LieSystem:
     (``relmap._core.normal_equations3``). The block contributions are laid out
     ``[entry q][block k]`` for :meth:`SymmetricPattern.from_blocks`: the four blocks
     (i,i), (i,j), (j,i), (j,j) of every AT, then every block pair of each dependent group.
+    Under a loss, a first pass of residuals gives the weights.
     """
 
-    def __init__(self, p: Problem, param: Parameterization, w: _Weights):
-        self.p, self.param, self.w = p, param, w
+    def __init__(
+        self, p: Problem, param: Parameterization, w: _Weights, losses: _Losses | None = None
+    ):
+        self.p, self.param, self.w, self.losses = p, param, w, losses
         self.group, self.dof = p.group, p.group.dof
         b = self.dof
         self.i = np.ascontiguousarray(p.i[w.edges], dtype=np.int64)
@@ -484,38 +597,45 @@ class _LieSystem:
         self._slots = _slots(position[:, : 4 * m].reshape(b * b, 4, m).transpose(2, 1, 0))
         self._group_position = position[:, 4 * m :]
 
-    def linearize(self, poses: FloatArray) -> tuple[float, FloatArray, FloatArray, FloatArray]:
-        """(cost, poses, normal-matrix CSC data, gradient) at ``poses``."""
-        b, nnz, size = self.dof, self.pattern.nnz, self.param.size
+    def linearize(self, poses: FloatArray) -> _Linearized:
+        """The cost, poses, normal equations and weights at ``poses``."""
+        b, nnz, size, losses = self.dof, self.pattern.nnz, self.param.size, self.losses
+        poses = np.ascontiguousarray(poses, dtype=np.float64)
+        W, plain, beyond = self.W, None, 0.0
+        if losses is not None:
+            r = residuals3(poses, self.i, self.j, self._z)[0]
+            W, plain, beyond = losses.weigh(self.W, r)
         cost, data, grad = _core.normal_equations3(
-            np.ascontiguousarray(poses, dtype=np.float64),
-            self.i,
-            self.j,
-            self._z,
-            self.W,
-            self._slots,
-            self.g_index,
-            nnz,
-            size,
+            poses, self.i, self.j, self._z, W, self._slots, self.g_index, nnz, size
         )
-        cost, data, grad = float(cost), data[:nnz], grad[:size]
-        blocks = []
-        for (members, Lg), frames in zip(self.w.groups, self.group_frames, strict=True):
-            gcost, H, ggrad = self._group(poses, members, Lg, frames)
+        cost, data, grad = float(cost) + beyond, data[:nnz], grad[:size]
+        blocks, group_weights = [], []
+        group_losses = losses.groups if losses is not None else [None] * len(self.w.groups)
+        for (members, Lg), frames, loss in zip(
+            self.w.groups, self.group_frames, group_losses, strict=True
+        ):
+            gcost, H, ggrad, gweight = self._group(poses, members, Lg, frames, loss)
             cost += gcost
             blocks.append(H)
             grad += ggrad
+            group_weights.append(gweight)
         if blocks:  # laid out [entry q][block k], as the pattern's positions
             values = np.concatenate([B.reshape(-1, b * b) for B in blocks]).T
             slots = self._group_position.reshape(-1)
             data = data + np.bincount(slots, values.reshape(-1), self.pattern.nnz + 1)[:-1]
-        return cost, poses, data, grad
+        weights = None if losses is None else losses.every(plain, group_weights)
+        return _Linearized(cost, poses, data, grad, weights)
 
     def _group(
-        self, poses: FloatArray, members: IntArray, Lg: FloatArray, frames: IntArray
-    ) -> tuple[float, FloatArray, FloatArray]:
+        self,
+        poses: FloatArray,
+        members: IntArray,
+        Lg: FloatArray,
+        frames: IntArray,
+        loss: Loss | None,
+    ) -> tuple[float, FloatArray, FloatArray, float]:
         """One dependent group: cost, its Hessian blocks (f², b, b) in (frame, frame) order,
-        and its gradient."""
+        its gradient and its weight."""
         p, b = self.p, self.dof
         k, nf = len(members), len(frames)
         where = np.searchsorted(frames, np.stack([p.i[members], p.j[members]]))
@@ -526,13 +646,14 @@ class _LieSystem:
         np.add.at(J, (rows, slice(None), where[1]), Jj)
         J = J.reshape(k * b, nf * b)
         e, LJ = Lg @ r.reshape(-1), Lg @ J
-        H = (LJ.T @ LJ).reshape(nf, b, nf, b).transpose(0, 2, 1, 3).reshape(nf * nf, b, b)
-        g = LJ.T @ e
+        weight, cost = _group_weight(loss, e)
+        H = weight * (LJ.T @ LJ).reshape(nf, b, nf, b).transpose(0, 2, 1, 3).reshape(nf * nf, b, b)
+        g = weight * (LJ.T @ e)
         grad = np.zeros(self.param.size)
         cols = self.param.col[frames].reshape(-1)
         ok = cols >= 0
         np.add.at(grad, cols[ok], g[ok])
-        return float(e @ e), H, grad
+        return cost, H, grad, weight
 
     def step(self, poses: FloatArray, delta: FloatArray) -> FloatArray:
         """The poses moved by the parameter step ``delta`` (size,), anchor fixed."""
@@ -550,8 +671,11 @@ def optimize(
     atol: float = 1e-9,
     xtol: float = 1e-13,
     progress: Progress | None = None,
+    loss: LossChoice = None,
 ) -> Solution:
-    """Minimize ``Σ rᵀ Σ⁻¹ r`` over the frame poses, the anchor fixed, from ``p.guess``.
+    """Minimize ``Σ rᵀ Σ⁻¹ r`` over the frame poses, the anchor fixed, from ``p.guess``; with
+    ``loss``, ``Σ ρ(rᵀ Σ⁻¹ r)`` (:mod:`relmap.network.losses`: one loss for every AT, or a
+    mapping from AT names, in ``p.names``, to losses, the others least squares).
 
     **Stopping rule** (on the decrease, then on the step): the iterations end when the
     undamped (Gauss-Newton) step at the current poses predicts a decrease below ``rtol``
@@ -578,15 +702,21 @@ def optimize(
     objective within about 1e-10 relative of its minimum and the poses within a small
     fraction of their σ (1e-6 m on FR079); ``rtol=1e-14`` reaches the optimum to rounding, at
     the price of about one more factorization.
+
+    Under a loss every linearization weights each AT's information by ``ρ'(s²)`` at the
+    current poses (iteratively reweighted least squares), "objective" above is the robust cost
+    ``Σ ρ(s²)`` (the gain ratio and the acceptance of a step use it), and the covariances are
+    those of the weighted normal matrix at the optimum (:attr:`Solution.weights`).
     """
     param = parameterize(p, atol=atol)
     w = _weights(p, param)
+    losses = _losses(p, w, loss)
     if p.group is SE2:
-        planar = _System(p, param, w)
+        planar = _System(p, param, w, losses)
         state: object = param.initial_state(p.guess, p.anchor)
         pattern = planar.pattern
 
-        def linearize(x: object) -> tuple[float, FloatArray, FloatArray, FloatArray]:
+        def linearize(x: object) -> _Linearized:
             return planar.linearize(*x)  # type: ignore[misc]
 
         move = param.stepper()
@@ -594,14 +724,14 @@ def optimize(
         def step(x: object, delta: FloatArray) -> object:
             return move(*x, delta)  # type: ignore[misc]
     else:
-        system = _LieSystem(p, param, w)
+        system = _LieSystem(p, param, w, losses)
         state, pattern = np.array(p.guess, dtype=np.float64), system.pattern
         linearize, step = system.linearize, system.step  # type: ignore[assignment]
-    cost, poses, data, grad = linearize(state)
+    cost, poses, data, grad, weights = linearize(state)
     _check_cost(cost, "at the initial guess")
     initial = cost
     if param.size == 0:
-        return Solution(p, param, poses, None, 0, initial, cost)
+        return Solution(p, param, poses, None, 0, initial, cost, weights=weights, loss=loss)
     scale = 1.0 + float(np.abs(_translations(p.group, poses)).max(initial=0.0))
     stalled = False  # the last accepted step lowered the objective by rounding only
     converged = True
@@ -636,11 +766,11 @@ def optimize(
                 if size <= xtol * scale:
                     break
                 moved = step(state, delta)
-                trial = linearize(moved)
-                if not trial[0] <= cost * (1.0 + 1e-13) + 1e-300:
+                moved_at = linearize(moved)
+                if not moved_at.cost <= cost * (1.0 + 1e-13) + 1e-300:
                     break
                 state = moved
-                cost, poses, data, grad = trial
+                cost, poses, data, grad, weights = moved_at
                 undamped_at_current = False
                 delta = -factor.solve(grad)
                 smaller = float(np.abs(delta).max(initial=0.0))
@@ -653,14 +783,14 @@ def optimize(
             break
         iterations += 1
         state_new = step(state, delta)
-        trial = linearize(state_new)  # usually accepted: linearize right away
-        new_cost = trial[0]
+        moved_at = linearize(state_new)  # usually accepted: linearize right away
+        new_cost = moved_at.cost
         _check_cost(new_cost, f"at iteration {iterations}")
         if new_cost <= cost:
             stalled = cost - new_cost <= 1e-13 * max(cost, 1e-300)
             rho = (cost - new_cost) / max(predicted, 1e-300)  # gain ratio (Nielsen's update)
             state = state_new
-            cost, poses, data, grad = trial
+            cost, poses, data, grad, weights = moved_at
             undamped_at_current = False
             lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
             nu = 2.0
@@ -668,6 +798,8 @@ def optimize(
                 lam = 0.0
             if progress:
                 progress(iterations, cost)
+            if lam > 1e12:  # steps accepted only for lowering nothing (a kink or a jump in
+                break  # the cost, e.g. a heading residual wrapping at ±π): as below
         elif new_cost - cost <= max(rtol, 1e-12) * max(cost, 1e-300):
             break  # no further decrease beyond rounding: the current point is the optimum
         else:
@@ -677,7 +809,9 @@ def optimize(
                 break  # no descent possible: the current point is a minimum to rounding
     # the undamped normal matrix at the optimum, for covariances: factorized when first needed
     stale = not undamped_at_current
-    return Solution(p, param, poses, factor, iterations, initial, cost, data, converged, stale)
+    return Solution(
+        p, param, poses, factor, iterations, initial, cost, data, converged, stale, weights, loss
+    )
 
 
 #: chord steps (with the last factorization) that polish a converged solution to rounding
@@ -741,7 +875,7 @@ def problem_from_map(
     a = index[anchor]
     guess = g.guesses(order)
     if guess is None:
-        guess = _tree_guess(n, i, j, z, group)
+        guess = compose_tree(n, i, j, z, group)
         if a:
             guess = group.between(guess[a], guess)
     elif not keep_guess:
@@ -756,13 +890,15 @@ def solve_map(
     progress: Progress | None = None,
     max_iterations: int = 100,
     rtol: float | None = None,
+    loss: LossChoice = None,
 ) -> Solution:
     """Optimize every frame of a map jointly (the optimal method over the whole network).
 
     ``anchor`` (default :attr:`RelationalMap.anchor`: a pose graph's first ``FIX`` vertex,
     else its first vertex) stays at its guess (the map's guesses, e.g. a pose graph's; else
     the identity, the others compounded along a spanning tree). Poses come in
-    :attr:`Solution.frames` order (:attr:`RelationalMap.frames`). See :func:`solve_frames`.
+    :attr:`Solution.frames` order (:attr:`RelationalMap.frames`). ``loss``: see
+    :func:`optimize` (AT names are the map's). See :func:`solve_frames`.
     """
     if anchor is None:
         anchor = g.anchor
@@ -774,7 +910,7 @@ def solve_map(
     _check_connected(frames, *_rows(g, names, index), index[anchor])
     problem, _ = problem_from_map(g, names, anchor, keep_guess=True, frames=frames)
     options = {} if rtol is None else {"rtol": rtol}
-    return optimize(problem, progress=progress, max_iterations=max_iterations, **options)
+    return optimize(problem, progress=progress, max_iterations=max_iterations, loss=loss, **options)
 
 
 def solve_frames(
@@ -788,12 +924,14 @@ def solve_frames(
     progress: Progress | None = None,
     max_iterations: int = 100,
     rtol: float | None = None,
+    loss: LossChoice = None,
 ) -> Solution:
     """Optimize frames ``frames`` linked by the batch ``ats`` (AT k: frame ``j[k]`` seen from
     ``i[k]``, rows into ``frames``) from the poses ``guess``, the frame at row ``anchor``
     fixed. Frames not linked to the anchor (a second component, frames without an AT) are
     refused with a :class:`SolverError` naming them: nothing would fix their poses. This is
-    the array form a pose-graph file gives (:func:`relmap.io.solve_graph`)."""
+    the array form a pose-graph file gives (:func:`relmap.io.solve_graph`). ``loss``: see
+    :func:`optimize`; AT k is named ``e{k}``."""
     _check_connected(frames, i, j, anchor)
     m = len(i)
     problem = Problem(
@@ -810,7 +948,7 @@ def solve_frames(
         list(frames),
     )
     options = {} if rtol is None else {"rtol": rtol}
-    return optimize(problem, progress=progress, max_iterations=max_iterations, **options)
+    return optimize(problem, progress=progress, max_iterations=max_iterations, loss=loss, **options)
 
 
 class _Numbered(Sequence[str]):
@@ -872,52 +1010,26 @@ def _check_connected(frames: Sequence[Frame], i: IntArray, j: IntArray, anchor: 
     )
 
 
-def _tree_guess(n: int, i: IntArray, j: IntArray, z: FloatArray, group: Group = SE2) -> FloatArray:
-    """Poses along a spanning tree (BFS from frame 0), composed by pointer jumping:
-    O(n log depth) vectorized work, no Python loop per frame."""
-    import scipy.sparse as sp
-    from scipy.sparse.csgraph import breadth_first_order
-
-    m = len(i)
-    rows, cols = np.concatenate([i, j]), np.concatenate([j, i])
-    adj = sp.csr_matrix((np.ones(2 * m), (rows, cols)), shape=(n, n))
-    order, parent = breadth_first_order(adj, 0, directed=False, return_predecessors=True)
-    if len(order) < n:
-        raise SolverError("the network is not connected")
-    # For each tree link parent → child, one AT between them (forward or reversed).
-    keys = rows * n + cols
-    sort = np.argsort(keys, kind="stable")
-    child = np.arange(1, n) if order[0] == 0 else np.arange(n)
-    child = child[child != 0]
-    hit = sort[np.searchsorted(keys[sort], parent[child] * n + child)]
-    edge = hit % m
-    forward = hit < m  # stored as (i, j): the AT points parent → child
-    rel = group.identity((n,))
-    flip = np.expand_dims(forward, tuple(range(1, 1 + len(group.point_shape))))
-    rel[child] = np.where(flip, z[edge], group.inverse(z[edge]))
-    anc = parent.copy()
-    anc[0] = 0
-    origin = group.identity(())
-    for _ in range(int(np.ceil(np.log2(max(n, 2))))):
-        rel = group.compose(rel[anc], rel)
-        rel[0] = origin
-        anc = anc[anc]
-    return rel
-
-
 def solve_relative(g: MapView, names: Sequence[str], entry: Frame, exit: Frame) -> Solved:
     """The AT of ``exit`` seen from ``entry``, from the joint estimate over the named ATs."""
     sol = solve_part(g, names, entry)
     return Solved(sol.relative(entry, exit), sol.iterations)
 
 
-def solve_part(g: MapView, names: Sequence[str], anchor: Frame) -> Solution:
-    """The joint estimate over the named ATs, anchored at ``anchor``; kept on the map
-    (:meth:`RelationalMap.memo`) until it changes, so that further queries in the same part
-    reuse its factorization."""
+def solve_part(
+    g: MapView, names: Sequence[str], anchor: Frame, loss: LossChoice = None
+) -> Solution:
+    """The joint estimate over the named ATs, anchored at ``anchor`` (under ``loss``, a
+    mapping's names outside ``names`` ignored); kept on the map (:meth:`RelationalMap.memo`,
+    with its loss, which must then be hashable) until it changes, so that further queries in
+    the same part reuse its factorization."""
+    part_loss = restrict(loss, frozenset(names))
 
     def build() -> Solution:
         problem, _ = problem_from_map(g, names, anchor)
-        return optimize(problem)
+        return optimize(problem, loss=part_loss)
 
-    return g.memo(("solved", frozenset(names)), build)  # type: ignore[no-any-return]
+    key: tuple[object, ...] = ("solved", frozenset(names))
+    if part_loss is not None:
+        key += (frozenset(part_loss.items()) if isinstance(part_loss, Mapping) else part_loss,)
+    return g.memo(key, build)  # type: ignore[no-any-return]

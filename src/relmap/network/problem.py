@@ -31,13 +31,20 @@ from typing import NamedTuple
 
 import numpy as np
 
+from relmap import _core
 from relmap.errors import InconsistentMapError, SolverError
 from relmap.lie import se2
 from relmap.lie.group import SE2, Group
 from relmap.typing import FloatArray, IntArray
 from relmap.uncertain.gaussian import max_over_last
 
-__all__ = ["Parameterization", "Problem", "parameterize", "standard_parameterization"]
+__all__ = [
+    "Parameterization",
+    "Problem",
+    "compose_tree",
+    "parameterize",
+    "standard_parameterization",
+]
 
 
 class Problem(NamedTuple):
@@ -327,3 +334,38 @@ def _spread(
                         )
         root[start] = start
     return root, offset
+
+
+def compose_tree(n: int, i: IntArray, j: IntArray, z: FloatArray, group: Group = SE2) -> FloatArray:
+    """Poses ``(n, *group.point_shape)`` of frames ``0 … n-1`` composed along a spanning tree of
+    the measurements ``z`` (z[k]: frame ``j[k]`` seen from ``i[k]``, the tree's links used
+    forwards or reversed): breadth first from the lowest frame of each connected part, which is
+    placed at the identity. By pointer jumping (each frame composes its ancestor's pose
+    ``log₂ n`` times over): O(n log n) vectorized work, no Python loop per frame or level."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import breadth_first_order
+
+    m = len(i)
+    i, j = np.asarray(i, dtype=np.int64), np.asarray(j, dtype=np.int64)
+    label = _core.components(n, np.ascontiguousarray(i), np.ascontiguousarray(j))
+    roots = np.unique(label, return_index=True)[1]
+    # one search from a virtual frame n, joined to every part's lowest frame by the identity
+    top = n + 1
+    rows, cols = np.concatenate([i, j]), np.concatenate([j, i])
+    a, b = np.append(rows, np.full(len(roots), n)), np.append(cols, roots)
+    adj = sp.csr_matrix((np.ones(len(a)), (a, b)), shape=(top, top))
+    _, parent = breadth_first_order(adj, n, directed=False, return_predecessors=True)
+    parent[roots] = parent[n] = n
+    # each tree link parent → child is one AT between them (stored forwards or reversed)
+    child = np.flatnonzero(parent[:n] != n)
+    keys = rows * top + cols
+    sort = np.argsort(keys, kind="stable")
+    hit = sort[np.searchsorted(keys[sort], parent[child] * top + child)]
+    edge, forward = hit % m, hit < m
+    rel = group.identity((top,))
+    flip = np.expand_dims(forward, tuple(range(1, 1 + len(group.point_shape))))
+    rel[child] = np.where(flip, z[edge], group.inverse(z[edge]))
+    for _ in range(int(np.ceil(np.log2(top)))):
+        rel = group.compose(rel[parent], rel)
+        parent = parent[parent]
+    return rel[:n]

@@ -25,12 +25,12 @@ sampling.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Hashable
+from collections.abc import Callable, Hashable, Mapping
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
-from relmap.errors import NumericalError, ParameterError, UnknownFrameError
+from relmap.errors import NumericalError, ParameterError, UnknownATError, UnknownFrameError
 from relmap.lie import se2
 from relmap.network.blocks import blocks_between
 from relmap.network.reduce import DeltaY, OnIrreducible, Reduction, position_trace, reduce_network
@@ -41,6 +41,7 @@ from relmap.uncertain.at3 import AT3
 from relmap.uncertain.moments import MomentsMethod
 
 if TYPE_CHECKING:
+    from relmap.network.losses import LossChoice
     from relmap.network.parts import MapView
 
 __all__ = ["Estimate", "LinearizationCheck", "QueryMethod", "linearization_check", "query"]
@@ -119,6 +120,7 @@ def query(
     diagnose: bool = False,
     delta_y: DeltaY | str = DeltaY.CONSISTENT,
     progress: Callable[[int, int], None] | None = None,
+    loss: LossChoice = None,
 ) -> Estimate:
     """The AT of frame ``dst`` seen from frame ``src`` (mean in ``src``'s frame, covariance
     on ``(x, y, θ)`` in ``src``'s frame).
@@ -147,9 +149,27 @@ def query(
     ``diagnose=True`` (reduction, SE(2)) also evaluates the first-order and the exact-moments
     reductions and reports their difference as ``Estimate.linearization``
     (:class:`LinearizationCheck`); it roughly doubles the cost of the query.
+
+    ``loss`` (:mod:`relmap.network.losses`; one for every AT or by AT name) makes the joint
+    solves minimize ``Σ ρ(s²)`` (:func:`relmap.network.optimal.optimize`). It changes nothing
+    where no loop lies in the way (every residual is zero at the optimum, every weight 1), so
+    ``"auto"`` takes it; ``"reduce"`` refuses any but least squares.
     """
     method = QueryMethod.parse(method, "method")
     moments = MomentsMethod.parse(moments, "moments")
+    if loss is not None:  # (imported only when used: dataclasses)
+        from relmap.network.losses import L2
+
+        loss = None if isinstance(loss, L2) else loss
+    if loss is not None and method is QueryMethod.REDUCE:
+        raise ParameterError(
+            "a loss applies to method='optimal' (or 'auto'): the reduction is least squares"
+        )
+    if isinstance(loss, Mapping):
+        ends = g.ends()
+        unknown = [name for name in loss if name not in ends]
+        if unknown:
+            raise UnknownATError(f"no AT named {unknown[0]!r} in the map to take a loss")
     src = src.item() if isinstance(src, np.generic) else src  # np.int64(5) is frame 5
     dst = dst.item() if isinstance(dst, np.generic) else dst
     for frame in (src, dst):
@@ -169,7 +189,7 @@ def query(
             "construction; use method='reduce' (or 'auto' on a map without loops)"
         )
     if method is not QueryMethod.REDUCE and not beyond:
-        kept = _from_kept_solve(g, src, dst)  # a joint solve of a part holding both frames
+        kept = _from_kept_solve(g, src, dst, loss)  # a kept solve of a part with both frames
         if kept is not None:
             return kept
     ends = g.ends()
@@ -235,7 +255,7 @@ def query(
             e = g.edge(part.names[0])
             at = e.at if e.src == part.entry else reverse(e.at)
         else:
-            sol = solve_part(g, part.names, part.entry)
+            sol = solve_part(g, part.names, part.entry, loss)
             at, iterations = sol.relative(part.entry, part.exit), max(iterations, sol.iterations)
             converged = converged and sol.converged
         total = at if total is None else compound(total, at)
@@ -246,14 +266,21 @@ def query(
     )
 
 
-def _from_kept_solve(g: MapView, src: Frame, dst: Frame) -> Estimate | None:
+def _from_kept_solve(g: MapView, src: Frame, dst: Frame, loss: LossChoice) -> Estimate | None:
     """The estimate from a joint solve kept on the map whose part holds both frames (two
-    frames of one solved region: the blocks between them lie inside it), or None."""
+    frames of one solved region: the blocks between them lie inside it) under the same
+    ``loss``, or None."""
     if src == dst:
         return None
     for key, sol in g.memos():
         if isinstance(key, tuple) and key[0] == "solved":
-            if sol.has_frame(src) and sol.has_frame(dst):
+            if not isinstance(loss, Mapping):
+                same = sol.loss == loss
+            else:
+                from relmap.network.losses import restrict
+
+                same = restrict(loss, frozenset(sol.problem.names)) == sol.loss
+            if same and sol.has_frame(src) and sol.has_frame(dst):
                 at = sol.relative(src, dst)
                 _check_finite(at, src, dst)
                 return Estimate(
