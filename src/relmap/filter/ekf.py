@@ -24,7 +24,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from relmap.errors import ParameterError, ShapeError
+from relmap.errors import NumericalError, ParameterError, ShapeError
 from relmap.models.base import Measurement, Motion
 from relmap.models.pose import FullPose
 from relmap.typing import ArrayLike, FloatArray
@@ -71,7 +71,7 @@ def _like(state: State, x: FloatArray, P: FloatArray) -> State:
 
 
 def _T(a: FloatArray) -> FloatArray:
-    return np.swapaxes(a, -1, -2)
+    return a.swapaxes(-1, -2)
 
 
 def predict(state: State, u: ArrayLike, motion: Motion) -> State:
@@ -110,50 +110,54 @@ def update(
 
     ``P`` (..., n, n); innovations ``y`` (..., m, d), ``H`` (..., m, d, n), noises ``R``
     (..., m, d, d) positive definite; ``used`` (..., m): the readings in the update (default
-    all; the others carry no information). ``S = H P Hᵀ + R`` and ``K = P Hᵀ S⁻¹``; the caller
-    moves the mean by ``delta`` in the state's chart. ``given``: also each reading's innovation
-    and covariance given the used ones before it, ``y_i - H_i δ_(i)`` and ``H_i P_(i) H_iᵀ + R_i``
-    with ``δ_(i)``, ``P_(i)`` the update by those (the prediction-error decomposition, Schweppe
-    1965: their Gaussian densities multiply to the stacked innovation's).
+    all; the others carry no information). The caller moves the mean by ``delta`` in the
+    state's chart. ``given``: also each reading's innovation and covariance given the used ones
+    before it (the prediction-error decomposition, Schweppe 1965: their Gaussian densities
+    multiply to the stacked innovation's).
     """
-    n, m = P.shape[-1], y.shape[-2]
-    I = np.eye(n)
-    if used is not None:  # (an unused reading's numbers may be anything, NaN too)
-        y, H = np.where(used[..., None], y, 0.0), np.where(used[..., None, None], H, 0.0)
-        R = np.where(used[..., None, None], R, I[:1, :1] if R.shape[-1] == 1 else np.eye(R.shape[-1]))
-    Ri = inverse_pd(R)
-    if used is not None:
-        Ri = np.where(used[..., None, None], Ri, 0.0)
-    HtRi = _T(H) @ Ri  # (..., m, n, d)
-    info, vec = HtRi @ H, HtRi @ y[..., None]  # each reading's Hᵀ R⁻¹ H and Hᵀ R⁻¹ y
-    A, b = info.sum(axis=-3), vec.sum(axis=-3)  # the readings' information about the state
-    # The readings are independent (R block diagonal), so the gain is taken through the
-    # push-through identity Hᵀ S⁻¹ = (I + Hᵀ R⁻¹ H P)⁻¹ Hᵀ R⁻¹: K = P Hᵀ S⁻¹ = P⁺ Hᵀ R⁻¹ with
-    # P⁺ = P (I + A P)⁻¹ (A = Hᵀ R⁻¹ H), inverting R's d×d blocks and one n×n matrix, never the
-    # (md)×(md) S (nor P: a singular P is fine).
-    I_AP = I + A @ P
-    Pp = _T(np.linalg.solve(_T(I_AP), P))
-    delta = Pp @ b
-    # Joseph form P = (I - KH) P (I - KH)ᵀ + K R Kᵀ (here KH = P⁺ A and K R Kᵀ = P⁺ A P⁺) rather
-    # than Eq. 28's P - K S Kᵀ: a sum of two congruences, so P stays symmetric positive
-    # semi-definite under rounding, even after a reading far more precise than the prior.
-    I_KH = I - Pp @ A
-    P_new = I_KH @ P @ _T(I_KH) + Pp @ A @ _T(Pp)
-    # yᵀ S⁻¹ y = yᵀ R⁻¹ y - bᵀ P⁺ b (Woodbury) and det S = det R det(I + A P) (Sylvester)
-    nis = (y[..., None, :] @ Ri @ y[..., :, None]).sum(axis=(-3, -2, -1)) - (_T(b) @ delta)[..., 0, 0]
-    logdet = np.linalg.slogdet(R)[1].sum(axis=-1) + np.linalg.slogdet(I_AP)[1]
+    n, (m, d) = P.shape[-1], y.shape[-2:]
+    if used is not None and not used.all():  # an unused reading: y = 0, H = 0, R = I
+        y = np.where(used[..., None], y, 0.0)  # (its numbers may be NaN)
+        H = np.where(used[..., None, None], H, 0.0)
+        R = np.where(used[..., None, None], R, np.eye(d))
+    # the readings stacked: y (..., md), H (..., md, n), R block diagonal (..., md, md)
+    y = y.reshape(*y.shape[:-2], m * d, 1)
+    H = H.reshape(*H.shape[:-3], m * d, n)
+    R = R[..., 0, :, :] if m == 1 else np.einsum("ij,...iab->...iajb", np.eye(m), R).reshape(
+        *R.shape[:-3], m * d, m * d)
+    PHt = P @ _T(H)
+    S = H @ PHt + R
+    # S = C Cᵀ (Cholesky), S⁻¹ = C⁻ᵀ C⁻¹: with e = C⁻¹ y and W = C⁻¹ H P, the gain
+    # K = P Hᵀ S⁻¹ = Wᵀ C⁻¹, K y = Wᵀ e, yᵀ S⁻¹ y = eᵀ e and log det S = 2 Σ log C_ii
+    C = _cholesky(S)
+    Ci = np.linalg.inv(C)
+    e, W = Ci @ y, Ci @ _T(PHt)
+    K = _T(W) @ Ci
+    # Joseph form P = (I - KH) P (I - KH)ᵀ + K R Kᵀ rather than Eq. 28's P - K S Kᵀ: a sum of
+    # two congruences, so P stays symmetric positive semi-definite under rounding, even after
+    # a reading far more precise than the prior.
+    I_KH = np.eye(n) - K @ H
+    P_new = I_KH @ P @ _T(I_KH) + K @ R @ _T(K)
     y_given = S_given = np.empty(0)
-    if given:  # each reading given those before it: the update by their information A_(i)
-        P_b = P[..., None, :, :]
-        if m > 1:
-            zero = np.zeros((*info.shape[:-3], 1, n, n))
-            A_i = np.concatenate([zero, np.cumsum(info[..., :-1, :, :], axis=-3)], axis=-3)
-            b_i = np.concatenate([zero[..., :1], np.cumsum(vec[..., :-1, :, :], axis=-3)], axis=-3)
-            P_b = _T(np.linalg.solve(_T(I + A_i @ P_b), P_b))
-            y = y - (H @ (P_b @ b_i))[..., 0]
-        S_given = H @ P_b @ _T(H) + R
-        y_given, S_given = y, 0.5 * (S_given + _T(S_given))
-    return Update(delta[..., 0], 0.5 * (P_new + _T(P_new)), nis, logdet, y_given, S_given)
+    if given:  # S = L D Lᵀ block by block: C_ii = chol(D_i), the given innovations L⁻¹ y
+        C_ii = np.einsum("...iaib->...iab", C.reshape(*C.shape[:-2], m, d, m, d))
+        y_given = (C_ii @ e.reshape(*e.shape[:-2], m, d, 1))[..., 0]
+        S_given = C_ii @ _T(C_ii)
+    logdet = 2.0 * np.log(np.diagonal(C, axis1=-2, axis2=-1)).sum(axis=-1)
+    return Update((_T(W) @ e)[..., 0], 0.5 * (P_new + _T(P_new)), (e * e).sum(axis=(-2, -1)),
+                  logdet, y_given, S_given)  # fmt: skip
+
+
+def _cholesky(S: FloatArray) -> FloatArray:
+    """The Cholesky factor of the innovation covariances ``S`` (positive definite, else a
+    :class:`relmap.errors.NumericalError`)."""
+    try:
+        return np.linalg.cholesky(S)
+    except np.linalg.LinAlgError:
+        raise NumericalError(
+            "an innovation covariance S = H P Hᵀ + R is not positive definite (P, R or H not "
+            "finite, or P indefinite)"
+        ) from None
 
 
 class Correction(NamedTuple):

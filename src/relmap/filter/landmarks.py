@@ -70,6 +70,11 @@ class Status(enum.IntEnum):
         return _DESCRIPTIONS[self]
 
 
+# (the statuses as plain integers, for numpy)
+_USED, _GATED, _UNKNOWN, _INVALID, _LOST, _DEGENERATE = (
+    int(s) for s in (Status.USED, Status.GATED, Status.UNKNOWN, Status.INVALID, Status.LOST,
+                     Status.DEGENERATE))  # fmt: skip
+
 _DESCRIPTIONS = {
     Status.USED: "used",
     Status.GATED: "outside the gate",
@@ -208,11 +213,14 @@ class _Predicted(NamedTuple):
     S: FloatArray
     S_inv: FloatArray
 
-    def at(self, name: str, i: IntArray, k: IntArray) -> FloatArray:
-        """``name``'s entries of the pairs (reading i, candidate k), both (B, U): (B, U, ...)."""
+    def at(self, name: str, i: IntArray | None, k: IntArray) -> FloatArray:
+        """``name``'s entries of the pairs (reading i, candidate k), both (B, U) (i None: the
+        readings in order): (B, U, ...)."""
         arr = getattr(self, name)
-        if arr.shape[1:3] == (i.shape[-1], 1):  # one candidate a reading: its own
+        if i is None and arr.shape[2] == 1 and arr.shape[1] == k.shape[1]:  # its own candidate
             return arr[:, :, 0]
+        if i is None:
+            i = np.broadcast_to(np.arange(k.shape[1]), k.shape)
         b = np.arange(len(arr))[:, None]
         return arr[b, i if arr.shape[1] > 1 else 0, k]
 
@@ -440,37 +448,34 @@ def _correct(
     d2 = np.where(pair, d2, np.inf)
     inside = d2 <= s.gate2
     has = pair.any(axis=-1)
-    status = np.where(pending, Status.UNKNOWN, Status.INVALID).astype(np.int8)
-    status = np.where(pending & cand.any(axis=-1) & ~has, np.int8(Status.DEGENERATE), status)
-    status = np.broadcast_to(status, (B, m)).copy()
+    # a reading with no pair: usable with candidates (but no prediction), usable, or not
+    alone = np.where(pending, np.where(cand.any(axis=-1), _DEGENERATE, _UNKNOWN), _INVALID)
 
     # the pairing: each reading's candidate (B, m) (-1: none) and its status; the update's
     # pairs: readings (B, U), their candidates (B, U), and which are in the update (B, U)
     if s.per_landmark:
         chosen, st, best, take = _per_landmark(d2 if a is not Association.EUCLIDEAN
                                                else _euclid(v, pair), inside, has)  # fmt: skip
-        status[has] = st[has]
+        status = np.where(has, st, alone).astype(np.int8)
         pair_reading, pair_k, pair_used = best, np.broadcast_to(np.arange(K), (B, K)), take
+    elif a is Association.JCBB:
+        choice = _core.jcbb(
+            np.ascontiguousarray(np.broadcast_to(v, (B, m, K, d))),
+            np.ascontiguousarray(np.broadcast_to(pred.H[:, 0], (B, K, d, P.shape[-1]))),
+            np.ascontiguousarray(np.broadcast_to(pred.R[:, 0], (B, K, d, d))),
+            np.ascontiguousarray(P), np.ascontiguousarray(d2),
+            np.ascontiguousarray(inside & pair), s.joint, JCBB_NODES,
+        )  # fmt: skip
+        chosen = np.where(has & (choice < 0), d2.argmin(axis=-1), choice)  # nearest: gated
+        pair_used = choice >= 0
+        status = np.where(pair_used, _USED, np.where(has, _GATED, alone)).astype(np.int8)
     else:
-        if a is Association.JCBB:
-            choice = _core.jcbb(
-                np.ascontiguousarray(np.broadcast_to(v, (B, m, K, d))),
-                np.ascontiguousarray(np.broadcast_to(pred.H[:, 0], (B, K, d, P.shape[-1]))),
-                np.ascontiguousarray(np.broadcast_to(pred.R[:, 0], (B, K, d, d))),
-                np.ascontiguousarray(P), np.ascontiguousarray(d2),
-                np.ascontiguousarray(inside & pair), s.joint, JCBB_NODES,
-            )  # fmt: skip
-            chosen = np.where(has & (choice < 0), d2.argmin(axis=-1), choice)  # nearest: gated
-            status[has] = np.where(choice[has] >= 0, Status.USED, Status.GATED)
-        else:
-            cost = d2 if a is not Association.EUCLIDEAN else _euclid(v, pair)
-            chosen = _one_to_one(cost, inside, rows, len(s.lmap), a is not Association.EUCLIDEAN)
-            got = has & (chosen >= 0)
-            ok = np.take_along_axis(inside, np.maximum(chosen, 0)[..., None], -1)[..., 0]
-            status[got] = np.where(ok[got], Status.USED, Status.GATED)
-            status[has & ~got] = Status.LOST
-        pair_reading, pair_k = np.broadcast_to(np.arange(m), (B, m)), np.maximum(chosen, 0)
-        pair_used = status == Status.USED
+        cost = d2 if a is not Association.EUCLIDEAN else _euclid(v, pair)
+        chosen = _one_to_one(cost, inside, rows, len(s.lmap), a is not Association.EUCLIDEAN)
+        got = chosen >= 0
+        pair_used = got & (_pick(d2, np.maximum(chosen, 0)) <= s.gate2)
+        status = np.where(pair_used, _USED, np.where(got, _GATED, np.where(has, _LOST, alone)))
+        status = status.astype(np.int8)
 
     # each reading's report: its pair's landmark, d², y and S (no pair: the nearest d²)
     got = chosen >= 0
@@ -479,11 +484,10 @@ def _correct(
     # (no pair: the nearest candidate's d² — inf under Eq. 21, where a reading wants none)
     nearest = np.inf if s.per_landmark else d2.min(axis=-1)
     pair_d2 = np.where(got, _pick(d2, k), nearest)
-    i = np.broadcast_to(np.arange(m), (B, m))
-    y, H, R, S = _pick(v, k), pred.at("H", i, k), pred.at("R", i, k), pred.at("S", i, k)
+    y, H, R, S = _pick(v, k), pred.at("H", None, k), pred.at("R", None, k), pred.at("S", None, k)
     ambiguous = np.zeros(B, np.int64)
     if K > 1 and a is not Association.EUCLIDEAN and not s.per_landmark:
-        mixed, h_mix, H_mix, R_mix = _mixtures(status == Status.USED, inside, pred, d2, sensor)
+        mixed, h_mix, H_mix, R_mix = _mixtures(pair_used, inside, pred, d2, sensor)
         if mixed.any():  # an ambiguous reading: its virtual landmark's y, H, R, S and d²
             y, H, R, S = y.copy(), H.copy(), R.copy(), S.copy()
             b, j = np.nonzero(mixed)
@@ -513,7 +517,7 @@ def _correct(
             S_given[b, pair_reading[b, u]] = stats.S_given[b, u]
         else:
             y_given[pair_used], S_given[pair_used] = stats.y_given[pair_used], stats.S_given[pair_used]
-        gated = (status == Status.GATED) & got
+        gated = (status == _GATED) & got
         if gated.any():
             b, j = np.nonzero(gated)
             y_given[b, j] = y[b, j] - (H[b, j] @ stats.delta[b][..., None])[..., 0]

@@ -4,8 +4,9 @@
 times, the readings at some of them — through the filter of :mod:`relmap.filter.ekf`: predict,
 and at every time with readings correct with all of them in one stacked update
 (:func:`relmap.filter.landmarks.correct_landmarks`: association, gating, weights). The batch is
-the broadcast of the models' parameters, of ``nu``, ``inflation`` and ``clutter``, and of the
-start: a batch of candidate noise parameters is one call. It returns a :class:`Trace`: states at
+the broadcast of the models' parameters, of ``nu``, ``inflation`` and ``clutter``, of the
+start and of the logs (several logs of the same readings with their own motion inputs, say
+under several clock offsets): a batch of candidate noise parameters is one call. It returns a :class:`Trace`: states at
 the kept times, every reading's innovation, S, status and landmark, and per filter the
 log-likelihood of the innovations, the NIS and the counts.
 
@@ -16,6 +17,7 @@ per reading time; any other motion model is stepped.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -187,7 +189,7 @@ def _checked(log: Log, sensor: Measurement) -> tuple[FloatArray, FloatArray, Int
 
 
 def run(
-    log: Log,
+    log: Log | Sequence[Log],
     motion: Motion,
     sensor: Measurement,
     landmarks: LandmarkMap | ArrayLike,
@@ -207,16 +209,34 @@ def run(
     :func:`relmap.filter.landmarks.correct_landmarks` (the log's signatures restrict the
     candidates when ``associate`` is ``"signatures"``; otherwise they only label the readings).
     ``readings=False`` skips the per-reading arrays (then empty). The filters of a batch are
-    independent: each gives what it gives alone."""
+    independent: each gives what it gives alone.
+
+    ``log`` may be a sequence of logs with the same reading times and signatures and their own
+    motion inputs and reading values (say, under several clock offsets or range scales): they
+    form a batch axis of their own (the last one, broadcast with the others'), each filter on
+    its log; then ``keep`` is ``"summary"`` and ``Trace.t`` holds each filter's last time,
+    shaped (*batch, 1)."""
     kp = Keep.parse(keep, "keep")
     a = Association.parse(associate, "associate")
-    t, u, index, z = _checked(log, sensor)
-    if a is Association.SIGNATURES and log.signature is None:
+    logs = [log] if isinstance(log, Log) else list(log)
+    if not logs:
+        raise ParameterError("run needs a log")
+    checked = [_checked(one, sensor) for one in logs]
+    t, u, index, z = checked[0]
+    if len(logs) > 1:
+        if kp is not Keep.SUMMARY:
+            raise ParameterError("a batch of logs keeps the final states only (keep='summary')")
+        _same_readings(logs, checked)
+    if a is Association.SIGNATURES and logs[0].signature is None:
         raise ParameterError("signature association needs the signatures of the readings")
     lmap = _landmark_map(landmarks)
     shapes = [motion.batch_shape, sensor.batch_shape, start.batch_shape]
-    batch = np.broadcast_shapes(*shapes, *(np.shape(v) for v in (nu, inflation, clutter)))
-    B, M, d, T = int(np.prod(batch, dtype=np.int64)), len(z), sensor.dim, len(t)
+    shapes += [np.shape(v) for v in (nu, inflation, clutter)]
+    batch = np.broadcast_shapes(*shapes, *([(len(logs),)] if len(logs) > 1 else []))
+    B, M, d = int(np.prod(batch, dtype=np.int64)), len(z), sensor.dim
+    which = np.zeros(B, np.int64)  # each filter's log
+    if len(logs) > 1:
+        which = np.broadcast_to(np.arange(len(logs)), batch).reshape(B)
     motion_b = motion.replace(**_flat_params(motion, batch, B))
     x = AT._trusted(
         np.broadcast_to(start.mean, (*batch, 3)).reshape(B, 3),
@@ -230,30 +250,30 @@ def run(
              "d2": np.full((B, Mo), np.inf)}  # fmt: skip
     status = np.full((B, M), int(Status.ABSENT), np.int8)
     landmark = np.full((B, Mo), -1, np.int64)
-    cut = np.zeros(T, bool)
-    cut[0] = cut[times] = True
-    ends = np.unique(np.append(times, T - 1))
-    moves = _Prediction(motion_b, u, cut, ends[ends > 0], kp is Keep.ALL)
+    moves = _Prediction(motion_b, [c[1] for c in checked], [c[2] for c in checked], which,
+                        kp is Keep.ALL)  # fmt: skip
     most = int(np.diff(bounds).max()) if M else 0
     setup = _setup(sensor, lmap, batch, a, pairing, gate, nu, inflation, clutter, readings, most)
-    usable = sensor.usable(z)[None]
+    if len(logs) > 1 and any(not np.array_equal(c[3], z, equal_nan=True) for c in checked):
+        z = np.stack([c[3] for c in checked])[which]  # each filter's readings (B, M, d)
+    else:
+        z = z[None]  # shared (1, M, d)
+    usable = sensor.usable(z)
     # every reading's candidates (the signatures label the readings only, unless they pair them)
-    sig = None if log.signature is None else np.asarray(log.signature, dtype=np.int64)
+    sig = None if logs[0].signature is None else np.asarray(logs[0].signature, dtype=np.int64)
     rows, cand = _candidates(setup, sig if a is Association.SIGNATURES else None, M)
     shared = a is not Association.SIGNATURES  # (every reading has every landmark)
     totals = []  # each time's (log-likelihood, NIS, dof, ambiguous) per filter
     posteriors: list[tuple[FloatArray, FloatArray]] = []
-    done = 0  # the time index the filters are at
     x, P = x.mean, x.cov
-    for e, k in enumerate(times):
-        x, P = moves.advance(x, P, done, int(k))
-        done = int(k)
+    for e in range(len(times)):
+        x, P = moves.advance(x, P, e)
         sl = slice(bounds[e], bounds[e + 1])
-        up = _correct(setup, SE2, x, P, z[None, sl], usable[:, sl],
+        up = _correct(setup, SE2, x, P, z[:, sl], usable[:, sl],
                       rows[None] if shared else rows[None, sl], cand[None, sl])  # fmt: skip
         x, P = up.x, up.P
         if not (np.isfinite(x).all() and np.isfinite(P).all()):
-            _overflow(x, P, t, done)
+            _overflow(x, P, t, int(times[e]))
         status[:, sl] = up.status
         totals.append((up.loglik, up.nis, up.dof, up.ambiguous))
         if readings:
@@ -262,13 +282,15 @@ def run(
             landmark[:, sl] = up.landmark
         if kp is not Keep.SUMMARY:
             posteriors.append((x, P))
-    x_end = AT._trusted(*moves.advance(x, P, done, T - 1))
+    x_end = AT._trusted(*moves.advance(x, P, len(times)))
     if not (np.isfinite(x_end.mean).all() and np.isfinite(x_end.cov).all()):
-        _overflow(x_end.mean, x_end.cov, t, T - 1)
+        _overflow(x_end.mean, x_end.cov, t, len(t) - 1)
     loglik, nis, dof, ambiguous = (np.sum([r[j] for r in totals], axis=0) if totals else
                                    np.zeros(B, int if j >= 2 else float) for j in range(4))  # fmt: skip
     updates = np.sum([r[2] > 0 for r in totals], axis=0) if totals else np.zeros(B, np.int64)
-    mean, cov, kept_t = _kept(kp, t, times, x_end, posteriors, moves, start, batch, B, u, cut)
+    mean, cov, kept_t = _kept(kp, t, times, x_end, posteriors, moves, start, batch, B)
+    if len(logs) > 1:  # each filter's last time
+        kept_t = np.array([c[0][-1] for c in checked])[which].reshape(*batch, 1)
     counts = np.stack([(status == s).sum(axis=-1) for s in Status], axis=-1)
     y, S, yg, Sg = out_f["y"], out_f["S"], out_f["y_given"], out_f["S_given"]
     if d == 1:
@@ -283,6 +305,19 @@ def run(
         counts.reshape(*batch, len(Status)), ambiguous.reshape(batch),
         yg.reshape(*rs, *yg.shape[2:]), Sg.reshape(*rs, *Sg.shape[2:]),
     )  # fmt: skip
+
+
+def _same_readings(logs: list[Log], checked: list[tuple]) -> None:
+    """Logs of one batch read at the same times, with the same signatures."""
+    t0, _, i0, z0 = checked[0]
+    for j, (one, (t, _, index, z)) in enumerate(zip(logs, checked, strict=True)):
+        same_sig = (one.signature is None) == (logs[0].signature is None) and (
+            one.signature is None or np.array_equal(one.signature, logs[0].signature))
+        if not (len(z) == len(z0) and np.array_equal(t[index], t0[i0]) and same_sig):
+            raise ParameterError(
+                f"the logs of a batch must read at the same times with the same signatures: "
+                f"log {j} differs from log 0"
+            )
 
 
 def _flat_params(model: Motion | Measurement, batch: tuple[int, ...], B: int) -> dict:
@@ -303,39 +338,75 @@ def _overflow(x: FloatArray, P: FloatArray, t: FloatArray, k: int) -> None:
 
 
 class _Prediction:
-    """How the filters move from one time index to another: by the compounded steps of a
-    relative motion (the chains ending at the times with readings and at the last time), or
-    by stepping any motion model, keeping the states on the way when asked."""
+    """How each filter moves to the next time with readings (and at last to its log's end): by
+    the compounded steps of a relative motion (the chains ending at those times), or by stepping
+    any motion model, keeping the states on the way when asked. Event ``e`` is the e-th time
+    with readings (the same readings in every log); event E, the log's last time."""
 
-    def __init__(self, motion: Motion, u: FloatArray, cut: np.ndarray, ends: IntArray,
-                 keep_all: bool) -> None:  # fmt: skip
-        self.motion, self.u, self.keep_all = motion, u, keep_all
+    def __init__(self, motion: Motion, inputs: list[FloatArray], indices: list[IntArray],
+                 which: IntArray, keep_all: bool) -> None:  # fmt: skip
+        self.motion, self.which, self.keep_all = motion, which, keep_all
         self.relative = isinstance(motion, RelativeMotion)
-        self.ends = ends
+        self.inputs, self.cuts = inputs, []
+        self.targets = []  # per log: the time index of each event, then the last
+        for u, index in zip(inputs, indices, strict=True):
+            times = np.unique(index)
+            cut = np.zeros(len(u) + 1, bool)
+            cut[0] = cut[times] = True
+            self.cuts.append(cut)
+            self.targets.append(np.append(times, len(u)))
         self.steps: dict[int, AT] = {}  # stepped states by time index (keep_all)
-        if self.relative and len(ends):
-            self.seg = chains(motion, u, cut, ends)
+        if self.relative:
+            self._chains()
 
-    def advance(self, x: FloatArray, P: FloatArray, done: int, k: int) -> tuple[FloatArray, FloatArray]:
-        """The filters ``(x, P)`` at time ``done`` moved to time ``k``."""
-        if k == done:
-            return x, P
+    def _chains(self) -> None:
+        """Each filter's chain to each event from the one before it: ``mean`` (E + 1, 3) for
+        one log (else (B, E + 1, 3)), ``cov`` (B, E + 1, 3, 3); the identity where a filter
+        does not move (its log's last time has readings)."""
+        B, E1 = len(self.which), len(self.targets[0])
+        self.mean = np.zeros((len(self.inputs), E1, 3))
+        self.cov = np.zeros((B, E1, 3, 3))
+        names = self.motion.noise_parameters
+        for j, (u, cut, to) in enumerate(zip(self.inputs, self.cuts, self.targets, strict=True)):
+            moving = to > np.append(0, to[:-1])
+            mine = self.which == j
+            motion = self.motion if len(self.inputs) == 1 else self.motion.replace(
+                **{k: getattr(self.motion, k)[mine] for k in names})
+            ch = chains(motion, u, cut, to[moving])
+            self.mean[j, moving] = ch.mean
+            self.cov[np.ix_(mine, moving)] = ch.cov
+        self.mean = self.mean[0] if len(self.inputs) == 1 else self.mean[self.which]
+
+    def advance(self, x: FloatArray, P: FloatArray, e: int) -> tuple[FloatArray, FloatArray]:
+        """The filters ``(x, P)`` at event ``e - 1`` (the start for 0) moved to event ``e``."""
         if self.relative:  # x ⊕ Δ_seg (Eqs. 1-4)
-            row = int(np.searchsorted(self.ends, k))
-            return compound_arrays(x, P, self.seg.mean[row], self.seg.cov[..., row, :, :])
-        state = AT._trusted(x, P)
-        for j in range(done, k):
-            state = predict(state, self.u[j], self.motion)
-            if self.keep_all:
-                self.steps[j + 1] = state
-        return state.mean, state.cov
+            mean = self.mean[e] if self.mean.ndim == 2 else self.mean[:, e]
+            return compound_arrays(x, P, mean, self.cov[:, e])
+        if len(self.inputs) == 1:
+            to = self.targets[0]
+            state = AT._trusted(x, P)
+            for j in range(to[e - 1] if e else 0, to[e]):
+                state = predict(state, self.inputs[0][j], self.motion)
+                if self.keep_all:
+                    self.steps[j + 1] = state
+            return state.mean, state.cov
+        # several logs: each filter steps through its own log's inputs, the others wait
+        begin = np.array([to[e - 1] if e else 0 for to in self.targets])[self.which]
+        count = np.array([to[e] for to in self.targets])[self.which] - begin
+        for j in range(int(count.max(initial=0))):
+            active = j < count
+            u = np.stack([self.inputs[w][min(b + j, len(self.inputs[w]) - 1)]
+                          for w, b in zip(self.which, begin, strict=True)])  # fmt: skip
+            moved = predict(AT._trusted(x, P), u, self.motion)
+            x = np.where(active[:, None], moved.mean, x)
+            P = np.where(active[:, None, None], moved.cov, P)
+        return x, P
 
 
 def _kept(
     kp: Keep, t: FloatArray, times: IntArray, x_end: AT,
     posteriors: list[tuple[FloatArray, FloatArray]],
-    moves: _Prediction, start: AT, batch: tuple[int, ...], B: int, u: FloatArray,
-    cut: np.ndarray,
+    moves: _Prediction, start: AT, batch: tuple[int, ...], B: int,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:  # fmt: skip
     """The kept states ``(mean (B, K, 3), cov (B, K, 3, 3), times (K,))``."""
     x0 = AT._trusted(np.broadcast_to(start.mean, (*batch, 3)).reshape(B, 3),
@@ -354,7 +425,7 @@ def _kept(
     at_reading[times] = True
     last = np.searchsorted(times, np.arange(T), side="left")  # readings strictly before k
     if moves.relative:
-        ch = chains(moves.motion, u, cut)  # the chain from the last cut before k
+        ch = chains(moves.motion, moves.inputs[0], moves.cuts[0])  # from the last cut before k
         moved = compound(AT._trusted(a_mean[:, last], a_cov[:, last]),
                          AT._trusted(ch.mean, ch.cov))  # fmt: skip
         mean, cov = np.array(moved.mean), np.array(moved.cov)

@@ -12,8 +12,8 @@ after each step j of the segment (prefix sums of the steps), and the covariance
 into the segment's frame and ``T_jk = [[I, J ℓ], [0, 1]]``, ``ℓ = t_k - t_j``, ``J = [[0, -1],
 [1, 0]]``: a step's heading error turns the rest of the chain about the step's end (relmap's chart:
 translation along the parent's axes, heading about the child's origin). Expanding the lever ℓ
-makes ``Σ_k`` a quadratic in ``t_k`` whose coefficients are prefix sums over the steps: one
-vectorized pass over the whole log, for a whole batch of noise parameters.
+makes ``Σ_k`` a quadratic in ``t_k`` whose coefficients are sums over the segment's steps
+before k: one vectorized pass over the whole log, for a whole batch of noise parameters.
 """
 
 from __future__ import annotations
@@ -111,18 +111,27 @@ def _chains(
     # each step's covariance in its segment's frame: C' = M Q_w Mᵀ, M = blkdiag(R, 1) J_w
     Jt = np.moveaxis(Jw, 0, -1)  # (3, w, N)
     M = np.stack([c * Jt[0] - s * Jt[1], s * Jt[0] + c * Jt[1], Jt[2]])
-    Qt = np.moveaxis(Qw, -3, -1)  # (*batch, w, w, N)
-    MQ = (M[:, :, None] * Qt[..., None, :, :, :]).sum(axis=-3)  # (*batch, 3, w, N)
-    C = (MQ[..., :, None, :, :] * M).sum(axis=-2)  # (*batch, 3, 3, N)
-    q, cv, Ctt = C[..., 2, 2, :], C[..., :2, 2, :], C[..., :2, :2, :]
-    # the lever's prefix sums over the steps j ≤ k: Σq, Σq t_j, Σq t_j t_jᵀ, Σc', Σ t_j c'ᵀ,
-    # ΣC'_tt, as channels (*batch, 15, N)
-    parts = np.concatenate([q[..., None, :], q[..., None, :] * t, (q[..., None, None, :] * t[:, None] * t[None]).reshape(*q.shape[:-1], 4, N)[..., [0, 1, 3], :],
-                            cv, (t[:, None] * cv[..., None, :, :]).reshape(*q.shape[:-1], 4, N),
-                            Ctt.reshape(*q.shape[:-1], 4, N)[..., [0, 1, 3], :]], axis=-2)  # fmt: skip
-    sums = _restart_cumsum(parts, starts)
-    if at is not None:  # the chains ending at these times: after step k - 1
-        sums, t, theta = sums[..., at - 1], t[:, at - 1], theta[at - 1]
+    MQ = np.einsum("awn,...nwv->...avn", M, Qw)  # (*batch, 3, w, N)
+    C = np.einsum("...avn,bvn->...abn", MQ, M)  # (*batch, 3, 3, N)
+    q, cv = C[..., 2, 2, :], C[..., :2, 2, :]
+    # the lever's sums over the steps j before k, as channels (*batch, 15, N): Σq, Σq t_j,
+    # Σq t_j t_jᵀ (xx, xy, yy), Σc', Σ t_j c'ᵀ (xx, xy, yx, yy), ΣC'_tt (xx, xy, yy)
+    parts = np.empty((*q.shape[:-1], 15, N))
+    parts[..., 0, :] = q
+    parts[..., 1:3, :] = q[..., None, :] * t
+    tt = t[[0, 0, 1]] * t[[0, 1, 1]]
+    parts[..., 3:6, :] = q[..., None, :] * tt
+    parts[..., 6:8, :] = cv
+    parts[..., 8:12, :] = (t[:, None] * cv[..., None, :, :]).reshape(*q.shape[:-1], 4, N)
+    parts[..., 12:15, :] = C[..., [0, 0, 1], [0, 1, 1], :]
+    # summed over the pieces between the cuts and the times asked for, then run over the pieces
+    # of each segment: the sums over the steps j < k of k's segment
+    ends = np.arange(1, N + 1) if at is None else np.asarray(at, dtype=np.int64)
+    bounds = np.union1d(starts, ends[ends < N])
+    pieces = np.add.reduceat(parts, bounds, axis=-1)
+    sums = _restart_cumsum(pieces, np.flatnonzero(np.isin(bounds, starts)))
+    sums = sums[..., np.searchsorted(bounds, ends) - 1]
+    t, theta = t[:, ends - 1], theta[ends - 1]  # after step k - 1
     Q0, Q1 = sums[..., 0, :], sums[..., 1:3, :]
     Q2 = sums[..., [3, 4, 4, 5], :].reshape(*sums.shape[:-2], 2, 2, -1)
     C0, C1 = sums[..., 6:8, :], sums[..., 8:12, :].reshape(*sums.shape[:-2], 2, 2, -1)

@@ -357,8 +357,9 @@ class Odometry(RelativeMotion):
         return self.noise.noise_parameters
 
     def __getattr__(self, name: str) -> object:  # the noise's parameters read as the model's
-        if name != "noise" and name in type(self.__dict__["noise"]).noise_parameters:
-            return getattr(self.__dict__["noise"], name)
+        noise = self.__dict__.get("noise")  # (absent while a copy or unpickling builds it)
+        if noise is not None and name in type(noise).noise_parameters:
+            return getattr(noise, name)
         raise AttributeError(name)
 
     def replace(self, **values: ArrayLike) -> Odometry:
