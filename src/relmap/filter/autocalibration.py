@@ -138,7 +138,7 @@ ITERATIONS = 40
 COARSE = float(np.log(1.1))
 #: The coarse fit reads this first share of the run (its readings' times): enough to come
 #: down from the cautious start, at a fraction of the cost.
-COARSE_SHARE = 1.0 / 3.0
+COARSE_SHARE = 0.25
 #: The log-scale step of the coarse fit's first round (×2 per move); it shrinks by 3 when no
 #: move gains. Each round moves a parameter by these multiples of the step, both ways.
 _STEP = float(np.log(2.0))
@@ -146,7 +146,7 @@ _REACH = (1, 2, 3)
 #: The refining fit's Newton steps at most; its log-scale difference step (2%: wider than the
 #: kinks of the likelihood where a reading crosses the gate); the largest move of a field in
 #: one step (log scale: a factor 1.65); the fractions of the Newton step it tries.
-REFINE_STEPS = 3
+REFINE_STEPS = 2
 _DIFF = 0.02
 _MAX_STEP = 0.5
 _LINE = (0.25, 0.5, 1.0, 1.5)

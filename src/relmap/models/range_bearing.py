@@ -113,7 +113,7 @@ class _Polar(Measurement):
         if lm.shape[-1:] != (2,):
             raise ShapeError(f"landmark must have shape (..., 2); got {lm.shape}")
         c, s = np.cos(p[..., 2]), np.sin(p[..., 2])
-        mx, my, mt = self.mount
+        mx, my, mt = self.mount.tolist()
         ox, oy = c * mx - s * my, s * mx + c * my
         dx, dy = lm[..., 0] - (p[..., 0] + ox), lm[..., 1] - (p[..., 1] + oy)
         q = dx * dx + dy * dy
