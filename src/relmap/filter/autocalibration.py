@@ -59,8 +59,8 @@ never read. Three stages, each a standard tool of filter tuning:
    one reading, which the correlation does not change (inflating ``σ`` itself made the
    Mahalanobis association pair neighbouring landmarks wrongly). The factor is the fixed
    point of that rule: one batch of filters over the factors :data:`INFLATIONS` measures the
-   correlation each leaves and the factor it asks for, and the factor that asks for itself is
-   interpolated between them (:func:`_whitened`). White reading errors give ``ρ ≈ 0``
+   correlation each leaves and the factor it asks for; the grid's factor nearest the one that
+   asks for itself is the filter's (:func:`_whitened`). White reading errors give ``ρ ≈ 0``
    and an inflation of 1. (The correlated part modelled instead as Gauss–Markov bias states
    of the filter, their σ and τ fitted to the innovations, was measured on MRCLAM: less
    accurate (mean RMSE 0.232 m against 0.200) and overconfident; ``docs/consistency.md``.)
@@ -129,9 +129,9 @@ SCALES = tuple(round(0.9 + 0.01 * k, 2) for k in range(31))
 TURN_BIASES = tuple(round(0.002 * k, 3) for k in range(-10, 11))
 #: Consecutive readings of one landmark at most this far apart (s) form a whiteness pair.
 PAIR_GAP = 1.0
-#: The update's σ factors of the whiteness stage's batch (×1.12 apart, up to the factor of a
+#: The update's σ factors of the whiteness stage's batch (×1.07 apart, up to the factor of a
 #: correlation of 0.99).
-INFLATIONS = tuple(round(float(v), 4) for v in np.geomspace(1.0, 16.0, 25))
+INFLATIONS = tuple(round(float(v), 4) for v in np.geomspace(1.0, 16.0, 41))
 #: At most this many rounds of coordinate ascent.
 ITERATIONS = 40
 #: The coarse fit stops when its log-scale step falls below this (a factor of 1.1).
@@ -531,31 +531,37 @@ def _clock(
     return clock
 
 
-def _whitened(log: Log, p: Params, run: Runner) -> tuple[float, float]:
-    """The update's σ factor of the whiteness stage, and the lag-one correlation without it: a
-    batch of filters over the factors :data:`INFLATIONS`, each measuring the correlation
-    :func:`innovation_correlation` of its innovations and the factor that correlation asks for
-    (:func:`variance_factor`'s square root); the fixed point where the two factors agree,
-    linearly between the grid's factors (1 when the filter without one is white)."""
+def _whitened(log: Log, p: Params, run: Runner) -> tuple[float, float, Trace]:
+    """The update's σ factor of the whiteness stage, the lag-one correlation without it, and
+    the filter's trace with it: a batch of filters over the factors :data:`INFLATIONS`, each
+    measuring the correlation :func:`innovation_correlation` of its innovations and the factor
+    that correlation asks for (:func:`variance_factor`'s square root); the factor is the one of
+    the grid nearest the fixed point where the two agree (linearly between the grid's
+    factors; 1 when the filter without one is white)."""
     f = np.array(INFLATIONS)
     trace = run(log, {**{k: np.full(len(f), v) for k, v in p.items()}, "inflation": f})
     t = log.t[log.reading_index]
     asked, rho0 = np.empty(len(f)), float("nan")
     for j in range(len(f)):
-        one = trace._replace(y=trace.y[j], S=trace.S[j], status=trace.status[j],
-                             landmark=trace.landmark[j])  # fmt: skip
-        (r1, n1), (r2, _) = (innovation_correlation(one, t, lag=k) for k in (1, 2))
+        (r1, n1), (r2, _) = (innovation_correlation(_one(trace, j), t, lag=k) for k in (1, 2))
         rho0 = r1 if j == 0 else rho0
         asked[j] = np.sqrt(variance_factor(r1, r2, n1))
     excess = asked - f  # > 0: the filter at this factor asks for more
-    if excess[0] <= 0:
-        return 1.0, rho0
     down = np.flatnonzero(excess <= 0)
     if not len(down):
-        return float(f[-1]), rho0
-    j = int(down[0])  # the first factor that asks for no more: the fixed point before it
-    w = excess[j - 1] / (excess[j - 1] - excess[j])
-    return float(f[j - 1] + w * (f[j] - f[j - 1])), rho0
+        fixed = f[-1]
+    elif down[0] == 0:
+        fixed = 1.0
+    else:  # between the last factor that asks for more and the first that does not
+        j = int(down[0])
+        fixed = f[j - 1] + excess[j - 1] / (excess[j - 1] - excess[j]) * (f[j] - f[j - 1])
+    j = int(np.argmin(np.abs(np.log(f / fixed))))
+    return float(f[j]), rho0, _one(trace, j)
+
+
+def _one(trace: Trace, j: int) -> Trace:
+    """Filter ``j`` of a batch's trace (a batch of one dimension)."""
+    return Trace(*(a[j] if np.ndim(a) and k != "t" else a for k, a in trace._asdict().items()))
 
 
 def calibrate(
@@ -610,22 +616,20 @@ def calibrate(
     if not signatures:  # λ of the clutter fraction CLUTTER_START: π = λV / (1 + λV)
         p0["clutter"] = CLUTTER_START / ((1.0 - CLUTTER_START) * volume)
     tick = progress or (lambda k, n: None)
-    tick(0, 4)
+    tick(0, 3)
     t0 = float(recording.odometry_t[0])
     early = recording._replace(end=t0 + COARSE_SHARE * (recording.end - t0))
     if not np.any(np.asarray(early.reading_t) <= early.end):
         early = recording
     p, _ = _fit(early.log(), p0, free, run_filters, _STEP, COARSE)
-    tick(1, 4)
+    tick(1, 3)
     ranges_only = bool(sensor.ranges) and not sensor.angles
     delay, scale, turn_bias = _clock(early, p, run_filters, ranges_only, signatures)
     log = recording.log(delay, scale, turn_bias)
     p, fitted = _refine(log, p, free, run_filters)
-    tick(2, 4)
-    factor, rho0 = _whitened(log, p, run_filters)
-    tick(3, 4)
-    trace = run_filters(log, {**p, "inflation": factor})
-    tick(4, 4)
+    tick(2, 3)
+    factor, rho0, trace = _whitened(log, p, run_filters)
+    tick(3, 3)
     rho = innovation_correlation(trace, log.t[log.reading_index])[0]
     m, s = models(p)
     return Calibrated(m, s, float(p["nu"]), float(p["clutter"]), delay, scale, factor,
