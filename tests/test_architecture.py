@@ -2,18 +2,22 @@
 
 - One implementation per computation: no numba or llvmlite anywhere in ``src/relmap`` (the
   compiled loops live in ``relmap._core``, C++ built by ``pip install .``), no module of kernels
-  beside a numpy path (``*_kernels.py``, ``_numba*.py``), and no dispatch by size or environment
-  (``RELMAP_NUMBA``, ``LARGE``, ``os.environ``).
+  beside a numpy path (``*_kernels.py``, ``_numba*.py``), no dispatch by size or environment
+  (``RELMAP_NUMBA``, ``LARGE``, ``os.environ``), and no code written out in two functions.
 - The layers: a module imports only from modules in its own layer or the layers below it,
   counting every import (module level, in functions, and under ``TYPE_CHECKING``), parsed
   with :mod:`ast`; and no import cycle joins two modules.
-- Formats have one registration point: ``relmap.io.formats.register``, at the top level of the
-  io module that defines a format's reader and writer; every entry point reads and writes
+- One registration point per extension: a model (a subclass of ``relmap.models.base``'s
+  protocols) is defined and exported in ``relmap.models`` and the filter names none; a loss
+  lives in ``relmap.network.losses``; a format enters ``relmap.io.formats.register`` at the top
+  level of the io module that defines its reader and writer, every entry point reads and writes
   through the registry, and no code elsewhere branches on a format's name.
+- One name per thing (no alias imports, options as enums defined once), benchmarks and studies
+  on the public API, the solvers reading a map through its stated interface, and the data walks
+  of ``relmap query``, ``eval`` and ``localize`` going down the layers and coming back.
 
-Checks that the current branch still fails because another part of issue 17 has not landed yet
-are marked ``xfail(strict=False)`` module by module (see PENDING); they pass once it has, and the
-marks are then to be removed.
+The checkers these rely on are tested themselves: the import parser on relmap's own imports,
+and the twin, public-API, model and walk checkers on planted violations.
 """
 
 from __future__ import annotations
@@ -919,7 +923,8 @@ def model_registration(sources: dict[str, ast.Module], exported: set[str]) -> li
                         found.append(f"{module} imports from {node.module}: {alias.name}")
             elif isinstance(node, ast.Import):
                 for alias in node.names:
-                    if alias.name.startswith("relmap.models.") and alias.name != "relmap.models.base":
+                    name = alias.name
+                    if name.startswith("relmap.models.") and name != "relmap.models.base":
                         found.append(f"{module} imports a models module: {alias.name}")
             elif isinstance(node, (ast.Name, ast.Attribute)):
                 name = node.id if isinstance(node, ast.Name) else node.attr
