@@ -1,6 +1,6 @@
 """Plotting with matplotlib: confidence ellipses of ATs, relational maps, Monte Carlo clouds,
 trajectories, 3-D ellipsoid projections (the figures of a localization run are
-:mod:`relmap.viz.localization`, in the application layer).
+:mod:`relmap.viz.localization`; of a trajectory evaluation, :mod:`relmap.viz.trajectory`).
 
 matplotlib is imported inside the functions, never by ``import relmap``. Every drawing
 function takes a matplotlib ``Axes`` and returns it, so calls chain and compose with the
