@@ -12,6 +12,7 @@ from relmap.models import (
     AlphaNoise,
     DiffDrive,
     DistanceNoise,
+    Odometry,
     PlanarArm,
     WheelNoise,
     dead_reckon,
@@ -93,7 +94,7 @@ def test_arc_is_the_exponential_map_and_exact_near_zero():
 @pytest.mark.parametrize("integration", ["midpoint", "arc"])
 def test_increment_jacobian_numeric(integration):
     m = np.array([[1.0, 0.3], [0.5, -2.0], [2.0, 1e-3], [0.7, 0.0099], [1.3, 0.0101], [0.2, -1e-7]])
-    _, J = increment(m, integration, jacobian=True)
+    _, J = increment(m, integration, jacobians=True)
     Jn = numerical_jacobian(lambda v: increment(v, integration), m, step=1e-7, chart_out=SE2)
     np.testing.assert_allclose(J, Jn, atol=1e-8)
 
@@ -249,31 +250,126 @@ def test_arm_errors():
         ARM.gripper([0.1, 0.2], [[1.0, 2.0], [2.0, 1.0]])
 
 
+# --------------------------------------------------------- the motion model (models.base)
 @pytest.mark.parametrize("integration", ["midpoint", "arc"])
 def test_distance_noise_step_covariance_is_j_sigma_jt(rng, integration):
-    """The step's covariance (the core's with midpoint integration) is J diag(var Δs, var Δθ) Jᵀ
-    with J = ∂Δ/∂(Δs, Δθ) (Eqs. 10-13), J taken numerically here; batched and unbatched."""
-    from relmap.models.odometry import DistanceNoise, increment
-
+    """The step's covariance (``Odometry(noise).increment(u).cov`` = J_w Q_w J_wᵀ) is
+    J diag(var Δs, var Δθ) Jᵀ with J = ∂Δ/∂(Δs, Δθ) (Eqs. 10-13), J taken numerically here;
+    batched and unbatched."""
     noise = DistanceNoise(0.01, 0.02, 0.003)
+    model = Odometry(noise, integration)
     m = np.column_stack([rng.uniform(-1.0, 2.0, 5), rng.uniform(-0.8, 0.8, 5)])
-    C = noise.step_covariance(m, integration)
+    C = model.increment(m).cov
     for mi, Ci in zip(m, C, strict=True):
         J = numerical_jacobian(lambda v: increment(v, integration), mi)
         S = np.diag([0.01 * abs(mi[0]), 0.02 * abs(mi[1]) + 0.003 * abs(mi[0])])
         np.testing.assert_allclose(Ci, J @ S @ J.T, rtol=1e-6, atol=1e-12)
-        np.testing.assert_allclose(noise.step_covariance(mi, integration), Ci, rtol=1e-12)
+        np.testing.assert_allclose(model.increment(mi).cov, Ci, rtol=1e-12)
 
 
-def test_only_distance_noise_with_midpoint_steps_is_the_cores_model():
-    """core_params: the core's parameter row (as long as relmap.filter.ekf.NoiseParameters) for
-    DistanceNoise with midpoint integration, None otherwise."""
-    from relmap.filter.ekf import NoiseParameters
-    from relmap.models.odometry import AlphaNoise, DistanceNoise, WheelNoise
+def _alpha_step(w: np.ndarray) -> np.ndarray:
+    """Probabilistic Robotics' rot-trans-rot step from ``w = (δrot1, δtrans, δrot2)``."""
+    r1, tr, r2 = w[..., 0], w[..., 1], w[..., 2]
+    return np.stack([tr * np.cos(r1), tr * np.sin(r1), r1 + r2], axis=-1)
 
-    row = DistanceNoise(0.01, 0.02, 0.003).core_params("midpoint")
-    assert row.shape == (1, len(NoiseParameters._fields))
-    np.testing.assert_array_equal(row[0, :3], [0.01, 0.02, 0.003])
-    assert DistanceNoise(0.01).core_params("arc") is None
-    assert WheelNoise(0.01).core_params("midpoint") is None
-    assert AlphaNoise(0.01).core_params("midpoint") is None
+
+def _wheel_cov(u: np.ndarray, noise: WheelNoise) -> np.ndarray:
+    """Lecture Eq. 12's Σu on the wheels mapped to (Δs, Δθ) by Eq. 9's W: W Σu Wᵀ."""
+    r, b = DRIVE.wheel_radius, DRIVE.baseline
+    W = np.array([[r / 2, r / 2], [-r / b, r / b]])
+    return W @ np.diag(noise.sigma**2 + noise.k * np.abs(u)) @ W.T
+
+
+MODELS = {
+    # name: (model, the noise sources w at input u, the step Δ(w), Q_w written out)
+    "distance-midpoint": (
+        Odometry(DistanceNoise(0.01, 0.02, 0.003)),
+        lambda u: u,
+        lambda w: increment(w, "midpoint"),
+        lambda u: np.diag([0.01 * abs(u[0]), 0.02 * abs(u[1]) + 0.003 * abs(u[0])]),
+    ),
+    "distance-arc": (
+        Odometry(DistanceNoise(0.01, 0.02, 0.003), integration="arc"),
+        lambda u: u,
+        lambda w: increment(w, "arc"),
+        lambda u: np.diag([0.01 * abs(u[0]), 0.02 * abs(u[1]) + 0.003 * abs(u[0])]),
+    ),
+    "wheel": (
+        Odometry(WheelNoise(sigma=0.02, k=0.001), drive=DRIVE),
+        DRIVE.motion,
+        lambda w: increment(w, "midpoint"),
+        lambda u: _wheel_cov(u, WheelNoise(sigma=0.02, k=0.001)),
+    ),
+    "alpha": (
+        Odometry(AlphaNoise(0.01, 0.002, 0.01, 0.001)),
+        lambda u: np.array([u[1] / 2, u[0], u[1] / 2]),
+        _alpha_step,
+        lambda u: np.diag([0.01 * (u[1] / 2) ** 2 + 0.002 * u[0] ** 2,
+                           0.01 * u[0] ** 2 + 0.001 * 2 * (u[1] / 2) ** 2,
+                           0.01 * (u[1] / 2) ** 2 + 0.002 * u[0] ** 2]),
+    ),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("name", sorted(MODELS))
+def test_odometry_model_jacobians_are_the_numeric_ones(rng, name):
+    """The motion model ``x⁻ = x ⊕ Δ(u)``: F = ∂f/∂x and G = ∂f/∂w (w the noise sources) are
+    the numeric Jacobians, in relmap's chart, of the pose compounded with the step written out
+    here (lecture Eqs. 9-13; the α-model's rot-trans-rot); ``input_noise`` is Q_w written out,
+    and ``step``'s J_w is ∂Δ/∂w."""
+    model, sources, delta_of, Q_of = MODELS[name]
+    for _ in range(10):
+        x = np.r_[rng.normal(size=2) * 2, rng.uniform(-np.pi, np.pi)]
+        u = rng.normal(size=2) * [0.6, 0.5] if name != "wheel" else rng.normal(3.0, 1.0, 2)
+        w = sources(u)
+        F, G = model.jacobians(x, u)
+        F_n = numerical_jacobian(lambda xx, w=w: se2.compose(xx, delta_of(w)), x, chart_in=SE2,
+                                 chart_out=SE2)  # fmt: skip
+        G_n = numerical_jacobian(lambda ww, x=x: se2.compose(x, delta_of(ww)), w, chart_out=SE2)
+        np.testing.assert_allclose(F, F_n, atol=1e-8)
+        np.testing.assert_allclose(G, G_n, atol=1e-8)
+        assert_poses_close(model.f(x, u), se2.compose(x, delta_of(w)), atol=1e-13)
+        np.testing.assert_allclose(model.input_noise(u), Q_of(u), rtol=1e-12, atol=1e-18)
+        delta, J_w, Q_w = model.step(u)
+        assert_poses_close(delta, delta_of(w), atol=1e-14)
+        np.testing.assert_allclose(J_w, numerical_jacobian(delta_of, w), atol=1e-8)
+        np.testing.assert_allclose(model.increment(u).cov, J_w @ Q_w @ J_w.T, rtol=1e-12)
+
+
+def test_odometry_model_is_the_lectures_step_for_wheel_increments():
+    """With a DiffDrive the model's ``G Q_w Gᵀ`` is the lecture's ``Gu Σu Guᵀ`` on the wheel
+    increments (Eq. 12; :func:`step`'s Gx and Gu)."""
+    noise = WheelNoise(sigma=0.02, k=0.001)
+    model = Odometry(noise, drive=DRIVE)
+    pose = rm.AT([0.3, -1.0, 2.9], np.diag([0.01, 0.02, 0.003]))
+    u = np.array([2.5, 3.1])
+    _, Gx, Gu = step(pose, u, noise, drive=DRIVE)
+    F, G = model.jacobians(pose.mean, u)
+    np.testing.assert_allclose(F, Gx, atol=1e-15)
+    Su = np.diag(0.02**2 + 0.001 * np.abs(u))
+    np.testing.assert_allclose(G @ model.input_noise(u) @ G.T, Gu @ Su @ Gu.T, rtol=1e-12)
+
+
+def test_a_batch_of_parameters_is_a_batch_of_models():
+    """Array parameters: ``batch_shape``, each parameter set's step what that model alone
+    gives; ``replace`` checks as the constructor does; ``batched`` adds axes for the inputs'."""
+    k_s = np.array([0.001, 0.01, 0.1, 1.0])
+    model = Odometry(DistanceNoise(k_s, 0.02, np.array([[0.0], [0.003]])))
+    assert model.batch_shape == (2, 4) and model.noise_parameters == ("k_s", "k_theta", "k_theta_s")
+    assert model.k_s is model.noise.k_s
+    u = np.array([0.4, 0.3])
+    C = model.increment(u).cov
+    assert C.shape == (2, 4, 3, 3)
+    for i, j in np.ndindex(2, 4):
+        one = Odometry(DistanceNoise(k_s[j], 0.02, [0.0, 0.003][i]))
+        np.testing.assert_allclose(C[i, j], one.increment(u).cov, rtol=1e-15)
+    steps = np.array([[0.4, 0.3], [0.1, -0.2], [0.2, 0.0]])
+    many = model.batched(1).increment(steps).cov  # (2, 4, 3 steps)
+    assert many.shape == (2, 4, 3, 3, 3)
+    np.testing.assert_allclose(many[1, 2, 1], Odometry(DistanceNoise(0.1, 0.02, 0.003))
+                               .increment(steps[1]).cov, rtol=1e-15)  # fmt: skip
+    assert model.replace(k_theta=0.5).k_theta == 0.5 and model.replace(k_theta=0.5).k_s is k_s
+    with pytest.raises(ParameterError, match="k_s"):
+        model.replace(k_s=-1.0)
+    with pytest.raises(ParameterError, match="k_theta_s"):
+        DistanceNoise(0.1, 0.1, np.array([0.1, np.nan]))
