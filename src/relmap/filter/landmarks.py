@@ -439,6 +439,13 @@ def _correct(
     its candidates ``rows`` (B', m', K) and ``cand`` (B', m, K) (:func:`_candidates`)."""
     sensor, a = s.sensor, s.association
     B, m, d = len(x), z.shape[-2], z.shape[-1]
+    if not len(s.lmap):  # an empty map: no reading has a candidate (the usable ones UNKNOWN)
+        status = np.broadcast_to(np.where(pending, _UNKNOWN, _INVALID), (B, m)).astype(np.int8)
+        y, S = np.full((B, m, d), np.nan), np.full((B, m, d, d), np.nan)
+        given = (y.copy(), S.copy()) if s.given else (None, None)
+        zero = np.zeros(B, np.int64)
+        return _Result(x, P, np.full((B, m), -1), np.full((B, m), np.inf), status, y, S, *given,
+                       np.zeros(B), np.zeros(B), zero, zero.copy())  # fmt: skip
     pred = _predict(x, P, rows, s.lmap, sensor)
     K = rows.shape[-1]
     v = sensor.innovation(z[:, :, None, :], pred.h)  # (B, m, K, d): every candidate pair
