@@ -126,6 +126,7 @@ class LandmarkMap:
     __slots__ = ("_order", "_sorted", "signatures", "width", "xy")
     xy: FloatArray
     signatures: IntArray
+    width: int  #: the most landmarks that share one signature
 
     def __init__(self, xy: ArrayLike, signatures: ArrayLike | None = None) -> None:
         lm = np.array(xy, dtype=np.float64)
@@ -139,13 +140,19 @@ class LandmarkMap:
         sig = sig.astype(np.int64)
         lm.flags.writeable = sig.flags.writeable = False
         order = np.argsort(sig, kind="stable")
-        self.xy, self.signatures = lm, sig
-        self._order, self._sorted = order, sig[order]
-        #: the most landmarks that share one signature
-        self.width = int(np.unique(sig, return_counts=True)[1].max()) if len(sig) else 0
+        width = int(np.unique(sig, return_counts=True)[1].max()) if len(sig) else 0
+        for name, value in (("xy", lm), ("signatures", sig), ("_order", order),
+                            ("_sorted", sig[order]), ("width", width)):  # fmt: skip
+            object.__setattr__(self, name, value)
+
+    def __setattr__(self, name: str, value: object) -> None:
+        raise AttributeError("a LandmarkMap is immutable; build a new one")
 
     def __len__(self) -> int:
         return len(self.xy)
+
+    def __repr__(self) -> str:
+        return f"LandmarkMap({len(self)} landmarks)"
 
     def candidates(self, signatures: IntArray) -> IntArray:
         """The rows (..., m, width) of the landmarks of each reading's signature (..., m), in
