@@ -342,9 +342,10 @@ def _candidates(
     """Each reading's candidates, for readings of signatures (..., m) or of none: ``rows``
     (..., m, K) of the map (-1: none), or (1, L) when every reading has every landmark, and
     ``cand`` (..., m, K): its signature's landmarks under signature association, else every
-    landmark (of its signature, when given)."""
+    landmark (of its signature, when given). Eq. 21's pairing needs a column per landmark (each
+    takes its cheapest reading): every landmark, restricted to the reading's signature."""
     L = len(s.lmap)
-    if s.association is Association.SIGNATURES:
+    if s.association is Association.SIGNATURES and not s.per_landmark:
         rows = s.lmap.candidates(signatures)
         return rows, rows >= 0
     rows = np.arange(L)[None, :]
