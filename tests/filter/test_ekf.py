@@ -1,295 +1,341 @@
-"""relmap.filter.ekf: prediction, full-pose and landmark corrections, association, gating,
-batches."""
+"""relmap.filter.ekf: predict and update in the textbook letters, against the equations written
+out in numpy here — the odometry prediction (lecture Eqs. 10-13), a user's motion and
+measurement models with analytic or numeric Jacobians (Eq. 13; Eqs. 26-28 in Joseph form), the
+stacked update of m independent readings and each reading's innovation given the readings
+before it, and the full-pose correction (the paper's merge, §4)."""
 
 from __future__ import annotations
 
+import dataclasses
+from typing import ClassVar
+
 import numpy as np
 import pytest
+from scipy import stats
 
 import relmap as rm
-from relmap import models
 from relmap.errors import NonFiniteError, ParameterError, ShapeError
 from relmap.filter import ekf
 from relmap.lie import se2
-from relmap.models import DistanceNoise, RangeBearingSensor, step
-from relmap.uncertain import gaussian
+from relmap.models import (
+    DiffDrive,
+    DistanceNoise,
+    Measurement,
+    Motion,
+    Odometry,
+    PositionFix,
+    WheelNoise,
+    increment,
+    step,
+)
+from relmap.uncertain.propagate import EUCLIDEAN, SE2, numerical_jacobian
 
-SENSOR = RangeBearingSensor(0.1, 0.02, mount=[0.1, 0.0, 0.0], fov=np.radians(180), max_range=10.0)
-LANDMARKS = np.array([[3.0, 1.0], [4.0, -2.0], [6.0, 0.5], [2.0, 3.0], [-3.0, 0.0]])
+NOISE = DistanceNoise(0.01, 0.02, 0.005)
 PRIOR = rm.AT(
     [0.2, -0.1, 0.1], np.array([[0.04, 0.01, 0.0], [0.01, 0.05, 0.002], [0.0, 0.002, 0.003]])
 )
 
 
-def manual_update(state: rm.AT, z: np.ndarray, idx: list[int]) -> rm.AT:
-    """Eqs. 26-28 written out for a known association (the lecture's Σ - K S Kᵀ form)."""
-    h, H, _ = SENSOR.predict(state.mean, LANDMARKS[idx], jacobians=True)
-    v = (z - h).reshape(-1)
-    v[1::2] = se2.wrap_angle(v[1::2])
-    Hs = H.reshape(-1, 3)
-    R = np.zeros((2 * len(idx), 2 * len(idx)))
-    for k, Rk in enumerate(SENSOR.noise(h[:, 0])):
-        R[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] = Rk
-    S = Hs @ state.cov @ Hs.T + R
-    K = state.cov @ Hs.T @ np.linalg.inv(S)
-    return rm.AT._trusted(se2.plus(state.mean, K @ v), state.cov - K @ S @ K.T)
+def _T(a):
+    return np.swapaxes(a, -1, -2)
 
 
-def readings(state_mean, idx, noise=0.0, rng=None):
-    z = SENSOR.predict(state_mean, LANDMARKS[idx])
-    if noise:
-        z = z + rng.normal(size=z.shape) * np.array([0.1, 0.02]) * noise
-    return z
+def block_diagonal(R: np.ndarray) -> np.ndarray:
+    """``(..., m, d, d)`` → the block-diagonal ``(..., md, md)``."""
+    *batch, m, d, _ = R.shape
+    out = np.zeros((*batch, m * d, m * d))
+    for i in range(m):
+        out[..., i * d : (i + 1) * d, i * d : (i + 1) * d] = R[..., i, :, :]
+    return out
 
 
+def textbook(P, y, H, R):
+    """Eqs. 26-28 on the stacked readings: ``S = H P Hᵀ + R``, ``K = P Hᵀ S⁻¹``, ``δ = K y``,
+    Joseph ``(I - KH) P (I - KH)ᵀ + K R Kᵀ``, ``yᵀ S⁻¹ y`` and ``log det S``."""
+    *batch, m, d, n = H.shape
+    Hs = H.reshape(*batch, m * d, n)
+    Rs = block_diagonal(R)
+    ys = y.reshape(*batch, m * d)
+    S = Hs @ P @ _T(Hs) + Rs
+    K = P @ _T(Hs) @ np.linalg.inv(S)
+    A = np.eye(n) - K @ Hs
+    Pj = A @ P @ _T(A) + K @ Rs @ _T(K)
+    nis = np.einsum("...i,...i->...", ys, np.linalg.solve(S, ys[..., None])[..., 0])
+    return (K @ ys[..., None])[..., 0], Pj, nis, np.linalg.slogdet(S)[1], S
+
+
+# ------------------------------------------------------------------------- prediction
 def test_predict_is_the_odometry_step():
-    noise = DistanceNoise(0.01, 0.02, 0.005)
-    new = ekf.predict(PRIOR, [0.5, 0.2], noise)
-    expected, _, _ = step(PRIOR, [0.5, 0.2], noise)
+    new = ekf.predict(PRIOR, [0.5, 0.2], Odometry(NOISE))
+    expected, _, _ = step(PRIOR, [0.5, 0.2], NOISE)
     np.testing.assert_allclose(new.mean, expected.mean)
     np.testing.assert_allclose(new.cov, expected.cov)
+    drive = DiffDrive(0.05, 0.3)  # wheel increments, the lecture's Gx P Gxᵀ + Gu Σu Guᵀ
+    wheels = WheelNoise(sigma=0.02, k=0.001)
+    new = ekf.predict(PRIOR, [2.5, 3.1], Odometry(wheels, drive=drive))
+    expected, _, _ = step(PRIOR, [2.5, 3.1], wheels, drive=drive)
+    np.testing.assert_allclose(new.mean, expected.mean, atol=1e-15)
+    np.testing.assert_allclose(new.cov, expected.cov, rtol=1e-12)
 
 
+def test_odometry_prediction_uses_the_numeric_jacobians_of_the_midpoint_step():
+    """P⁻ = F P Fᵀ + G Σu Gᵀ with F, G numeric Jacobians of f(x, u) = x ⊕ Δ(u) (Eqs. 10-13)."""
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        A = rng.normal(size=(3, 3)) * 0.1
+        state = rm.AT(rng.normal(size=3) * [2, 2, 3], A @ A.T)
+        u = rng.normal(size=2) * [0.5, 0.4]
+        new = ekf.predict(state, u, Odometry(NOISE))
+
+        def f(x, uu):
+            return se2.compose(x, increment(uu))
+
+        F = numerical_jacobian(lambda x, u=u: f(x, u), state.mean, chart_in=SE2, chart_out=SE2)
+        G = numerical_jacobian(lambda uu, x=state.mean: f(x, uu), u, chart_out=SE2)
+        P = F @ state.cov @ F.T + G @ NOISE.covariance(u) @ G.T
+        np.testing.assert_allclose(new.mean, f(state.mean, u), atol=1e-13)
+        np.testing.assert_allclose(new.cov, P, rtol=1e-6, atol=1e-10)
+
+
+def test_predict_rejects_non_finite_steps():
+    for u in ([np.nan, 0.1], [[0.5, 0.1], [0.5, np.inf]]):
+        with pytest.raises(NonFiniteError, match="finite"):
+            ekf.predict(PRIOR, u, Odometry(NOISE))
+    batch = rm.AT.stack([PRIOR, PRIOR])
+    with pytest.raises(NonFiniteError):
+        ekf.predict(batch, [[0.5, 0.1], [np.nan, 0.1]], Odometry(NOISE))
+
+
+# ------------------------------------------------------------------ a user's models
+F_CV = np.array([[1, 0, 0.1, 0], [0, 1, 0, 0.1], [0, 0, 1, 0], [0, 0, 0, 1.0]])
+G_CV = np.array([[0.005, 0], [0, 0.005], [0.1, 0], [0, 0.1]])
+Q_CV = np.diag([0.3, 0.2])
+BEACON = np.array([3.0, -1.0])
+
+
+@dataclasses.dataclass(frozen=True)
+class ConstantVelocity(Motion):
+    """``x = (px, py, vx, vy)`` driven by an acceleration ``u`` over 0.1 s (a plain vector)."""
+
+    analytic: bool = True
+    chart: ClassVar = EUCLIDEAN
+
+    def f(self, x, u):
+        return x @ F_CV.T + u @ G_CV.T
+
+    def input_noise(self, u):
+        return np.broadcast_to(Q_CV, (*np.shape(u)[:-1], 2, 2))
+
+    def jacobians(self, x, u):
+        if not self.analytic:
+            return super().jacobians(x, u)
+        return np.broadcast_to(F_CV, (*x.shape[:-1], 4, 4)), np.broadcast_to(
+            G_CV, (*x.shape[:-1], 4, 2)
+        )
+
+
+@dataclasses.dataclass(frozen=True)
+class Range(Measurement):
+    """The distance of the position to a beacon, σ² 0.04."""
+
+    analytic: bool = True
+    dim: ClassVar[int] = 1
+    state_chart: ClassVar = EUCLIDEAN
+
+    def h(self, x, landmark=None):
+        return np.linalg.norm(BEACON - x[..., :2], axis=-1)[..., None]
+
+    def noise(self, z):
+        return np.full((*np.shape(z)[:-1], 1, 1), 0.04)
+
+    def jacobians(self, x, landmark=None):
+        if not self.analytic:
+            return super().jacobians(x, landmark)
+        return range_jacobian(x), None
+
+
+def range_jacobian(x):
+    d = x[..., :2] - BEACON
+    r = np.linalg.norm(d, axis=-1)[..., None]
+    return np.concatenate([d / r, np.zeros_like(d)], axis=-1)[..., None, :]
+
+
+@pytest.mark.parametrize("analytic", [True, False], ids=["analytic", "numeric"])
+def test_generic_steps_are_the_textbook_equations(analytic):
+    """A constant-velocity model (n = 4) and a range sensor, as a user writes them (with or
+    without their Jacobians): Eq. 13 and Eqs. 26-28 (Joseph form) in numpy, for a batch of
+    beliefs."""
+    rng = np.random.default_rng(1)
+    A = rng.normal(size=(5, 4, 4))
+    belief = ekf.Belief(rng.normal(size=(5, 4)), A @ _T(A) + np.eye(4))
+    u = rng.normal(size=(5, 2))
+    pred = ekf.predict(belief, u, ConstantVelocity(analytic))
+    assert isinstance(pred, ekf.Belief) and pred.chart is EUCLIDEAN
+    tol = dict(rtol=1e-12, atol=1e-12) if analytic else dict(rtol=1e-6, atol=1e-8)
+    np.testing.assert_allclose(pred.x, belief.x @ F_CV.T + u @ G_CV.T, atol=1e-12)
+    np.testing.assert_allclose(pred.P, F_CV @ belief.P @ F_CV.T + G_CV @ Q_CV @ G_CV.T, **tol)
+
+    sensor = Range(analytic)
+    h = sensor.h(pred.x)
+    z = h + rng.normal(size=(5, 1)) * 0.2
+    c = ekf.correct(pred, z, sensor)
+    Hm = range_jacobian(pred.x)
+    S = Hm @ pred.P @ _T(Hm) + 0.04
+    K = pred.P @ _T(Hm) @ np.linalg.inv(S)
+    y = z - h
+    I_KH = np.eye(4) - K @ Hm
+    P = I_KH @ pred.P @ _T(I_KH) + 0.04 * K @ _T(K)
+    np.testing.assert_allclose(c.S, S, **tol)
+    np.testing.assert_allclose(c.y, y, atol=1e-15)
+    np.testing.assert_allclose(c.state.x, pred.x + (K @ y[..., None])[..., 0], **tol)
+    np.testing.assert_allclose(c.state.P, P, **tol)
+    np.testing.assert_allclose(c.nis, (y[..., 0] ** 2) / S[..., 0, 0], **tol)
+
+
+def test_a_singular_prior_is_fine_and_a_noise_not_positive_definite_is_refused():
+    """P = 0 (a state known exactly): the reading changes nothing and its NIS is y²/R — no 0/0.
+    R must be positive definite (the update inverts it): R = 0 is a clear error, not a NaN
+    state."""
+    belief = ekf.Belief(np.zeros((2, 2)), np.stack([np.zeros((2, 2)), np.eye(2)]))
+
+    @dataclasses.dataclass(frozen=True)
+    class First(Measurement):
+        r: float = 0.25
+        dim: ClassVar[int] = 1
+        state_chart: ClassVar = EUCLIDEAN
+
+        def h(self, x, landmark=None):
+            return x[..., :1]
+
+        def noise(self, z):
+            return np.full((*np.shape(z)[:-1], 1, 1), self.r)
+
+    c = ekf.correct(belief, [[1.0], [1.0]], First())
+    np.testing.assert_array_equal(c.state.x[0], [0.0, 0.0])
+    np.testing.assert_array_equal(c.state.P[0], 0.0)
+    np.testing.assert_allclose(c.state.x[1], [1.0 / 1.25, 0.0], rtol=1e-15)  # K = 1/(1 + R)
+    np.testing.assert_allclose(c.nis, [1.0 / 0.25, 1.0 / 1.25], rtol=1e-15)
+    assert np.isfinite(c.state.P).all()
+    for noise in (First(0.0), PositionFix(0.0)):
+        state = belief if isinstance(noise, First) else PRIOR
+        z = [[1.0], [1.0]] if isinstance(noise, First) else [0.3, 0.0]
+        with pytest.raises(ParameterError, match="positive definite"):
+            ekf.correct(state, z, noise)
+    with pytest.raises(ParameterError, match="positive definite"):
+        ekf.correct(PRIOR, [0.3, 0.0], PositionFix(0.1), R=np.diag([0.01, -0.01]))
+
+
+def test_correct_bad_input():
+    fix = PositionFix(0.1)
+    with pytest.raises(ShapeError, match=r"\(\.\.\., 2\)"):
+        ekf.correct(PRIOR, [0.3, 0.0, 0.1], fix)
+    with pytest.raises(ParameterError, match="finite"):
+        ekf.correct(PRIOR, [np.nan, 0.0], fix)
+    with pytest.raises(ShapeError, match="belief"):
+        ekf.correct(ekf.Belief(np.zeros(3), np.eye(2)), [0.3, 0.0], fix)
+
+
+# -------------------------------------------------------------------- the stacked update
+def random_problem(rng, batch, n, m, d, *, singular=False):
+    A = rng.normal(size=(*batch, n, n))
+    P = A @ _T(A) + (0.0 if singular else 0.1) * np.eye(n)
+    if singular:  # rank n - 1: a direction known exactly
+        v = rng.normal(size=(*batch, n, 1))
+        Pr = np.eye(n) - v @ _T(v) / (_T(v) @ v)
+        P = Pr @ P @ Pr
+    H = rng.normal(size=(*batch, m, d, n))
+    B = rng.normal(size=(*batch, m, d, d)) * 0.3
+    R = B @ _T(B) + 0.05 * np.eye(d)
+    y = rng.normal(size=(*batch, m, d))
+    return P, y, H, R
+
+
+@pytest.mark.parametrize("singular", [False, True], ids=["regular", "singular P"])
+def test_update_is_the_stacked_textbook_update(singular):
+    """``update`` (the gain through the push-through identity, R's blocks inverted) against
+    the (md)×(md) textbook update: the correction, the Joseph covariance, the NIS and
+    log det S; batches and several reading sizes; a singular P too."""
+    rng = np.random.default_rng(7)
+    for batch, n, m, d in [((), 3, 1, 2), ((4,), 3, 5, 2), ((2, 3), 5, 3, 1), ((6,), 4, 2, 3)]:
+        P, y, H, R = random_problem(rng, batch, n, m, d, singular=singular)
+        delta, P_new, nis, logdet = ekf.update(P, y, H, R)
+        d_want, P_want, nis_want, logdet_want, _ = textbook(P, y, H, R)
+        scale = np.abs(P).max()
+        np.testing.assert_allclose(delta, d_want, rtol=1e-9, atol=1e-11 * scale)
+        np.testing.assert_allclose(P_new, P_want, rtol=1e-8, atol=1e-11 * scale)
+        np.testing.assert_allclose(nis, nis_want, rtol=1e-9)
+        np.testing.assert_allclose(logdet, logdet_want, rtol=1e-10, atol=1e-10)
+        np.testing.assert_array_equal(P_new, _T(P_new))
+        assert (np.linalg.eigvalsh(P_new) > -1e-12 * scale).all()
+
+
+def test_joseph_form_keeps_the_covariance_positive_after_a_precise_reading():
+    """A reading 10⁶ times more precise than the prior: Eq. 28's ``P - K S Kᵀ`` loses the
+    remaining variance to cancellation; the Joseph form keeps it symmetric positive definite
+    and near the exact ``(P⁻¹ + Hᵀ R⁻¹ H)⁻¹``."""
+    P = np.diag([1e4, 1e4, 1.0])
+    H = np.array([[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]])
+    R = np.array([[[1e-4, 0.0], [0.0, 1e-4]]])
+    _, P_new, _, _ = ekf.update(P, np.array([[0.3, -0.2]]), H, R)
+    exact = np.linalg.inv(np.linalg.inv(P) + H[0].T @ np.linalg.inv(R[0]) @ H[0])
+    np.testing.assert_allclose(P_new, exact, rtol=1e-9, atol=1e-18)
+    assert (np.linalg.eigvalsh(P_new) > 0).all()
+
+
+def test_innovations_given_the_readings_before_are_the_gaussian_conditionals():
+    """Reading i given readings j < i: ``y_i - S_i< S_<<⁻¹ y_<`` and
+    ``S_ii - S_i< S_<<⁻¹ S_<i`` of the stacked innovation (the Gaussian conditional), whose
+    densities multiply to the stacked one (the prediction-error decomposition); the correction
+    and covariance with all the readings are :func:`update`'s."""
+    rng = np.random.default_rng(8)
+    for batch, n, m, d in [((), 3, 4, 2), ((3,), 4, 3, 1)]:
+        P, y, H, R = random_problem(rng, batch, n, m, d)
+        y_g, S_g, delta, P_all = ekf.innovations_given(P, y, H, R)
+        d_want, P_want, _, _, S = textbook(P, y, H, R)
+        np.testing.assert_allclose(delta, d_want, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(P_all, P_want, rtol=1e-8, atol=1e-12)
+        ys = y.reshape(*batch, m * d)
+        for b in np.ndindex(*batch):
+            ll = 0.0
+            for i in range(m):
+                a, before = slice(i * d, (i + 1) * d), slice(0, i * d)
+                Sb = S[b]
+                gain = Sb[a, before] @ np.linalg.inv(Sb[before, before]) if i else np.zeros((d, 0))
+                np.testing.assert_allclose(y_g[b][i], ys[b][a] - gain @ ys[b][before], rtol=1e-9,
+                                           atol=1e-12)  # fmt: skip
+                np.testing.assert_allclose(S_g[b][i], Sb[a, a] - gain @ Sb[before, a], rtol=1e-9)
+                ll += stats.multivariate_normal(np.zeros(d), S_g[b][i]).logpdf(y_g[b][i])
+            want = stats.multivariate_normal(np.zeros(m * d), S[b]).logpdf(ys[b])
+            assert ll == pytest.approx(want, rel=1e-10)
+
+
+# ------------------------------------------------------------------- full-pose readings
 def test_full_pose_correction_is_the_paper_merge_with_a_gate():
     reading = rm.AT([0.3, -0.05, 0.12], np.diag([0.01, 0.01, 0.001]))
     up = ekf.correct_pose(PRIOR, reading)
     assert up.accepted
     merged = rm.merge(PRIOR, reading)
     np.testing.assert_allclose(up.state.cov, merged.cov)
+    np.testing.assert_allclose(up.state.mean, merged.mean, atol=1e-15)
     # Eq. 17 in one dimension: x = (σz² x⁻ + σ⁻² z)/(σ⁻² + σz²)
     a, b = rm.AT([1.0, 0, 0], np.diag([4.0, 1, 1])), rm.AT([2.0, 0, 0], np.diag([1.0, 1, 1]))
     assert ekf.correct_pose(a, b).state.mean[0] == pytest.approx((1 * 1 + 4 * 2) / 5)
     wild = rm.AT([5.0, 5.0, 2.0], np.diag([0.01, 0.01, 0.001]))
     out = ekf.correct_pose(PRIOR, wild)
     assert not out.accepted and np.array_equal(out.state.mean, PRIOR.mean)
+    y = se2.minus(wild.mean, PRIOR.mean)
+    assert out.mahalanobis2 == pytest.approx(y @ np.linalg.solve(PRIOR.cov + wild.cov, y))
+    assert ekf.correct_pose(PRIOR, wild, gate=None).accepted  # no gate
 
 
-@pytest.mark.parametrize("associate", ["mahalanobis", "euclidean", "signatures"])
-def test_landmark_update_equals_eqs_26_to_28(associate):
-    rng = np.random.default_rng(1)
-    idx = [0, 1, 2, 3]
-    z = readings(np.array([0.25, -0.05, 0.12]), idx, noise=1.0, rng=rng)
-    kw = {}
-    if associate == "signatures":
-        kw = {"signatures": np.array([10, 11, 12, 13]), "landmark_signatures": np.arange(10, 15)}
-    up = ekf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS, associate=associate, **kw)
-    np.testing.assert_array_equal(up.landmark, idx)
-    assert (up.status == ekf.Status.USED).all()
-    expected = manual_update(PRIOR, z, idx)
-    np.testing.assert_allclose(up.state.mean, expected.mean, atol=1e-12)
-    np.testing.assert_allclose(up.state.cov, expected.cov, rtol=1e-9, atol=1e-14)
-
-
-def test_statuses_are_reported_and_only_used_readings_count():
-    z = readings(PRIOR.mean, [0, 1, 2])
-    z = np.vstack([z, [np.nan, 0.1], [2.0, 3.0], [1.0, 0.0]])  # NaN, far from all, padding
-    valid = np.array([True, True, True, True, True, False])
-    up = ekf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS, valid=valid)
-    assert list(up.status[:3]) == [ekf.Status.USED] * 3
-    assert up.status[3] == ekf.Status.INVALID and up.status[5] == ekf.Status.ABSENT
-    assert up.status[4] in (ekf.Status.GATED, ekf.Status.LOST)
-    assert up.report()["used"] == 3
-    only = ekf.correct_landmarks(PRIOR, z[:3], SENSOR, LANDMARKS)
-    np.testing.assert_allclose(up.state.cov, only.state.cov)
-    assert np.isfinite(up.state.mean).all()
-
-
-def test_unknown_signature_is_not_merged():
-    z = readings(PRIOR.mean, [0, 1])
-    up = ekf.correct_landmarks(
-        PRIOR,
-        z,
-        SENSOR,
-        LANDMARKS,
-        associate="signatures",
-        signatures=[0, 99],
-        landmark_signatures=np.arange(5),
-    )
-    assert list(up.status) == [ekf.Status.USED, ekf.Status.UNKNOWN] and up.landmark[1] == -1
-
-
-def test_one_to_one_versus_the_lectures_eq21():
-    """Two readings near one landmark: one to one uses one of them; Eq. 21 too (the landmark takes
-    its nearest), and a lone reading between two landmarks may serve both under Eq. 21."""
-    z = readings(PRIOR.mean, [0, 0])
-    z[1, 0] += 0.05
-    a = ekf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS)
-    assert a.status[0] == ekf.Status.USED and a.status[1] in (
-        ekf.Status.GATED,
-        ekf.Status.LOST,
-    )  # its next landmark is far
-    b = ekf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS, pairing="per_landmark")
-    assert b.report()["used"] == 1
-    close = np.array([[2.0, 0.0], [2.0, 0.3]])
-    mid = SENSOR.predict(PRIOR.mean, close.mean(axis=0))[None]
-    c = ekf.correct_landmarks(PRIOR, mid, SENSOR, close, pairing="per_landmark", gate=0.9999)
-    d = ekf.correct_landmarks(PRIOR, mid, SENSOR, close, gate=0.9999)
-    assert c.status[0] == ekf.Status.USED and d.status[0] == ekf.Status.USED
-    assert np.trace(c.state.cov) < np.trace(d.state.cov)  # one reading counted twice
-
-
-def test_batched_filters_equal_one_by_one():
+def test_pose_correction_is_the_paper_merge_for_a_batch():
     rng = np.random.default_rng(2)
-    B = 7
-    means = PRIOR.mean + rng.normal(size=(B, 3)) * 0.05
-    states = rm.AT(means, np.broadcast_to(PRIOR.cov, (B, 3, 3)))
-    z = np.stack([readings(means[b], [0, 2, 3], noise=1.0, rng=rng) for b in range(B)])
-    valid = rng.random((B, 3)) > 0.3
-    up = ekf.correct_landmarks(states, z, SENSOR, LANDMARKS, valid=valid)
-    for b in range(B):
-        one = ekf.correct_landmarks(states[b], z[b], SENSOR, LANDMARKS, valid=valid[b])
-        np.testing.assert_allclose(up.state.mean[b], one.state.mean, atol=1e-12)
-        np.testing.assert_allclose(up.state.cov[b], one.state.cov, atol=1e-14)
-        np.testing.assert_array_equal(up.status[b], one.status)
-
-
-def test_consistency_over_many_runs():
-    """A simulated run, 200 filters at once with known association: NEES within its χ² band."""
-    rng = np.random.default_rng(3)
-    B, T = 200, 60
-    noise = DistanceNoise(0.005, 0.005, 0.002)
-    truth = np.zeros((B, 3))
-    state = rm.AT(np.zeros((B, 3)), np.zeros((B, 3, 3)))
-    nees = []
-    motion = np.array([0.15, 0.04])
-    for _ in range(T):
-        S = noise.covariance(motion)
-        m = motion + rng.multivariate_normal([0, 0], S, size=B)
-        truth = se2.compose(truth, models.increment(m))
-        state = ekf.predict(state, motion, noise)
-        z = SENSOR.predict(truth[:, None, :], LANDMARKS)
-        z = z + rng.normal(size=z.shape) * np.array([0.1, 0.02])
-        vis = SENSOR.in_view(z)
-        up = ekf.correct_landmarks(
-            state,
-            z,
-            SENSOR,
-            LANDMARKS,
-            associate="signatures",
-            signatures=np.broadcast_to(np.arange(5), (B, 5)),
-            landmark_signatures=np.arange(5),
-            valid=vis,
-        )
-        state = up.state
-        e = se2.minus(truth, state.mean)
-        nees.append(gaussian.mahalanobis2(e, 0.0, state.cov).mean())
-    nees = np.array(nees)
-    # B·(average NEES) ~ χ² with 3B degrees of freedom: its 95% band, per step
-    lo, hi = (gaussian.confidence_k2(p, 3 * B) / B for p in (0.025, 0.975))
-    inside = (nees[5:] >= lo) & (nees[5:] <= hi)
-    assert inside.mean() >= 0.85
-    assert abs(nees[5:].mean() - 3.0) < 0.25
-
-
-def test_bad_input():
-    z = readings(PRIOR.mean, [0])
-    # an empty map: every reading UNKNOWN (counted), the state unchanged
-    empty = ekf.correct_landmarks(PRIOR, z, SENSOR, np.zeros((0, 2)))
-    assert list(empty.status) == [ekf.Status.UNKNOWN]
-    np.testing.assert_array_equal(empty.state.mean, PRIOR.mean)
-    with pytest.raises(ShapeError):
-        ekf.correct_landmarks(PRIOR, z[0], SENSOR, LANDMARKS)
-    with pytest.raises(ParameterError):
-        ekf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS, associate="psychic")
-    with pytest.raises(ParameterError):
-        ekf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS, associate="signatures")
-    with pytest.raises(ParameterError):
-        ekf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS, gate=1.0)
-
-
-def test_a_landmark_map_checked_once_gives_what_the_array_gives():
-    rng = np.random.default_rng(4)
-    z = readings(PRIOR.mean, [3, 0, 2], noise=1.0, rng=rng)
-    sig = np.array([30, 10, 20, 40, 50])  # signatures not in row order
-    lm = ekf.LandmarkMap(LANDMARKS, signatures=sig)
-    assert len(lm) == 5 and repr(lm) == "LandmarkMap(5 landmarks)"
-    assert not lm.xy.flags.writeable and not lm.signatures.flags.writeable
-    with pytest.raises(AttributeError):
-        lm.xy = LANDMARKS  # type: ignore[misc]
-    for kw in ({"associate": "signatures", "signatures": [40, 30, 99]}, {}, {"associate": "jcbb"}):
-        a = ekf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS, landmark_signatures=sig, **kw)
-        b = ekf.correct_landmarks(PRIOR, z, SENSOR, lm, **kw)
-        for x, y in zip(a, b, strict=True):
-            x, y = (x.mean, y.mean) if isinstance(x, rm.AT) else (x, y)
-            np.testing.assert_array_equal(x, y)
-    up = ekf.correct_landmarks(
-        PRIOR, z, SENSOR, lm, associate="signatures", signatures=[40, 30, 99]
+    A = rng.normal(size=(4, 3, 3)) * 0.1
+    prior = rm.AT(rng.normal(size=(4, 3)), A @ _T(A) + 1e-3 * np.eye(3))
+    reading = rm.AT(
+        se2.plus(prior.mean, rng.normal(size=(4, 3)) * 0.05), np.diag([0.01, 0.02, 0.003])
     )
-    assert list(up.landmark) == [3, 0, -1]  # rows; signature 99 is no landmark's
-    assert list(up.status) == [ekf.Status.USED, ekf.Status.USED, ekf.Status.UNKNOWN]
-    with pytest.raises(ParameterError, match="LandmarkMap"):
-        ekf.correct_landmarks(PRIOR, z, SENSOR, lm, landmark_signatures=sig)
-    with pytest.raises(ShapeError):
-        ekf.LandmarkMap(LANDMARKS[:, :1])
-    with pytest.raises(ShapeError):
-        ekf.LandmarkMap(LANDMARKS, signatures=[1, 2])
-    with pytest.raises(NonFiniteError):
-        ekf.LandmarkMap([[0.0, np.nan]])
-
-
-def test_predict_rejects_non_finite_steps():
-    noise = DistanceNoise(0.01, 0.02, 0.005)
-    for u in ([np.nan, 0.1], [[0.5, 0.1], [0.5, np.inf]]):
-        with pytest.raises(NonFiniteError, match="finite"):
-            ekf.predict(PRIOR, u, noise)
-    batch = rm.AT.stack([PRIOR, PRIOR])
-    with pytest.raises(NonFiniteError):
-        ekf.predict(batch, [[0.5, 0.1], [np.nan, 0.1]], noise)
-
-
-def mixture_update(state: rm.AT, z: np.ndarray, cluster: np.ndarray) -> rm.AT:
-    """A reading of one landmark of ``cluster``, which one unknown, written out: association
-    probabilities β_j ∝ |S_j|^(-1/2) exp(-d²_j/2), the moment-matched virtual landmark
-    ẑ = Σβ h_j, H = Σβ H_j, R = Σβ R_j + Σβ (h_j - ẑ)(h_j - ẑ)ᵀ, then Eqs. 26-28."""
-    h, H, _ = SENSOR.predict(state.mean, cluster, jacobians=True)
-    R = SENSOR.noise(h[:, 0])
-    S = H @ state.cov @ np.swapaxes(H, -1, -2) + R
-    v = z - h
-    v[:, 1] = se2.wrap_angle(v[:, 1])
-    d2 = np.einsum("ji,jik,jk->j", v, np.linalg.inv(S), v)
-    beta = np.exp(-0.5 * d2) / np.sqrt(np.linalg.det(S))
-    beta /= beta.sum()
-    zhat = beta @ h
-    e = h - zhat
-    Hm = np.einsum("j,jab->ab", beta, H)
-    Rm = np.einsum("j,jab->ab", beta, R) + np.einsum("j,ja,jb->ab", beta, e, e)
-    Sm = Hm @ state.cov @ Hm.T + Rm
-    K = state.cov @ Hm.T @ np.linalg.inv(Sm)
-    y = z - zhat
-    y[1] = se2.wrap_angle(y[1])
-    return rm.AT._trusted(se2.plus(state.mean, K @ y), state.cov - K @ Sm @ K.T)
-
-
-@pytest.mark.parametrize("associate", ["mahalanobis", "jcbb"])
-def test_a_reading_of_an_ambiguous_cluster_is_the_mixture_of_its_landmarks(associate):
-    # two landmarks 0.1 m apart at 3 m: both inside the gate of a reading of either
-    cluster = np.array([[3.0, 1.0], [3.0, 1.1]])
-    z = SENSOR.predict(PRIOR.mean, cluster[:1])
-    up = ekf.correct_landmarks(PRIOR, z, SENSOR, cluster, associate=associate)
-    assert up.status.tolist() == [ekf.Status.USED]
-    want = mixture_update(PRIOR, z[0], cluster)
-    np.testing.assert_allclose(up.state.mean, want.mean, rtol=1e-10, atol=1e-12)
-    np.testing.assert_allclose(up.state.cov, want.cov, rtol=1e-9, atol=1e-12)
-    # neither landmark taken with full confidence: the update lies between the two
-    one = [manual_update(PRIOR, z, [0]).mean]
-    lm = LANDMARKS.copy()
-    LANDMARKS[0] = cluster[1]
-    try:
-        one.append(manual_update(PRIOR, z, [0]).mean)
-    finally:
-        LANDMARKS[:] = lm
-    lo, hi = np.minimum(*one), np.maximum(*one)
-    assert ((up.state.mean >= lo - 1e-12) & (up.state.mean <= hi + 1e-12)).all()
-    # and it is less sure than a reading of a known landmark
-    assert np.linalg.det(up.state.cov) > np.linalg.det(manual_update(PRIOR, z, [0]).cov)
-
-
-def test_a_lone_candidate_inside_the_gate_is_its_own_update():
-    # the second landmark far outside the gate: the plain update (Eqs. 26-28)
-    cluster = np.array([[3.0, 1.0], [3.0, 4.0]])
-    z = SENSOR.predict(PRIOR.mean, cluster[:1])
-    up = ekf.correct_landmarks(PRIOR, z, SENSOR, cluster, associate="mahalanobis")
-    assert up.status.tolist() == [ekf.Status.USED]
-    want = manual_update(PRIOR, z, [0])  # LANDMARKS[0] is cluster[0]
-    np.testing.assert_allclose(up.state.mean, want.mean, rtol=1e-10)
-    np.testing.assert_allclose(up.state.cov, want.cov, rtol=1e-9, atol=1e-12)
+    up = ekf.correct_pose(prior, reading, gate=None)
+    merged = rm.merge(prior, reading)
+    np.testing.assert_allclose(up.state.mean, merged.mean, atol=1e-12)
+    np.testing.assert_allclose(up.state.cov, merged.cov, rtol=1e-10, atol=1e-14)
