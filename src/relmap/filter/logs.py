@@ -369,6 +369,8 @@ class _Prediction:
         names = self.motion.noise_parameters
         for j, (u, cut, to) in enumerate(zip(self.inputs, self.cuts, self.targets, strict=True)):
             moving = to > np.append(0, to[:-1])
+            if not moving.any():  # (a log of its start time alone: no step to compound)
+                continue
             mine = self.which == j
             motion = self.motion if len(self.inputs) == 1 else self.motion.replace(
                 **{k: getattr(self.motion, k)[mine] for k in names})
@@ -424,7 +426,7 @@ def _kept(
     at_reading = np.zeros(T, bool)
     at_reading[times] = True
     last = np.searchsorted(times, np.arange(T), side="left")  # readings strictly before k
-    if moves.relative:
+    if moves.relative and len(moves.inputs[0]):  # (a log of its start time alone: no step)
         ch = chains(moves.motion, moves.inputs[0], moves.cuts[0])  # from the last cut before k
         moved = compound(AT._trusted(a_mean[:, last], a_cov[:, last]),
                          AT._trusted(ch.mean, ch.cov))  # fmt: skip
