@@ -29,6 +29,7 @@ from relmap.models import (
     RangeOnly,
 )
 from relmap.uncertain import gaussian
+from relmap.uncertain.propagate import SE2, numerical_jacobian
 
 SENSOR = RangeBearingSensor(0.1, 0.02, mount=[0.1, 0.0, 0.0], fov=np.radians(180), max_range=10.0)
 LANDMARKS = np.array([[3.0, 1.0], [4.0, -2.0], [6.0, 0.5], [2.0, 3.0], [-3.0, 0.0]])
@@ -578,6 +579,20 @@ def test_landmark_at_the_sensor_is_a_counted_0_over_0_alone_and_in_a_batch():
     np.testing.assert_array_equal(both.status[1], one.status)
     np.testing.assert_array_equal(both.state.mean[1], one.state.mean)
     np.testing.assert_array_equal(both.state.cov[1], one.state.cov)
+
+
+def test_range_bearing_innovation_covariance_uses_the_numeric_jacobian():
+    """S = H P Hᵀ + R with H the numeric Jacobian of Eq. 20 through the mount offset."""
+    rng = np.random.default_rng(4)
+    sensor = RangeBearingSensor(0.08, 0.015, mount=[0.12, 0.04, 0.1])
+    state = rm.AT([0.3, -0.2, 0.7], np.diag([0.04, 0.03, 0.01]) + 0.005)
+    z = sensor.h(state.mean, LANDMARKS)
+    up = ekf.correct_landmarks(state, z + rng.normal(size=z.shape) * 0.01, sensor, LANDMARKS,
+                               associate="signatures", signatures=np.arange(5))  # fmt: skip
+    for k, lm in enumerate(LANDMARKS):
+        H = numerical_jacobian(lambda x, lm=lm: sensor.h(x, lm), state.mean, chart_in=SE2)
+        S = H @ state.cov @ H.T + np.diag([sensor.sigma_range**2, sensor.sigma_bearing**2])
+        np.testing.assert_allclose(up.S[k], S, rtol=1e-7, atol=1e-12)
 
 
 # ------------------------------------------------------------------------------------ JCBB
