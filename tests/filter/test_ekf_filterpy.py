@@ -1,4 +1,5 @@
-"""relmap.filter.ekf against filterpy's ExtendedKalmanFilter, step by step, to 1e-12.
+"""relmap.filter (predict, correct_landmarks, correct_pose, run) against filterpy's
+ExtendedKalmanFilter, step by step, to 1e-12.
 
 filterpy (MIT licence) is given the same model by hand: its ``predict`` with ``F = Gx``,
 ``Q = Gu Σu Guᵀ`` and ``predict_x`` overridden to ``x = g(x, u)`` (its default is linear), and
@@ -13,9 +14,9 @@ import numpy as np
 import pytest
 
 import relmap as rm
-from relmap.filter import ekf
+from relmap import filter as ekf
 from relmap.lie import se2
-from relmap.models import DistanceNoise, RangeBearingSensor, increment
+from relmap.models import DistanceNoise, Odometry, RangeBearingSensor, increment
 
 filterpy_ekf = pytest.importorskip("filterpy.kalman.EKF")
 
@@ -23,6 +24,7 @@ SENSOR = RangeBearingSensor(
     0.08, 0.015, mount=[0.12, 0.04, 0.1], fov=np.radians(200), max_range=9.0
 )
 NOISE = DistanceNoise(0.004, 0.003, 0.001)
+MOTION = Odometry(NOISE)
 LANDMARKS = np.array(
     [[4.0, 1.0], [6.0, -2.5], [2.5, 4.0], [-1.0, 5.0], [-4.5, 1.5], [-3.0, -4.0], [1.0, -5.0],
      [7.0, 3.0]]
@@ -93,7 +95,7 @@ def simulate(rng, steps):
     for t in range(steps):
         u = np.array([0.25, 0.12 if t % 20 < 12 else -0.05])
         truth = se2.compose(truth, increment(u + rng.normal(0.0, [0.01, 0.005])))
-        z = SENSOR.predict(truth, LANDMARKS)
+        z = SENSOR.h(truth, LANDMARKS)
         seen = np.flatnonzero(SENSOR.in_view(z))
         order = rng.permutation(seen)  # readings come in no particular order
         z = z[order] + rng.normal(size=(len(order), 2)) * [SENSOR.sigma_range, SENSOR.sigma_bearing]
@@ -110,14 +112,13 @@ def test_step_by_step_equal_to_filterpy(associate):
     state = rm.AT([0.1, -2.9, 0.15], np.diag([0.05, 0.04, 0.01]))
     kf = _Filter(dim_x=3, dim_z=2)
     kf.x, kf.P = state.mean.copy(), state.cov.copy()
-    lsig = np.arange(len(LANDMARKS))
     for t, (u, z, ids, gps) in enumerate(simulate(rng, 40)):
-        state = ekf.predict(state, u, NOISE)
+        state = ekf.predict(state, u, MOTION)
         kf.F, kf.Q = jacobians(kf.x, u)
         kf.predict(u=u)
         assert_same(state, kf, f"prediction {t}")
 
-        kw = dict(signatures=ids, landmark_signatures=lsig) if associate == "signatures" else {}
+        kw = dict(signatures=ids) if associate == "signatures" else {}
         up = ekf.correct_landmarks(
             state, z, SENSOR, LANDMARKS, associate=associate, gate=0.9999, **kw
         )
@@ -144,8 +145,9 @@ def test_step_by_step_equal_to_filterpy(associate):
 
 @pytest.mark.parametrize("associate", ["signatures", "mahalanobis", "jcbb"])
 def test_a_whole_log_through_ekf_run_equals_filterpy(associate):
-    """The same simulated log replayed by ekf.run (all loops in the core) and stepped through
-    filterpy with the pairs ekf.run chose: the same posterior at every time, to 1e-12."""
+    """The same simulated log replayed by relmap.filter.run (the odometry between readings
+    compounded first) and stepped through filterpy with the pairs run chose: the same state at
+    every time, to 1e-12."""
     rng = np.random.default_rng(12)
     start = rm.AT([0.1, -2.9, 0.15], np.diag([0.05, 0.04, 0.01]))
     steps = simulate(rng, 60)
@@ -157,8 +159,7 @@ def test_a_whole_log_through_ekf_run_equals_filterpy(associate):
         np.concatenate([z for _, z, _, _ in steps]),
         np.concatenate([ids for _, _, ids, _ in steps]),
     )
-    p = ekf.NoiseParameters.of(NOISE, SENSOR)
-    tr = ekf.run(log, LANDMARKS, p, start=start, association=associate, gate=0.9999)
+    tr = ekf.run(log, MOTION, SENSOR, LANDMARKS, start=start, associate=associate, gate=0.9999)
     assert (tr.status == ekf.Status.USED).all()
     np.testing.assert_array_equal(tr.landmark, log.signature)
     kf = _Filter(dim_x=3, dim_z=2)
