@@ -25,9 +25,9 @@ import numpy as np
 import pytest
 
 import relmap as rm
-from relmap.filter import ekf
+from relmap import filter as ekf
 from relmap.lie import se2
-from relmap.models import DistanceNoise, RangeBearingSensor, increment
+from relmap.models import DistanceNoise, Odometry, RangeBearingSensor, increment
 from relmap.uncertain import gaussian
 
 B, T, L = 1000, 50, 40
@@ -35,6 +35,7 @@ SENSOR = RangeBearingSensor(
     0.1, np.radians(1.0), mount=[0.1, 0.0, 0.0], fov=np.pi, max_range=8.0, min_range=1.0
 )
 NOISE = DistanceNoise(0.005, 0.005, 0.002)
+MOTION = Odometry(NOISE)
 STEP = np.array([0.15, 0.025])
 PRIOR = rm.AT([6.0, 0.0, np.pi / 2], np.diag([0.01, 0.01, 0.001]))
 
@@ -52,7 +53,7 @@ def monte_carlo(seed: int, *, clutter: bool, landmarks: np.ndarray | None = None
     rows = np.arange(B)[:, None]
     for _ in range(T):
         truth = se2.compose(truth, increment(STEP + rng.multivariate_normal([0, 0], Su, size=B)))
-        z = SENSOR.predict(truth[:, None, :], landmarks)
+        z = SENSOR.h(truth[:, None, :], landmarks)
         seen = SENSOR.in_view(z)
         z = z + rng.normal(size=z.shape) * [SENSOR.sigma_range, SENSOR.sigma_bearing]
         ids = np.broadcast_to(np.arange(n), (B, n))
@@ -84,10 +85,10 @@ def test_nees_of_1000_runs_within_its_chi2_band():
     state = rm.AT(np.broadcast_to(PRIOR.mean, (B, 3)), np.broadcast_to(PRIOR.cov, (B, 3, 3)))
     nees = []
     for landmarks, truth, z, valid, ids in monte_carlo(1, clutter=False):
-        state = ekf.predict(state, STEP, NOISE)
+        state = ekf.predict(state, STEP, MOTION)
         up = ekf.correct_landmarks(
-            state, z, SENSOR, landmarks, associate="signatures", signatures=ids,
-            landmark_signatures=np.arange(L), valid=valid, gate=1 - 1e-6,
+            state, z, SENSOR, landmarks, associate="signatures", signatures=ids, valid=valid,
+            gate=1 - 1e-6,
         )  # fmt: skip
         state = up.state
         nees.append(gaussian.mahalanobis2(se2.minus(truth, state.mean), 0.0, state.cov).mean())
@@ -103,7 +104,7 @@ def test_mahalanobis_association_in_moderate_clutter():
     state = rm.AT(np.broadcast_to(PRIOR.mean, (B, 3)), np.broadcast_to(PRIOR.cov, (B, 3, 3)))
     used = right = true_readings = true_used = 0
     for landmarks, _, z, valid, ids in monte_carlo(2, clutter=True):
-        state = ekf.predict(state, STEP, NOISE)
+        state = ekf.predict(state, STEP, MOTION)
         up = ekf.correct_landmarks(state, z, SENSOR, landmarks, valid=valid)
         state = up.state
         u = up.status == ekf.Status.USED
@@ -117,17 +118,16 @@ def test_mahalanobis_association_in_moderate_clutter():
 
 
 @pytest.mark.slow
-def test_anees_of_200_runs_of_ekf_run_within_its_chi2_interval():
-    """200 simulated robots, each its own log replayed by ekf.run (readings every step with
-    their true landmark, known noise): at every time the average NEES over the runs, divided
-    by 3 (ANEES), is χ²(3·200)/600 if the filters are consistent: at the last time it lies in
-    its 95% interval, at ≥ 85% of all times too (95% expected; the times are correlated, and
-    the linearized filter runs slightly conservative: measured 88% inside, the misses below),
-    and the ANEES over all times is 1 within 0.05 (measured 0.954)."""
+def test_anees_of_200_runs_of_run_within_its_chi2_interval():
+    """200 simulated robots, each its own log replayed by relmap.filter.run (readings every
+    step with their true landmark, known noise): at every time the average NEES over the runs,
+    divided by 3 (ANEES), is χ²(3·200)/600 if the filters are consistent: at the last time it
+    lies in its 95% interval, at ≥ 85% of all times too (95% expected; the times are
+    correlated, and the linearized filter runs slightly conservative: measured 88% inside, the
+    misses below), and the ANEES over all times is 1 within 0.05 (measured 0.954)."""
     runs = 200
     rng = np.random.default_rng(14)
     landmarks = rng.uniform(-12.0, 12.0, (L, 2))
-    params = ekf.NoiseParameters.of(NOISE, SENSOR)
     Su = NOISE.covariance(STEP)
     nees = np.empty((runs, T + 1))
     for r in range(runs):
@@ -137,7 +137,7 @@ def test_anees_of_200_runs_of_ekf_run_within_its_chi2_interval():
             truth.append(
                 se2.compose(truth[-1], increment(STEP + rng.multivariate_normal([0, 0], Su)))
             )
-            z = SENSOR.predict(truth[-1], landmarks)
+            z = SENSOR.h(truth[-1], landmarks)
             seen = np.flatnonzero(SENSOR.in_view(z))
             zs.append(
                 z[seen]
@@ -147,7 +147,7 @@ def test_anees_of_200_runs_of_ekf_run_within_its_chi2_interval():
             ids.append(seen)
         log = ekf.Log(np.arange(T + 1.0), np.tile(STEP, (T, 1)), np.array(index, np.int64),
                       np.concatenate(zs), np.concatenate(ids))  # fmt: skip
-        tr = ekf.run(log, landmarks, params, start=PRIOR, gate=1 - 1e-6)
+        tr = ekf.run(log, MOTION, SENSOR, landmarks, start=PRIOR, gate=1 - 1e-6)
         truth = np.array(truth)
         nees[r] = gaussian.mahalanobis2(se2.minus(truth, tr.mean), 0.0, tr.cov)
     anees = nees[:, 1:].mean(axis=0) / 3.0
