@@ -77,7 +77,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from relmap.errors import ParameterError
+from relmap.errors import ParameterError, ShapeError
 from relmap.filter.landmarks import Association, LandmarkMap, Status
 from relmap.filter.logs import Log, Trace, run
 from relmap.models.base import Measurement, Motion
@@ -586,6 +586,8 @@ def calibrate(
     """
     assoc = Association.parse(association, "association")
     lmap = landmarks if isinstance(landmarks, LandmarkMap) else LandmarkMap(landmarks)
+    if not len(lmap):  # (the clutter's volume is per landmark)
+        raise ShapeError(f"landmarks must have shape (L, p) with L ≥ 1; got {lmap.xy.shape}")
     if not len(recording.reading_t):
         raise ParameterError("cannot calibrate from innovations: the run has no readings")
     mnames, snames = motion.noise_parameters, sensor.noise_parameters
