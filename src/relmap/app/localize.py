@@ -330,7 +330,7 @@ def sensor_residuals(data: Mrclam, robot: int) -> FloatArray:
     t = log.meas_t
     keep = (lm >= 0) & (t >= log.truth_t[0]) & (t <= log.truth_t[-1])
     sensor = RangeBearingSensor(0.0, 0.0)
-    predicted = sensor.predict(log.truth_at(t[keep]), data.landmark_xy[lm[keep]])
+    predicted = sensor.h(log.truth_at(t[keep]), data.landmark_xy[lm[keep]])
     out = np.column_stack([log.meas_range[keep], log.meas_bearing[keep]]) - predicted
     out[:, 1] = se2.wrap_angle(out[:, 1])
     return out
