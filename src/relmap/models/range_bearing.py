@@ -255,7 +255,9 @@ def _triples(mean: ArrayLike, cov: ArrayLike, what: str) -> tuple[FloatArray, Fl
     if m.ndim == 0 or m.shape[-1] != 3:
         raise ShapeError(f"{what} mean must have shape (..., 3); got {m.shape}")
     gaussian.check_finite(m, f"{what} mean")
-    return m, gaussian.validate_covariance(cov, dim=3, name=f"{what} cov")
+    C = gaussian.validate_covariance(cov, dim=3, name=f"{what} cov")
+    gaussian.broadcast(f"{what} mean and cov batch", m.shape[:-1], C.shape[:-2])
+    return m, C
 
 
 def polar_to_cartesian(mean: ArrayLike, cov: ArrayLike, method: Method | str = "linear") -> AT:
