@@ -147,6 +147,7 @@ class AT(UncertainPose):
         if mean_arr.ndim == 0 or mean_arr.shape[-1] != 3:
             raise ShapeError(f"AT mean must have shape (..., 3); got {mean_arr.shape}")
         gaussian.check_finite(mean_arr, "AT mean")
+        gaussian.broadcast("AT mean and body cov batch", mean_arr.shape[:-1], checked.shape[:-2])
         M = se2.body_to_chart(mean_arr)
         return cls(mean_arr, gaussian.congruence(M, checked), rtol=rtol)
 
