@@ -3,19 +3,27 @@ method against a simulated robot whose noise is known."""
 
 from __future__ import annotations
 
+import dataclasses
+from typing import ClassVar
+
 import numpy as np
 import pytest
 from scipy import stats
 
 import relmap as rm
+from relmap import filter as ekf
 from relmap.errors import ParameterError, ShapeError
 from relmap.filter import autocalibration as ac
-from relmap.filter import ekf
 from relmap.lie import se2
-from relmap.models import DistanceNoise, RangeBearingSensor
+from relmap.models import DistanceNoise, Odometry, RangeBearingSensor
 
 NOISE = DistanceNoise(0.01, 0.01, 0.002)
 SIGMA_R, SIGMA_B = 0.02, 0.005  # a laser scanner's landmarks: 2 cm, 0.3°
+#: The simulated robot's models, with its noise.
+MOTION, SENSOR = Odometry(NOISE), RangeBearingSensor(SIGMA_R, SIGMA_B)
+#: Where the calibration starts: cautious, large noise (relmap.app.localize's START_ODOMETRY
+#: and START_SENSOR), so that the search comes down to the data.
+CAUTIOUS = Odometry(DistanceNoise(0.05, 0.02, 0.005)), RangeBearingSensor(0.5, 0.05)
 LANDMARKS = np.array([[x, y] for x in (-6.0, 0.0, 6.0) for y in (-6.0, 0.0, 6.0)])
 #: The route: the corners of a 3 m square about the central landmark, driven counter-clockwise
 #: (A B C D A) then clockwise (A D C B A), again and again.
@@ -70,7 +78,7 @@ def simulate_runs(rng: np.random.Generator, runs: int, steps: int, dt: float = 0
             truth[k + 1 : k + 1 + j, 2] = se2.wrap_angle(theta[1:])
             cmd[k : k + j] = plan / dt
             k, goal = k + j, goal + 1
-        zz = RangeBearingSensor(0.0, 0.0).predict(truth[at][:, None, :], LANDMARKS)
+        zz = RangeBearingSensor(0.0, 0.0).h(truth[at][:, None, :], LANDMARKS)
         i, landmark = np.nonzero((zz[..., 0] > RANGES[0]) & (zz[..., 0] < RANGES[1]))
         z = zz[i, landmark] + rng.normal(size=(len(i), 2)) * [SIGMA_R, SIGMA_B]
         rec = ac.Recording(t, cmd[:, 0], cmd[:, 1], t[at][i], z, landmark, float(t[-1]))
@@ -102,20 +110,19 @@ def test_recovers_the_simulated_noise(seed: int) -> None:
     1.9-8.8, the χ²₆ spread of an unbiased fit. The calibrated filter is consistent against
     the truth of its run, and the innovations are white."""
     rec, truth = simulate(seed, steps=12_000)
-    cal = ac.calibrate(rec, LANDMARKS, start=start, gate=GATE,
-                       landmark_signatures=np.arange(len(LANDMARKS)))  # fmt: skip
-    p = cal.parameters
+    cal = ac.calibrate(rec, *CAUTIOUS, LANDMARKS, start=start, gate=GATE)
     assert cal.delay == 0.0
     assert abs(cal.correlation[0]) < 0.1  # white reading errors: white innovations
     assert cal.inflation < 1.1
-    got = {k: float(getattr(p, k)) for k in ("k_s", "k_theta", "k_theta_s", "sigma_r", "sigma_b")}
-    want = {"k_s": NOISE.k_s, "k_theta": NOISE.k_theta, "k_theta_s": NOISE.k_theta_s,
-            "sigma_r": SIGMA_R, "sigma_b": SIGMA_B}  # fmt: skip
+    got = {k: float(getattr(m, k)) for m in (cal.motion, cal.sensor) for k in m.noise_parameters}
+    want = {k: float(getattr(m, k)) for m in (MOTION, SENSOR) for k in m.noise_parameters}
+    assert set(got) == {"k_s", "k_theta", "k_theta_s", "sigma_range", "sigma_bearing"}
     for k in got:
         assert got[k] == pytest.approx(want[k], rel=0.1), (k, got, want)
     assert abs(cal.turn_bias) < 0.003  # none simulated (the fit's σ here is about 0.001 rad/s)
     log = rec.log(*cal.clock)
-    tr = ekf.run(log, LANDMARKS, p, start=start(0.0), landmark_signatures=np.arange(9), gate=GATE)
+    tr = ekf.run(log, cal.motion, cal.sensor, LANDMARKS, start=start(0.0), gate=GATE,
+                 **cal.options)  # fmt: skip
     e = se2.minus(truth, tr.mean)  # truth ⊟ estimate at every odometry time (no reading-only times)
     nees = np.einsum("ti,tij,tj->t", e, np.linalg.inv(tr.cov), e)
     assert 0.8 < nees.mean() / 3 < 1.25
@@ -124,19 +131,17 @@ def test_recovers_the_simulated_noise(seed: int) -> None:
 @pytest.mark.slow
 def test_anees_of_200_runs_within_its_chi2_interval() -> None:
     """The simulated robot with its known noise is consistent: 200 runs of 100 s (1000
-    odometry steps, 500 scans), each its own log through ekf.run. The average NEES over the
-    runs at one time, divided by 3 (ANEES), is χ²(600)/600 if the filters are consistent: at
+    odometry steps, 500 scans), each its own log through relmap.filter.run. The average NEES over
+    the runs at one time, divided by 3 (ANEES), is χ²(600)/600 if the filters are consistent: at
     the last time it lies in its 95% interval [0.890, 1.116], at ≥ 85% of all times too (95%
     expected; the times are correlated), and the ANEES over all times is 1 within 0.05.
     Measured (seeds 1-5 and 14 of the runs): 88.5-95.2% of the times inside, the last inside
     on every seed (0.93-1.11), the mean 1.004-1.044 (the linearized filter slightly
     overconfident, most during the turns in place); this seed 90.5%, 1.051, 1.028."""
     runs, steps = 200, 1000
-    p = ekf.NoiseParameters(NOISE.k_s, NOISE.k_theta, NOISE.k_theta_s, SIGMA_R, SIGMA_B)
     nees = np.empty((runs, steps + 1))
     for r, (rec, truth) in enumerate(simulate_runs(np.random.default_rng(14), runs, steps)):
-        tr = ekf.run(rec.log(), LANDMARKS, p, start=start(0.0), landmark_signatures=np.arange(9),
-                     gate=GATE)  # fmt: skip
+        tr = ekf.run(rec.log(), MOTION, SENSOR, LANDMARKS, start=start(0.0), gate=GATE)
         e = se2.minus(truth, tr.mean)
         nees[r] = np.einsum("ti,tij,tj->t", e, np.linalg.inv(tr.cov), e)
     anees = nees.mean(axis=0) / 3.0
@@ -150,7 +155,7 @@ def test_anees_of_200_runs_within_its_chi2_interval() -> None:
 def test_finds_the_odometry_clock_offset() -> None:
     rec, _ = simulate(2, steps=1500)
     late = rec._replace(odometry_t=rec.odometry_t - 0.2)  # stamped 0.2 s before the motion
-    cal = ac.calibrate(late, LANDMARKS, start=start, landmark_signatures=np.arange(9), gate=GATE)
+    cal = ac.calibrate(late, *CAUTIOUS, LANDMARKS, start=start, gate=GATE)
     assert cal.delay == pytest.approx(0.2)
 
 
@@ -164,8 +169,7 @@ def test_finds_the_odometry_turn_rate_bias(seed: int) -> None:
     0.00848, 0.00660; with no bias 0.00042, 0.0, -0.00148."""
     rec, _ = simulate(seed, steps=6000)
     biased = rec._replace(w=rec.w + 0.01)
-    cal = ac.calibrate(biased, LANDMARKS, start=start, landmark_signatures=np.arange(9),
-                       gate=GATE)  # fmt: skip
+    cal = ac.calibrate(biased, *CAUTIOUS, LANDMARKS, start=start, gate=GATE)
     assert cal.turn_bias == pytest.approx(0.01, abs=0.005)
     assert cal.clock == (cal.delay, cal.scale, cal.turn_bias)
 
@@ -217,10 +221,21 @@ def _trace(y: np.ndarray, S: np.ndarray, *, status: np.ndarray | None = None) ->
 def test_bad_input_is_a_clear_error() -> None:
     rec, _ = simulate(5, steps=50)
     with pytest.raises(ShapeError, match="landmarks"):
-        ac.calibrate(rec, np.zeros((0, 2)), start=start)
+        ac.calibrate(rec, *CAUTIOUS, np.zeros((0, 2)), start=start)
     with pytest.raises(ParameterError, match="no readings"):
         empty = rec._replace(reading_t=rec.reading_t[:0], z=rec.z[:0], signature=rec.signature[:0])
-        ac.calibrate(empty, LANDMARKS, start=start)
+        ac.calibrate(empty, *CAUTIOUS, LANDMARKS, start=start)
+
+    # the fitted parameters are named by the models, the readings' dof and the clutter: no clash
+    @dataclasses.dataclass(frozen=True)
+    class Robust(RangeBearingSensor):  # a sensor with its own "nu"
+        nu: float = 4.0
+        noise_parameters: ClassVar[tuple[str, ...]] = ("sigma_range", "sigma_bearing", "nu")
+
+    with pytest.raises(ParameterError, match="distinct names"):
+        ac.calibrate(rec, CAUTIOUS[0], Robust(0.5, 0.05), LANDMARKS, start=start)
+    with pytest.raises(ParameterError, match="distinct names"):
+        ac.calibrate(rec, CAUTIOUS[0], Odometry(DistanceNoise(0.1)), LANDMARKS, start=start)
 
 
 def _ar1(rng: np.random.Generator, rho: float, n: int) -> np.ndarray:
@@ -250,3 +265,10 @@ def test_logpdf_is_scipys_student_t_of_unit_variance_and_normal() -> None:
         assert t.var() == pytest.approx(1.0, rel=1e-12)
         assert np.allclose(ac.logpdf(x * x, 0.0, 1, nu), t.logpdf(x), rtol=1e-12, atol=0)
     assert np.allclose(ac.logpdf(x * x, 0.0, 1, np.inf), stats.norm.logpdf(x), rtol=1e-12)
+
+
+def test_measurement_volume_is_the_readings_span():
+    z = np.array([[1.0, -0.5], [3.0, 0.2], [np.nan, 9.0], [2.0, 0.5]])
+    assert ac.measurement_volume(z) == pytest.approx(2.0 * 1.0)
+    assert ac.measurement_volume(np.array([4.0, 1.5, 2.0])) == pytest.approx(2.5)
+    assert ac.measurement_volume(np.array([[1.0, 0.0]])) == 1.0

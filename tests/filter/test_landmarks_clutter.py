@@ -1,6 +1,6 @@
 """Readings of nothing in the map (clutter, a moving object): the clutter hypothesis of
-relmap.filter.ekf (a used reading weighed by w = g/(g + λ)) against its mathematics, and the filter
-and its autocalibration on a simulated robot whose clutter is known."""
+relmap.filter.landmarks (a used reading weighed by w = g/(g + λ)) against its mathematics, and
+the filter on a simulated robot whose clutter is known."""
 
 from __future__ import annotations
 
@@ -9,11 +9,19 @@ import pytest
 from scipy import stats
 
 import relmap as rm
+from relmap import filter as ekf
 from relmap import models
 from relmap.filter import autocalibration as ac
-from relmap.filter import ekf
 from relmap.lie import se2
-from tests.filter.test_autocalibration import LANDMARKS, NOISE, SIGMA_B, SIGMA_R, simulate, start
+from tests.filter.test_autocalibration import (
+    LANDMARKS,
+    MOTION,
+    SENSOR,
+    SIGMA_B,
+    SIGMA_R,
+    simulate,
+    start,
+)
 
 #: the simulated sensor's field of view: ranges 1-8 m, every bearing
 FOV = ((1.0, 8.0), (-np.pi, np.pi))
@@ -38,7 +46,7 @@ def with_clutter(rec: ac.Recording, truth: np.ndarray, seed: int, fraction: floa
         if mover:
             a = 0.2 * t / radius
             obj = np.array([[radius * np.cos(a), radius * np.sin(a)]])
-            zz = models.RangeBearingSensor(0.0, 0.0).predict(truth[kk], obj)
+            zz = models.RangeBearingSensor(0.0, 0.0).h(truth[kk], obj)
             if FOV[0][0] < zz[0, 0] < FOV[0][1]:
                 rt.append([t])
                 z.append(zz + rng.normal(size=(1, 2)) * [SIGMA_R, SIGMA_B])
@@ -49,13 +57,16 @@ def with_clutter(rec: ac.Recording, truth: np.ndarray, seed: int, fraction: floa
                         signature=np.concatenate(sig)[order])  # fmt: skip
 
 
-def _one_reading(clutter: float, z: np.ndarray, nu: float = np.inf):
+def _one_reading(clutter: float | None, z: np.ndarray, nu: float = np.inf):
     """One filter from pose (0.5, -0.2, 0.1) with covariance P0, no motion, one range-bearing
-    reading z of the single landmark (3, 1) at t = 1."""
+    reading z of the single landmark (3, 1) at t = 1 (``clutter`` None: the argument left
+    out)."""
     log = ekf.Log(np.array([0.0, 1.0]), np.zeros((1, 2)), np.array([1]), z[None])
-    p = ekf.NoiseParameters(0.0, 0.0, 0.0, 0.2, 0.05, nu=nu, clutter=clutter)
     s0 = rm.AT(np.array([0.5, -0.2, 0.1]), P0)
-    return ekf.run(log, np.array([[3.0, 1.0]]), p, start=s0, association="mahalanobis")
+    kw = {} if clutter is None else {"clutter": clutter}
+    return ekf.run(log, models.Odometry(models.DistanceNoise(0.0, 0.0, 0.0)),
+                   models.RangeBearingSensor(0.2, 0.05), np.array([[3.0, 1.0]]), start=s0,
+                   associate="mahalanobis", nu=nu, **kw)  # fmt: skip
 
 
 P0 = np.array([[0.04, 0.01, 0.0], [0.01, 0.09, 0.005], [0.0, 0.005, 0.01]])
@@ -94,38 +105,9 @@ def test_no_clutter_is_the_filter_without_it_bit_for_bit():
     a, b = _one_reading(0.0, z), _one_reading(1e-300, z)
     assert np.array_equal(a.mean, _one_reading(0.0, z).mean)
     np.testing.assert_allclose(b.mean, a.mean, rtol=1e-15)  # λ → 0: w → 1
-    rec, _truth = simulate(3, steps=300)
-    tr = ekf.run(rec.log(), LANDMARKS, ekf.NoiseParameters.of(
-        NOISE, models.RangeBearingSensor(SIGMA_R, SIGMA_B)), start=start(0.0),
-        association="mahalanobis")  # fmt: skip
-    for nu in (np.inf, 4.0):
-        assert np.array_equal(ac.loglik(tr, nu, 0.0, 5.0), ac.loglik(tr, nu))
-
-
-def test_the_mixture_likelihood_is_landmark_or_uniform_clutter():
-    """Per paired reading log(g + λ) - log(1 + λV) (the mixture (1 - π) g + π/V over
-    1 - π, λ = π/((1 - π) V)), g scipy's Student-t of covariance S (each reading's innovation
-    given the readings before it at its time); a LOST reading is clutter."""
-    rec, truth = simulate(3, steps=300)
-    rec = with_clutter(rec, truth, 7, mover=False)
-    p = ekf.NoiseParameters.of(NOISE, models.RangeBearingSensor(SIGMA_R, SIGMA_B))
-    tr = ekf.run(rec.log(), LANDMARKS, p, start=start(0.0), association="mahalanobis")
-    nu, V, lam = 5.0, 2.5, 0.3
-    paired = np.flatnonzero((tr.status == ekf.Status.USED) | (tr.status == ekf.Status.GATED))
-    assert (tr.status == ekf.Status.GATED).sum() > 10
-    want = 0.0
-    for i in paired:
-        t = stats.multivariate_t(np.zeros(2), tr.S_given[i] * (nu - 2) / nu, df=nu)
-        want += np.log(t.pdf(tr.y_given[i]) + lam) - np.log1p(lam * V)
-    want += (tr.status == ekf.Status.LOST).sum() * (np.log(lam) - np.log1p(lam * V))
-    assert float(ac.loglik(tr, nu, lam, V)) == pytest.approx(want, rel=1e-10)
-
-
-def test_measurement_volume_is_the_readings_span():
-    z = np.array([[1.0, -0.5], [3.0, 0.2], [np.nan, 9.0], [2.0, 0.5]])
-    assert ac.measurement_volume(z) == pytest.approx(2.0 * 1.0)
-    assert ac.measurement_volume(np.array([4.0, 1.5, 2.0])) == pytest.approx(2.5)
-    assert ac.measurement_volume(np.array([[1.0, 0.0]])) == 1.0
+    plain = _one_reading(None, z)
+    for name in ("mean", "cov", "y", "S", "loglik", "nis"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(plain, name))
 
 
 def _nees(tr: ekf.Trace, log: ekf.Log, rec: ac.Recording, truth: np.ndarray) -> np.ndarray:
@@ -147,27 +129,10 @@ def test_the_filter_with_clutter_and_a_mover_stays_consistent(association):
     out = log.signature < 0
     V = ac.measurement_volume(rec.z) / len(LANDMARKS)
     lam = out.mean() / ((1 - out.mean()) * V)
-    p = ekf.NoiseParameters.of(NOISE, models.RangeBearingSensor(SIGMA_R, SIGMA_B))
-    tr = ekf.run(log, LANDMARKS, p._replace(clutter=lam), start=start(0.0),
-                 association=association)  # fmt: skip
+    tr = ekf.run(log, MOTION, SENSOR, LANDMARKS, start=start(0.0), associate=association,
+                 clutter=lam)  # fmt: skip
     nees, e = _nees(tr, log, rec, truth)
     assert 0.7 < nees.mean() / 3 < 1.5
     assert np.sqrt((e[:, :2] ** 2).sum(axis=1).mean()) < 0.06
     used = tr.status == ekf.Status.USED
     assert (used & out).sum() < 0.1 * out.sum()  # the gate rejects nearly all of them
-
-
-def test_calibration_recovers_the_clutter_fraction():
-    """Without signatures the autocalibration fits λ with the rest: the fraction λV/(1 + λV)
-    within 0.05 of the simulated one (measured: 0.314 against 0.303), σ within 10%."""
-    rec, truth = simulate(1, steps=3000)
-    rec = with_clutter(rec, truth, 5, radius=0.3)
-    cal = ac.calibrate(rec, LANDMARKS, start=start, association="mahalanobis")
-    frac = float((rec.signature < 0).mean())
-    assert cal.clutter_fraction == pytest.approx(frac, abs=0.05)
-    assert float(cal.parameters.sigma_r) == pytest.approx(SIGMA_R, rel=0.1)
-    assert float(cal.parameters.sigma_b) == pytest.approx(SIGMA_B, rel=0.1)
-    assert cal.as_dict()["clutter_fraction"] == cal.clutter_fraction
-    # with signatures the signature names the landmark: no clutter fitted
-    sig = ac.calibrate(rec, LANDMARKS, start=start, landmark_signatures=np.arange(9))
-    assert float(sig.parameters.clutter) == 0.0 and sig.clutter_fraction == 0.0

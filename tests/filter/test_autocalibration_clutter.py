@@ -1,0 +1,66 @@
+"""The clutter of the autocalibration (relmap.filter.autocalibration): the likelihood of a
+reading that is of a landmark or of clutter uniform over the measurement volume, against
+scipy's densities, and the clutter fraction recovered on a simulated robot whose clutter is
+known."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from relmap import filter as ekf
+from relmap.filter import autocalibration as ac
+from tests.filter.test_autocalibration import (
+    CAUTIOUS,
+    LANDMARKS,
+    MOTION,
+    SENSOR,
+    SIGMA_B,
+    SIGMA_R,
+    simulate,
+    start,
+)
+from tests.filter.test_landmarks_clutter import with_clutter
+
+
+def test_no_clutter_is_the_likelihood_without_it_bit_for_bit():
+    rec, _truth = simulate(3, steps=300)
+    tr = ekf.run(rec.log(), MOTION, SENSOR, LANDMARKS, start=start(0.0), associate="mahalanobis")
+    for nu in (np.inf, 4.0):
+        assert np.array_equal(ac.loglik(tr, nu, 0.0, 5.0), ac.loglik(tr, nu))
+
+
+def test_the_mixture_likelihood_is_landmark_or_uniform_clutter():
+    """Per paired reading log(g + λ) - log(1 + λV) (the mixture (1 - π) g + π/V over
+    1 - π, λ = π/((1 - π) V)), g scipy's Student-t of covariance S (each reading's innovation
+    given the readings before it at its time); a LOST reading is clutter."""
+    rec, truth = simulate(3, steps=300)
+    rec = with_clutter(rec, truth, 7, mover=False)
+    tr = ekf.run(rec.log(), MOTION, SENSOR, LANDMARKS, start=start(0.0), associate="mahalanobis")
+    nu, V, lam = 5.0, 2.5, 0.3
+    paired = np.flatnonzero((tr.status == ekf.Status.USED) | (tr.status == ekf.Status.GATED))
+    assert (tr.status == ekf.Status.GATED).sum() > 10
+    want = 0.0
+    for i in paired:
+        t = stats.multivariate_t(np.zeros(2), tr.S_given[i] * (nu - 2) / nu, df=nu)
+        want += np.log(t.pdf(tr.y_given[i]) + lam) - np.log1p(lam * V)
+    want += (tr.status == ekf.Status.LOST).sum() * (np.log(lam) - np.log1p(lam * V))
+    assert float(ac.loglik(tr, nu, lam, V)) == pytest.approx(want, rel=1e-10)
+
+
+def test_calibration_recovers_the_clutter_fraction():
+    """Without signatures the autocalibration fits λ with the rest: the fraction λV/(1 + λV)
+    within 0.05 of the simulated one (measured: 0.314 against 0.303), σ within 10%."""
+    rec, truth = simulate(1, steps=3000)
+    rec = with_clutter(rec, truth, 5, radius=0.3)
+    cal = ac.calibrate(rec, *CAUTIOUS, LANDMARKS, start=start, association="mahalanobis")
+    frac = float((rec.signature < 0).mean())
+    assert cal.clutter_fraction == pytest.approx(frac, abs=0.05)
+    assert float(cal.sensor.sigma_range) == pytest.approx(SIGMA_R, rel=0.1)
+    assert float(cal.sensor.sigma_bearing) == pytest.approx(SIGMA_B, rel=0.1)
+    assert cal.as_dict()["clutter_fraction"] == cal.clutter_fraction
+    assert cal.options == {"inflation": cal.inflation, "clutter": cal.clutter} and cal.clutter > 0
+    # with signatures the signature names the landmark: no clutter fitted
+    sig = ac.calibrate(rec, *CAUTIOUS, LANDMARKS, start=start)
+    assert sig.clutter == 0.0 and sig.clutter_fraction == 0.0
