@@ -93,7 +93,9 @@ class AT3(UncertainPose):
         if t.ndim == 0 or t.shape[-1] != 3:
             raise ShapeError(f"translation must have shape (..., 3); got {t.shape}")
         gaussian.check_finite(t, "translation")
-        T = se3.from_parts(t, _rotation(rotation, atol=atol))
+        R = _rotation(rotation, atol=atol)
+        gaussian.broadcast("AT3 translation and rotation batch", t.shape[:-1], R.shape[:-2])
+        T = se3.from_parts(t, R)
         C = (
             np.zeros((*T.shape[:-2], 6, 6))
             if cov is None
