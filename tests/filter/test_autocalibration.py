@@ -11,7 +11,7 @@ import pytest
 from scipy import stats
 
 import relmap as rm
-from relmap import filter as ekf
+import relmap.filter as rf
 from relmap.errors import ParameterError, ShapeError
 from relmap.filter import autocalibration as ac
 from relmap.lie import se2
@@ -121,7 +121,7 @@ def test_recovers_the_simulated_noise(seed: int) -> None:
         assert got[k] == pytest.approx(want[k], rel=0.1), (k, got, want)
     assert abs(cal.turn_bias) < 0.003  # none simulated (the fit's σ here is about 0.001 rad/s)
     log = rec.log(*cal.clock)
-    tr = ekf.run(log, cal.motion, cal.sensor, LANDMARKS, start=start(0.0), gate=GATE,
+    tr = rf.run(log, cal.motion, cal.sensor, LANDMARKS, start=start(0.0), gate=GATE,
                  **cal.options)  # fmt: skip
     e = se2.minus(truth, tr.mean)  # truth ⊟ estimate at every odometry time (no reading-only times)
     nees = np.einsum("ti,tij,tj->t", e, np.linalg.inv(tr.cov), e)
@@ -141,7 +141,7 @@ def test_anees_of_200_runs_within_its_chi2_interval() -> None:
     runs, steps = 200, 1000
     nees = np.empty((runs, steps + 1))
     for r, (rec, truth) in enumerate(simulate_runs(np.random.default_rng(14), runs, steps)):
-        tr = ekf.run(rec.log(), MOTION, SENSOR, LANDMARKS, start=start(0.0), gate=GATE)
+        tr = rf.run(rec.log(), MOTION, SENSOR, LANDMARKS, start=start(0.0), gate=GATE)
         e = se2.minus(truth, tr.mean)
         nees[r] = np.einsum("ti,tij,tj->t", e, np.linalg.inv(tr.cov), e)
     anees = nees.mean(axis=0) / 3.0
@@ -207,13 +207,13 @@ def test_loglik_is_the_student_t_and_gaussian_density_of_every_paired_reading() 
     assert float(ac.loglik(trace, 4.0)) == pytest.approx(want_t, rel=1e-12)
 
 
-def _trace(y: np.ndarray, S: np.ndarray, *, status: np.ndarray | None = None) -> ekf.Trace:
+def _trace(y: np.ndarray, S: np.ndarray, *, status: np.ndarray | None = None) -> rf.Trace:
     """A one-filter trace holding only per-reading innovations (one landmark, one reading a
     time: given the readings before it is at the prior)."""
     n = len(y)
     st = np.zeros(n, np.int64) if status is None else status
     z = np.zeros(0)
-    return ekf.Trace(z, z, z, y, S, z, st, np.zeros(n, np.int64), np.float64(0), np.float64(0),
+    return rf.Trace(z, z, z, y, S, z, st, np.zeros(n, np.int64), np.float64(0), np.float64(0),
                      np.int64(0), np.int64(0), np.zeros(7, np.int64), np.int64(0),
                      y, S)  # fmt: skip
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from relmap import filter as ekf
+import relmap.filter as rf
 from relmap.filter import autocalibration as ac
 from tests.filter.test_autocalibration import (
     CAUTIOUS,
@@ -26,7 +26,7 @@ from tests.filter.test_landmarks_clutter import with_clutter
 
 def test_no_clutter_is_the_likelihood_without_it_bit_for_bit():
     rec, _truth = simulate(3, steps=300)
-    tr = ekf.run(rec.log(), MOTION, SENSOR, LANDMARKS, start=start(0.0), associate="mahalanobis")
+    tr = rf.run(rec.log(), MOTION, SENSOR, LANDMARKS, start=start(0.0), associate="mahalanobis")
     for nu in (np.inf, 4.0):
         assert np.array_equal(ac.loglik(tr, nu, 0.0, 5.0), ac.loglik(tr, nu))
 
@@ -37,15 +37,15 @@ def test_the_mixture_likelihood_is_landmark_or_uniform_clutter():
     given the readings before it at its time); a LOST reading is clutter."""
     rec, truth = simulate(3, steps=300)
     rec = with_clutter(rec, truth, 7, mover=False)
-    tr = ekf.run(rec.log(), MOTION, SENSOR, LANDMARKS, start=start(0.0), associate="mahalanobis")
+    tr = rf.run(rec.log(), MOTION, SENSOR, LANDMARKS, start=start(0.0), associate="mahalanobis")
     nu, V, lam = 5.0, 2.5, 0.3
-    paired = np.flatnonzero((tr.status == ekf.Status.USED) | (tr.status == ekf.Status.GATED))
-    assert (tr.status == ekf.Status.GATED).sum() > 10
+    paired = np.flatnonzero((tr.status == rf.Status.USED) | (tr.status == rf.Status.GATED))
+    assert (tr.status == rf.Status.GATED).sum() > 10
     want = 0.0
     for i in paired:
         t = stats.multivariate_t(np.zeros(2), tr.S_given[i] * (nu - 2) / nu, df=nu)
         want += np.log(t.pdf(tr.y_given[i]) + lam) - np.log1p(lam * V)
-    want += (tr.status == ekf.Status.LOST).sum() * (np.log(lam) - np.log1p(lam * V))
+    want += (tr.status == rf.Status.LOST).sum() * (np.log(lam) - np.log1p(lam * V))
     assert float(ac.loglik(tr, nu, lam, V)) == pytest.approx(want, rel=1e-10)
 
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import relmap as rm
-from relmap import filter as ekf
+import relmap.filter as rf
 from relmap.lie import se2
 from relmap.models import DistanceNoise, Odometry, RangeBearingSensor, increment
 
@@ -113,17 +113,17 @@ def test_step_by_step_equal_to_filterpy(associate):
     kf = _Filter(dim_x=3, dim_z=2)
     kf.x, kf.P = state.mean.copy(), state.cov.copy()
     for t, (u, z, ids, gps) in enumerate(simulate(rng, 40)):
-        state = ekf.predict(state, u, MOTION)
+        state = rf.predict(state, u, MOTION)
         kf.F, kf.Q = jacobians(kf.x, u)
         kf.predict(u=u)
         assert_same(state, kf, f"prediction {t}")
 
         kw = dict(signatures=ids) if associate == "signatures" else {}
-        up = ekf.correct_landmarks(
+        up = rf.correct_landmarks(
             state, z, SENSOR, LANDMARKS, associate=associate, gate=0.9999, **kw
         )
         np.testing.assert_array_equal(up.landmark, ids)  # the true landmarks, every reading
-        assert (up.status == ekf.Status.USED).all()
+        assert (up.status == rf.Status.USED).all()
         state = up.state
         if len(ids):
             R = np.diag(np.tile([SENSOR.sigma_range**2, SENSOR.sigma_bearing**2], len(ids)))
@@ -134,7 +134,7 @@ def test_step_by_step_equal_to_filterpy(associate):
         assert_same(state, kf, f"landmark update {t} ({len(ids)} readings)")
 
         if t % 10 == 9:  # a GPS + compass fix: the full-pose correction (the paper's merge)
-            pose = ekf.correct_pose(state, gps, gate=None)
+            pose = rf.correct_pose(state, gps, gate=None)
             state = pose.state
             kf.update(
                 gps.mean, lambda x: np.eye(3), lambda x: x, R=gps.cov,
@@ -152,15 +152,15 @@ def test_a_whole_log_through_ekf_run_equals_filterpy(associate):
     start = rm.AT([0.1, -2.9, 0.15], np.diag([0.05, 0.04, 0.01]))
     steps = simulate(rng, 60)
     index = np.concatenate([np.full(len(ids), k + 1) for k, (_, _, ids, _) in enumerate(steps)])
-    log = ekf.Log(
+    log = rf.Log(
         np.arange(len(steps) + 1.0),
         np.array([u for u, _, _, _ in steps]),
         index.astype(np.int64),
         np.concatenate([z for _, z, _, _ in steps]),
         np.concatenate([ids for _, _, ids, _ in steps]),
     )
-    tr = ekf.run(log, MOTION, SENSOR, LANDMARKS, start=start, associate=associate, gate=0.9999)
-    assert (tr.status == ekf.Status.USED).all()
+    tr = rf.run(log, MOTION, SENSOR, LANDMARKS, start=start, associate=associate, gate=0.9999)
+    assert (tr.status == rf.Status.USED).all()
     np.testing.assert_array_equal(tr.landmark, log.signature)
     kf = _Filter(dim_x=3, dim_z=2)
     kf.x, kf.P = start.mean.copy(), start.cov.copy()

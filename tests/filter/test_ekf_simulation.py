@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 
 import relmap as rm
-from relmap import filter as ekf
+import relmap.filter as rf
 from relmap.lie import se2
 from relmap.models import DistanceNoise, Odometry, RangeBearingSensor, increment
 from relmap.uncertain import gaussian
@@ -85,8 +85,8 @@ def test_nees_of_1000_runs_within_its_chi2_band():
     state = rm.AT(np.broadcast_to(PRIOR.mean, (B, 3)), np.broadcast_to(PRIOR.cov, (B, 3, 3)))
     nees = []
     for landmarks, truth, z, valid, ids in monte_carlo(1, clutter=False):
-        state = ekf.predict(state, STEP, MOTION)
-        up = ekf.correct_landmarks(
+        state = rf.predict(state, STEP, MOTION)
+        up = rf.correct_landmarks(
             state, z, SENSOR, landmarks, associate="signatures", signatures=ids, valid=valid,
             gate=1 - 1e-6,
         )  # fmt: skip
@@ -104,15 +104,15 @@ def test_mahalanobis_association_in_moderate_clutter():
     state = rm.AT(np.broadcast_to(PRIOR.mean, (B, 3)), np.broadcast_to(PRIOR.cov, (B, 3, 3)))
     used = right = true_readings = true_used = 0
     for landmarks, _, z, valid, ids in monte_carlo(2, clutter=True):
-        state = ekf.predict(state, STEP, MOTION)
-        up = ekf.correct_landmarks(state, z, SENSOR, landmarks, valid=valid)
+        state = rf.predict(state, STEP, MOTION)
+        up = rf.correct_landmarks(state, z, SENSOR, landmarks, valid=valid)
         state = up.state
-        u = up.status == ekf.Status.USED
+        u = up.status == rf.Status.USED
         used += u.sum()
         right += (u & (up.landmark == ids)).sum()
         true_readings += (valid & (ids >= 0)).sum()
         true_used += (u & (ids >= 0)).sum()
-        assert not (valid & (up.status == ekf.Status.ABSENT)).any()
+        assert not (valid & (up.status == rf.Status.ABSENT)).any()
     assert right / used >= 0.99, right / used
     assert true_used / true_readings >= 0.95  # the gate (99%) rejects few true readings
 
@@ -145,9 +145,9 @@ def test_anees_of_200_runs_of_run_within_its_chi2_interval():
             )
             index += [k] * len(seen)
             ids.append(seen)
-        log = ekf.Log(np.arange(T + 1.0), np.tile(STEP, (T, 1)), np.array(index, np.int64),
+        log = rf.Log(np.arange(T + 1.0), np.tile(STEP, (T, 1)), np.array(index, np.int64),
                       np.concatenate(zs), np.concatenate(ids))  # fmt: skip
-        tr = ekf.run(log, MOTION, SENSOR, landmarks, start=PRIOR, gate=1 - 1e-6)
+        tr = rf.run(log, MOTION, SENSOR, landmarks, start=PRIOR, gate=1 - 1e-6)
         truth = np.array(truth)
         nees[r] = gaussian.mahalanobis2(se2.minus(truth, tr.mean), 0.0, tr.cov)
     anees = nees[:, 1:].mean(axis=0) / 3.0

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import relmap as rm
-from relmap import filter as ekf
+import relmap.filter as rf
 from relmap import models
 from relmap.errors import NonFiniteError, ParameterError, ShapeError
 from relmap.lie import se2
@@ -67,10 +67,10 @@ def test_landmark_update_equals_eqs_26_to_28(associate):
     kw, lmap = {}, LANDMARKS
     if associate == "signatures":
         kw = {"signatures": np.array([10, 11, 12, 13])}
-        lmap = ekf.LandmarkMap(LANDMARKS, signatures=np.arange(10, 15))
-    up = ekf.correct_landmarks(PRIOR, z, SENSOR, lmap, associate=associate, **kw)
+        lmap = rf.LandmarkMap(LANDMARKS, signatures=np.arange(10, 15))
+    up = rf.correct_landmarks(PRIOR, z, SENSOR, lmap, associate=associate, **kw)
     np.testing.assert_array_equal(up.landmark, idx)
-    assert (up.status == ekf.Status.USED).all()
+    assert (up.status == rf.Status.USED).all()
     expected = manual_update(PRIOR, z, idx)
     np.testing.assert_allclose(up.state.mean, expected.mean, atol=1e-12)
     np.testing.assert_allclose(up.state.cov, expected.cov, rtol=1e-9, atol=1e-14)
@@ -80,19 +80,19 @@ def test_statuses_are_reported_and_only_used_readings_count():
     z = readings(PRIOR.mean, [0, 1, 2])
     z = np.vstack([z, [np.nan, 0.1], [2.0, 3.0], [1.0, 0.0]])  # NaN, far from all, padding
     valid = np.array([True, True, True, True, True, False])
-    up = ekf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS, valid=valid)
-    assert list(up.status[:3]) == [ekf.Status.USED] * 3
-    assert up.status[3] == ekf.Status.INVALID and up.status[5] == ekf.Status.ABSENT
-    assert up.status[4] in (ekf.Status.GATED, ekf.Status.LOST)
+    up = rf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS, valid=valid)
+    assert list(up.status[:3]) == [rf.Status.USED] * 3
+    assert up.status[3] == rf.Status.INVALID and up.status[5] == rf.Status.ABSENT
+    assert up.status[4] in (rf.Status.GATED, rf.Status.LOST)
     assert up.report()["used"] == 3
-    only = ekf.correct_landmarks(PRIOR, z[:3], SENSOR, LANDMARKS)
+    only = rf.correct_landmarks(PRIOR, z[:3], SENSOR, LANDMARKS)
     np.testing.assert_allclose(up.state.cov, only.state.cov)
     assert np.isfinite(up.state.mean).all()
 
 
 def test_unknown_signature_is_not_merged():
     z = readings(PRIOR.mean, [0, 1])
-    up = ekf.correct_landmarks(
+    up = rf.correct_landmarks(
         PRIOR,
         z,
         SENSOR,
@@ -100,7 +100,7 @@ def test_unknown_signature_is_not_merged():
         associate="signatures",
         signatures=[0, 99],
     )
-    assert list(up.status) == [ekf.Status.USED, ekf.Status.UNKNOWN] and up.landmark[1] == -1
+    assert list(up.status) == [rf.Status.USED, rf.Status.UNKNOWN] and up.landmark[1] == -1
 
 
 def test_one_to_one_versus_the_lectures_eq21():
@@ -108,18 +108,18 @@ def test_one_to_one_versus_the_lectures_eq21():
     its nearest), and a lone reading between two landmarks may serve both under Eq. 21."""
     z = readings(PRIOR.mean, [0, 0])
     z[1, 0] += 0.05
-    a = ekf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS)
-    assert a.status[0] == ekf.Status.USED and a.status[1] in (
-        ekf.Status.GATED,
-        ekf.Status.LOST,
+    a = rf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS)
+    assert a.status[0] == rf.Status.USED and a.status[1] in (
+        rf.Status.GATED,
+        rf.Status.LOST,
     )  # its next landmark is far
-    b = ekf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS, pairing="per_landmark")
+    b = rf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS, pairing="per_landmark")
     assert b.report()["used"] == 1
     close = np.array([[2.0, 0.0], [2.0, 0.3]])
     mid = SENSOR.h(PRIOR.mean, close.mean(axis=0))[None]
-    c = ekf.correct_landmarks(PRIOR, mid, SENSOR, close, pairing="per_landmark", gate=0.9999)
-    d = ekf.correct_landmarks(PRIOR, mid, SENSOR, close, gate=0.9999)
-    assert c.status[0] == ekf.Status.USED and d.status[0] == ekf.Status.USED
+    c = rf.correct_landmarks(PRIOR, mid, SENSOR, close, pairing="per_landmark", gate=0.9999)
+    d = rf.correct_landmarks(PRIOR, mid, SENSOR, close, gate=0.9999)
+    assert c.status[0] == rf.Status.USED and d.status[0] == rf.Status.USED
     assert np.trace(c.state.cov) < np.trace(d.state.cov)  # one reading counted twice
 
 
@@ -130,9 +130,9 @@ def test_batched_filters_equal_one_by_one():
     states = rm.AT(means, np.broadcast_to(PRIOR.cov, (B, 3, 3)))
     z = np.stack([readings(means[b], [0, 2, 3], noise=1.0, rng=rng) for b in range(B)])
     valid = rng.random((B, 3)) > 0.3
-    up = ekf.correct_landmarks(states, z, SENSOR, LANDMARKS, valid=valid)
+    up = rf.correct_landmarks(states, z, SENSOR, LANDMARKS, valid=valid)
     for b in range(B):
-        one = ekf.correct_landmarks(states[b], z[b], SENSOR, LANDMARKS, valid=valid[b])
+        one = rf.correct_landmarks(states[b], z[b], SENSOR, LANDMARKS, valid=valid[b])
         np.testing.assert_allclose(up.state.mean[b], one.state.mean, atol=1e-12)
         np.testing.assert_allclose(up.state.cov[b], one.state.cov, atol=1e-14)
         np.testing.assert_array_equal(up.status[b], one.status)
@@ -152,11 +152,11 @@ def test_consistency_over_many_runs():
         S = noise.covariance(motion)
         m = motion + rng.multivariate_normal([0, 0], S, size=B)
         truth = se2.compose(truth, models.increment(m))
-        state = ekf.predict(state, motion, odometry)
+        state = rf.predict(state, motion, odometry)
         z = SENSOR.h(truth[:, None, :], LANDMARKS)
         z = z + rng.normal(size=z.shape) * np.array([0.1, 0.02])
         vis = SENSOR.in_view(z)
-        up = ekf.correct_landmarks(
+        up = rf.correct_landmarks(
             state,
             z,
             SENSOR,
@@ -179,17 +179,17 @@ def test_consistency_over_many_runs():
 def test_bad_input():
     z = readings(PRIOR.mean, [0])
     # an empty map: every reading UNKNOWN (counted), the state unchanged
-    empty = ekf.correct_landmarks(PRIOR, z, SENSOR, np.zeros((0, 2)))
-    assert list(empty.status) == [ekf.Status.UNKNOWN]
+    empty = rf.correct_landmarks(PRIOR, z, SENSOR, np.zeros((0, 2)))
+    assert list(empty.status) == [rf.Status.UNKNOWN]
     np.testing.assert_array_equal(empty.state.mean, PRIOR.mean)
     with pytest.raises(ShapeError):
-        ekf.correct_landmarks(PRIOR, z[0], SENSOR, LANDMARKS)
+        rf.correct_landmarks(PRIOR, z[0], SENSOR, LANDMARKS)
     with pytest.raises(ParameterError):
-        ekf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS, associate="psychic")
+        rf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS, associate="psychic")
     with pytest.raises(ParameterError):
-        ekf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS, associate="signatures")
+        rf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS, associate="signatures")
     with pytest.raises(ParameterError):
-        ekf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS, gate=1.0)
+        rf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS, gate=1.0)
 
 
 def test_a_landmark_map_checked_once_gives_what_the_array_gives():
@@ -197,33 +197,31 @@ def test_a_landmark_map_checked_once_gives_what_the_array_gives():
     of signatures not in row order pairs a reading with its signature's row."""
     rng = np.random.default_rng(4)
     z = readings(PRIOR.mean, [3, 0, 2], noise=1.0, rng=rng)
-    lm = ekf.LandmarkMap(LANDMARKS)
+    lm = rf.LandmarkMap(LANDMARKS)
     assert len(lm) == 5 and repr(lm) == "LandmarkMap(5 landmarks)"
     np.testing.assert_array_equal(lm.signatures, np.arange(5))
     for kw in ({"associate": "signatures", "signatures": [3, 0, 99]}, {}, {"associate": "jcbb"}):
-        a = ekf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS, **kw)
-        b = ekf.correct_landmarks(PRIOR, z, SENSOR, lm, **kw)
+        a = rf.correct_landmarks(PRIOR, z, SENSOR, LANDMARKS, **kw)
+        b = rf.correct_landmarks(PRIOR, z, SENSOR, lm, **kw)
         for x, y in zip(a, b, strict=True):
             x, y = (x.mean, y.mean) if isinstance(x, rm.AT) else (x, y)
             np.testing.assert_array_equal(x, y)
     sig = np.array([30, 10, 20, 40, 50])  # signatures not in row order
-    lm = ekf.LandmarkMap(LANDMARKS, signatures=sig)
+    lm = rf.LandmarkMap(LANDMARKS, signatures=sig)
     assert not lm.xy.flags.writeable and not lm.signatures.flags.writeable
     with pytest.raises(AttributeError):
         lm.xy = LANDMARKS  # type: ignore[misc]
-    up = ekf.correct_landmarks(
-        PRIOR, z, SENSOR, lm, associate="signatures", signatures=[40, 30, 99]
-    )
+    up = rf.correct_landmarks(PRIOR, z, SENSOR, lm, associate="signatures", signatures=[40, 30, 99])
     assert list(up.landmark) == [3, 0, -1]  # rows; signature 99 is no landmark's
-    assert list(up.status) == [ekf.Status.USED, ekf.Status.USED, ekf.Status.UNKNOWN]
+    assert list(up.status) == [rf.Status.USED, rf.Status.USED, rf.Status.UNKNOWN]
     with pytest.raises(ShapeError, match="2 coordinates"):  # the sensor reads (x, y)
-        ekf.correct_landmarks(PRIOR, z, SENSOR, ekf.LandmarkMap(LANDMARKS[:, :1]))
+        rf.correct_landmarks(PRIOR, z, SENSOR, rf.LandmarkMap(LANDMARKS[:, :1]))
     with pytest.raises(ShapeError):
-        ekf.LandmarkMap(LANDMARKS, signatures=[1, 2])
+        rf.LandmarkMap(LANDMARKS, signatures=[1, 2])
     with pytest.raises(ShapeError):
-        ekf.LandmarkMap(LANDMARKS, signatures=[0.5, 1, 2, 3, 4])
+        rf.LandmarkMap(LANDMARKS, signatures=[0.5, 1, 2, 3, 4])
     with pytest.raises(NonFiniteError):
-        ekf.LandmarkMap([[0.0, np.nan]])
+        rf.LandmarkMap([[0.0, np.nan]])
 
 
 def mixture_update(state: rm.AT, z: np.ndarray, cluster: np.ndarray) -> rm.AT:
@@ -254,8 +252,8 @@ def test_a_reading_of_an_ambiguous_cluster_is_the_mixture_of_its_landmarks(assoc
     # two landmarks 0.1 m apart at 3 m: both inside the gate of a reading of either
     cluster = np.array([[3.0, 1.0], [3.0, 1.1]])
     z = SENSOR.h(PRIOR.mean, cluster[:1])
-    up = ekf.correct_landmarks(PRIOR, z, SENSOR, cluster, associate=associate)
-    assert up.status.tolist() == [ekf.Status.USED]
+    up = rf.correct_landmarks(PRIOR, z, SENSOR, cluster, associate=associate)
+    assert up.status.tolist() == [rf.Status.USED]
     want = mixture_update(PRIOR, z[0], cluster)
     np.testing.assert_allclose(up.state.mean, want.mean, rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(up.state.cov, want.cov, rtol=1e-9, atol=1e-12)
@@ -277,8 +275,8 @@ def test_a_lone_candidate_inside_the_gate_is_its_own_update():
     # the second landmark far outside the gate: the plain update (Eqs. 26-28)
     cluster = np.array([[3.0, 1.0], [3.0, 4.0]])
     z = SENSOR.h(PRIOR.mean, cluster[:1])
-    up = ekf.correct_landmarks(PRIOR, z, SENSOR, cluster, associate="mahalanobis")
-    assert up.status.tolist() == [ekf.Status.USED]
+    up = rf.correct_landmarks(PRIOR, z, SENSOR, cluster, associate="mahalanobis")
+    assert up.status.tolist() == [rf.Status.USED]
     want = manual_update(PRIOR, z, [0])  # LANDMARKS[0] is cluster[0]
     np.testing.assert_allclose(up.state.mean, want.mean, rtol=1e-10)
     np.testing.assert_allclose(up.state.cov, want.cov, rtol=1e-9, atol=1e-12)
@@ -312,7 +310,7 @@ def reference(state, readings, sensor, landmarks, *, associate="mahalanobis",
         allowed &= np.broadcast_to(signatures, (*batch, m))[..., :, None] == landmark_signatures
     cost = np.where(allowed, cost, np.inf)
     status = np.where(
-        ~present, ekf.Status.ABSENT, np.where(~usable, ekf.Status.INVALID, ekf.Status.UNKNOWN)
+        ~present, rf.Status.ABSENT, np.where(~usable, rf.Status.INVALID, rf.Status.UNKNOWN)
     )
     candidate = np.isfinite(cost).any(axis=-1) & usable
     gate2 = float(gaussian.confidence_k2(gate, 2))
@@ -328,8 +326,8 @@ def reference(state, readings, sensor, landmarks, *, associate="mahalanobis",
         landmark = np.where(used_r, served.argmax(-1), np.where(gated_r, refused.argmax(-1), -1))
         status = np.where(
             used_r,
-            ekf.Status.USED,
-            np.where(gated_r, ekf.Status.GATED, np.where(candidate, ekf.Status.LOST, status)),
+            rf.Status.USED,
+            np.where(gated_r, rf.Status.GATED, np.where(candidate, rf.Status.LOST, status)),
         )
         zr = np.take_along_axis(z, best[..., None], axis=-2)
         new = _stacked(state, zr, h, H, R, use_l)
@@ -355,8 +353,8 @@ def reference(state, readings, sensor, landmarks, *, associate="mahalanobis",
     used = paired & (pair_d2 <= gate2)
     status = np.where(
         used,
-        ekf.Status.USED,
-        np.where(paired, ekf.Status.GATED, np.where(candidate, ekf.Status.LOST, status)),
+        rf.Status.USED,
+        np.where(paired, rf.Status.GATED, np.where(candidate, rf.Status.LOST, status)),
     )
     nearest = np.where(np.isfinite(cost), d2, np.inf).min(axis=-1)
     lk = np.maximum(landmark, 0)
@@ -486,12 +484,12 @@ def test_correct_landmarks_equals_the_textbook_procedure(batch):
         gate = float(rng.choice([0.5, 0.99, 0.9999]))
         for opt in OPTIONS:
             kw = dict(associate=opt["associate"], pairing=opt["pairing"], gate=gate, valid=valid)
-            lmap = ekf.LandmarkMap(lm)
+            lmap = rf.LandmarkMap(lm)
             if opt["signatures"]:  # unique landmark signatures, or shared ones
                 lsig = np.arange(L) if trial % 2 else rng.integers(0, max(1, L // 2), L)
-                lmap = ekf.LandmarkMap(lm, lsig)
+                lmap = rf.LandmarkMap(lm, lsig)
                 kw |= dict(signatures=signature)
-            up = ekf.correct_landmarks(state, z, sensor, lmap, **kw)
+            up = rf.correct_landmarks(state, z, sensor, lmap, **kw)
             # ill-conditioned random problems: agreement to ~cond(S)·eps, not better
             assert_same(up, reference(state, z, sensor, lmap, **kw), atol_mean=1e-8, rtol_cov=1e-8)
 
@@ -499,7 +497,7 @@ def test_correct_landmarks_equals_the_textbook_procedure(batch):
 def test_well_conditioned_problems_agree_to_1e_12():
     rng = np.random.default_rng(7)
     sensor = RangeBearingSensor(0.1, 0.02, mount=[0.1, 0.0, 0.0], fov=np.pi, max_range=10.0)
-    lm = ekf.LandmarkMap(rng.uniform(-8, 8, (40, 2)))
+    lm = rf.LandmarkMap(rng.uniform(-8, 8, (40, 2)))
     for batch in [(), (50,)]:
         n = int(np.prod(batch))
         mean = np.column_stack([rng.normal(0, 1, n), rng.normal(0, 1, n), rng.uniform(-3, 3, n)])
@@ -510,7 +508,7 @@ def test_well_conditioned_problems_agree_to_1e_12():
         seen = sensor.in_view(z)
         z = z + rng.normal(size=z.shape) * [0.1, 0.02]
         for kw in ({}, dict(associate="signatures", signatures=np.arange(40))):
-            up = ekf.correct_landmarks(state, z, sensor, lm, valid=seen, **kw)
+            up = rf.correct_landmarks(state, z, sensor, lm, valid=seen, **kw)
             ref = reference(state, z, sensor, lm, valid=seen, **kw)
             assert_same(up, ref, atol_mean=1e-12, rtol_cov=1e-12)
 
@@ -519,12 +517,12 @@ def test_precise_reading_against_vague_prior():
     """tr(AΣ) far above 1e5 (quadratic noise at 0.1 m, a 5 m prior): the result must still
     match the stacked (2k×2k) textbook update."""
     sensor = RangeBearingSensor(0.1, 0.01, fov=2 * np.pi, noise_model="quadratic")
-    lm = ekf.LandmarkMap([[0.1, 0.02], [3.0, 1.0], [-2.0, 4.0]])
+    lm = rf.LandmarkMap([[0.1, 0.02], [3.0, 1.0], [-2.0, 4.0]])
     state = rm.AT([0.0, 0.0, 0.1], np.diag([25.0, 16.0, 1.0]))
     z = sensor.h(np.array([0.01, -0.02, 0.12]), lm.xy)
     kw = dict(associate="signatures", signatures=np.arange(3))
-    up = ekf.correct_landmarks(state, z, sensor, lm, gate=0.999999, **kw)
-    assert (up.status == ekf.Status.USED).all()
+    up = rf.correct_landmarks(state, z, sensor, lm, gate=0.999999, **kw)
+    assert (up.status == rf.Status.USED).all()
     assert_same(up, reference(state, z, sensor, lm, gate=0.999999, **kw), atol_mean=1e-11,
                 rtol_cov=1e-11)  # fmt: skip
 
@@ -535,7 +533,7 @@ def test_a_sensor_without_noise_is_refused():
     rng = np.random.default_rng(3)
     state, z, sensor, lm, valid, signature = scenario(rng, (6,), 2, 6, zero_noise=True)
     with pytest.raises(ParameterError, match="sigma_range"):
-        ekf.correct_landmarks(state, z, sensor, lm, valid=valid, associate="signatures",
+        rf.correct_landmarks(state, z, sensor, lm, valid=valid, associate="signatures",
                               signatures=signature)  # fmt: skip
 
 
@@ -544,7 +542,7 @@ def test_broadcasting_and_edge_cases():
     state, z, sensor, lm, valid, signature = scenario(rng, (5,), 4, 12)
     one = state[2]
     perm = rng.permutation(12)  # unique signatures, not sorted
-    lmap, permuted = ekf.LandmarkMap(lm), ekf.LandmarkMap(lm, perm)
+    lmap, permuted = rf.LandmarkMap(lm), rf.LandmarkMap(lm, perm)
     cases = [
         (one, z, valid, lmap, {}),  # one state, a batch of scans
         (state, z[1], valid[1], lmap, {}),  # a batch of states, one scan
@@ -556,7 +554,7 @@ def test_broadcasting_and_edge_cases():
         (state, z, np.zeros_like(valid), lmap, {}),  # only padding: no candidate at all
     ]  # fmt: skip
     for st, zz, vv, landmarks, kw in cases:
-        up = ekf.correct_landmarks(st, zz, sensor, landmarks, valid=vv, **kw)
+        up = rf.correct_landmarks(st, zz, sensor, landmarks, valid=vv, **kw)
         ref = reference(st, zz, sensor, landmarks, valid=vv, **kw)
         assert up.status.shape == ref[3].shape
         assert_same(up, ref)
@@ -570,12 +568,12 @@ def test_landmark_at_the_sensor_is_a_counted_0_over_0_alone_and_in_a_batch():
     lm = np.array([[1.5, 2.0], [4.0, 4.0]])
     z = np.array([[3.0, 0.5], sensor.h(state.mean, lm[1])])
     kw = dict(associate="signatures", signatures=[0, 1])
-    one = ekf.correct_landmarks(state, z, sensor, lm, **kw)
-    assert list(one.status) == [ekf.Status.DEGENERATE, ekf.Status.USED]
+    one = rf.correct_landmarks(state, z, sensor, lm, **kw)
+    assert list(one.status) == [rf.Status.DEGENERATE, rf.Status.USED]
     assert np.isfinite(one.state.mean).all() and np.isfinite(one.state.cov).all()
     other = rm.AT([0.0, 0.0, 1.0], np.diag([0.02, 0.02, 0.002]))
     batch = rm.AT(np.stack([other.mean, state.mean]), np.stack([other.cov, state.cov]))
-    both = ekf.correct_landmarks(batch, z, sensor, lm, **kw)
+    both = rf.correct_landmarks(batch, z, sensor, lm, **kw)
     np.testing.assert_array_equal(both.status[1], one.status)
     np.testing.assert_array_equal(both.state.mean[1], one.state.mean)
     np.testing.assert_array_equal(both.state.cov[1], one.state.cov)
@@ -587,7 +585,7 @@ def test_range_bearing_innovation_covariance_uses_the_numeric_jacobian():
     sensor = RangeBearingSensor(0.08, 0.015, mount=[0.12, 0.04, 0.1])
     state = rm.AT([0.3, -0.2, 0.7], np.diag([0.04, 0.03, 0.01]) + 0.005)
     z = sensor.h(state.mean, LANDMARKS)
-    up = ekf.correct_landmarks(state, z + rng.normal(size=z.shape) * 0.01, sensor, LANDMARKS,
+    up = rf.correct_landmarks(state, z + rng.normal(size=z.shape) * 0.01, sensor, LANDMARKS,
                                associate="signatures", signatures=np.arange(5))  # fmt: skip
     for k, lm in enumerate(LANDMARKS):
         H = numerical_jacobian(lambda x, lm=lm: sensor.h(x, lm), state.mean, chart_in=SE2)
@@ -640,11 +638,11 @@ def test_jcbb_finds_the_largest_jointly_compatible_set():
         truth = se2.plus(state.mean, rng.normal(size=3) * [0.4, 0.4, 0.15])
         z = sensor.h(truth, lm[rng.choice(5, 4, replace=False)])
         z += rng.normal(size=z.shape) * [0.1, 0.03]
-        up = ekf.correct_landmarks(state, z, sensor, lm, associate="jcbb", gate=0.95)
+        up = rf.correct_landmarks(state, z, sensor, lm, associate="jcbb", gate=0.95)
         want = brute_force_jcbb(state, z, sensor, lm, 0.95)
-        got = {i: int(j) for i, j in enumerate(up.landmark) if up.status[i] == ekf.Status.USED}
+        got = {i: int(j) for i, j in enumerate(up.landmark) if up.status[i] == rf.Status.USED}
         assert got == want
-        nn = ekf.correct_landmarks(state, z, sensor, lm, gate=0.95)
+        nn = rf.correct_landmarks(state, z, sensor, lm, gate=0.95)
         found_ambiguous += int(list(nn.landmark) != list(up.landmark))
     assert found_ambiguous > 0  # JCBB differs from nearest neighbour on some scans
 
@@ -659,8 +657,8 @@ def test_range_only_correction_is_the_stacked_kalman_update():
     r_true = np.hypot(*(beacons - [1.4, 1.7]).T)
     z = r_true[[0, 1]] + [0.1, -0.2]
     kw = dict(associate="signatures")
-    up = ekf.correct_landmarks(prior, z[:, None], sensor, beacons, signatures=[0, 1], **kw)
-    assert list(up.status) == [ekf.Status.USED, ekf.Status.USED] and list(up.landmark) == [0, 1]
+    up = rf.correct_landmarks(prior, z[:, None], sensor, beacons, signatures=[0, 1], **kw)
+    assert list(up.status) == [rf.Status.USED, rf.Status.USED] and list(up.landmark) == [0, 1]
     P, x = prior.cov, prior.mean
     d = beacons[:2] - x[:2]
     r = np.hypot(*d.T)
@@ -673,20 +671,20 @@ def test_range_only_correction_is_the_stacked_kalman_update():
     np.testing.assert_allclose(up.y[:, 0], z - r)
     np.testing.assert_allclose(up.S[:, 0, 0], np.diag(S))
     # an outlier is gated at the χ²₁ quantile and changes nothing
-    far = ekf.correct_landmarks(prior, [[r[0] + 20.0]], sensor, beacons, signatures=[0], **kw)
-    assert far.status[0] == ekf.Status.GATED
+    far = rf.correct_landmarks(prior, [[r[0] + 20.0]], sensor, beacons, signatures=[0], **kw)
+    assert far.status[0] == rf.Status.GATED
     np.testing.assert_array_equal(far.state.mean, prior.mean)
     np.testing.assert_array_equal(far.state.cov, prior.cov)
     # without ids: the nearest beacon in Mahalanobis distance; unknown id: UNKNOWN
-    near = ekf.correct_landmarks(prior, [[r_true[2]]], sensor, beacons)
-    assert near.landmark[0] == 2 and near.status[0] == ekf.Status.USED
-    unknown = ekf.correct_landmarks(prior, [[5.0], [np.nan]], sensor, beacons, signatures=[-1, 0],
+    near = rf.correct_landmarks(prior, [[r_true[2]]], sensor, beacons)
+    assert near.landmark[0] == 2 and near.status[0] == rf.Status.USED
+    unknown = rf.correct_landmarks(prior, [[5.0], [np.nan]], sensor, beacons, signatures=[-1, 0],
                                     **kw)  # fmt: skip
-    assert list(unknown.status) == [ekf.Status.UNKNOWN, ekf.Status.INVALID]
+    assert list(unknown.status) == [rf.Status.UNKNOWN, rf.Status.INVALID]
     with pytest.raises(ParameterError):
-        ekf.correct_landmarks(prior, z[:, None], sensor, beacons, **kw)  # signatures need ids
+        rf.correct_landmarks(prior, z[:, None], sensor, beacons, **kw)  # signatures need ids
     with pytest.raises(ShapeError, match=r"\(\.\.\., m, 1\)"):
-        ekf.correct_landmarks(prior, z[None], sensor, beacons, signatures=[0], **kw)  # (m, 1)
+        rf.correct_landmarks(prior, z[None], sensor, beacons, signatures=[0], **kw)  # (m, 1)
 
 
 def test_bearing_only_correction_is_the_stacked_kalman_update():
@@ -708,9 +706,9 @@ def test_bearing_only_correction_is_the_stacked_kalman_update():
     S = H @ prior.cov @ H.T + 0.02**2 * np.eye(3)
     K = prior.cov @ H.T @ np.linalg.inv(S)
     y = se2.wrap_angle(z - h)
-    up = ekf.correct_landmarks(prior, z[:, None], sensor, lm, associate="signatures",
+    up = rf.correct_landmarks(prior, z[:, None], sensor, lm, associate="signatures",
                                signatures=[0, 1, 2], gate=0.999999)  # fmt: skip
-    assert (up.status == ekf.Status.USED).all()
+    assert (up.status == rf.Status.USED).all()
     np.testing.assert_allclose(up.y[:, 0], y, atol=1e-12)
     np.testing.assert_allclose(up.S[:, 0, 0], np.diag(S), rtol=1e-12)
     np.testing.assert_allclose(se2.minus(up.state.mean, se2.plus(x, K @ y)), 0.0, atol=1e-12)
@@ -758,11 +756,11 @@ def test_a_users_model_runs_through_the_same_correction(associate):
     sr = np.linspace(0.08, 0.2, B)
     built_in = RangeBearingSensor(sr, 0.02)
     users = Polar(sr, 0.02)
-    a = ekf.correct_landmarks(states, z, built_in, LANDMARKS, associate=associate, signatures=sig)
-    b = ekf.correct_landmarks(states, z, users, LANDMARKS, associate=associate, signatures=sig)
+    a = rf.correct_landmarks(states, z, built_in, LANDMARKS, associate=associate, signatures=sig)
+    b = rf.correct_landmarks(states, z, users, LANDMARKS, associate=associate, signatures=sig)
     np.testing.assert_array_equal(a.status, b.status)
     np.testing.assert_array_equal(a.landmark, b.landmark)
-    assert (a.status == ekf.Status.USED).sum() >= B * 2
+    assert (a.status == rf.Status.USED).sum() >= B * 2
     np.testing.assert_allclose(b.state.mean, a.state.mean, atol=1e-9)
     np.testing.assert_allclose(b.state.cov, a.state.cov, rtol=1e-6, atol=1e-12)
     np.testing.assert_allclose(b.mahalanobis2, a.mahalanobis2, rtol=1e-6)

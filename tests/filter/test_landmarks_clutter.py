@@ -9,7 +9,7 @@ import pytest
 from scipy import stats
 
 import relmap as rm
-from relmap import filter as ekf
+import relmap.filter as rf
 from relmap import models
 from relmap.filter import autocalibration as ac
 from relmap.lie import se2
@@ -61,10 +61,10 @@ def _one_reading(clutter: float | None, z: np.ndarray, nu: float = np.inf):
     """One filter from pose (0.5, -0.2, 0.1) with covariance P0, no motion, one range-bearing
     reading z of the single landmark (3, 1) at t = 1 (``clutter`` None: the argument left
     out)."""
-    log = ekf.Log(np.array([0.0, 1.0]), np.zeros((1, 2)), np.array([1]), z[None])
+    log = rf.Log(np.array([0.0, 1.0]), np.zeros((1, 2)), np.array([1]), z[None])
     s0 = rm.AT(np.array([0.5, -0.2, 0.1]), P0)
     kw = {} if clutter is None else {"clutter": clutter}
-    return ekf.run(log, models.Odometry(models.DistanceNoise(0.0, 0.0, 0.0)),
+    return rf.run(log, models.Odometry(models.DistanceNoise(0.0, 0.0, 0.0)),
                    models.RangeBearingSensor(0.2, 0.05), np.array([[3.0, 1.0]]), start=s0,
                    associate="mahalanobis", nu=nu, **kw)  # fmt: skip
 
@@ -84,7 +84,7 @@ def test_a_used_reading_is_weighed_by_the_probability_that_it_is_of_its_landmark
     R = np.diag([0.2**2, 0.05**2])
     z = h + np.array([0.25, -0.04])
     tr = _one_reading(clutter, z)
-    assert tr.status[-1] == ekf.Status.USED
+    assert tr.status[-1] == rf.Status.USED
     y = z - h
     S = H @ P0 @ H.T + R
     g = stats.multivariate_normal(np.zeros(2), S).pdf(y)
@@ -110,7 +110,7 @@ def test_no_clutter_is_the_filter_without_it_bit_for_bit():
         np.testing.assert_array_equal(getattr(a, name), getattr(plain, name))
 
 
-def _nees(tr: ekf.Trace, log: ekf.Log, rec: ac.Recording, truth: np.ndarray) -> np.ndarray:
+def _nees(tr: rf.Trace, log: rf.Log, rec: ac.Recording, truth: np.ndarray) -> np.ndarray:
     at = np.searchsorted(log.t, rec.odometry_t)  # the odometry times, where truth is known
     e = se2.minus(truth, tr.mean[at])
     return np.einsum("ti,tij,tj->t", e, np.linalg.inv(tr.cov[at]), e), e
@@ -129,10 +129,10 @@ def test_the_filter_with_clutter_and_a_mover_stays_consistent(association):
     out = log.signature < 0
     V = ac.measurement_volume(rec.z) / len(LANDMARKS)
     lam = out.mean() / ((1 - out.mean()) * V)
-    tr = ekf.run(log, MOTION, SENSOR, LANDMARKS, start=start(0.0), associate=association,
+    tr = rf.run(log, MOTION, SENSOR, LANDMARKS, start=start(0.0), associate=association,
                  clutter=lam)  # fmt: skip
     nees, e = _nees(tr, log, rec, truth)
     assert 0.7 < nees.mean() / 3 < 1.5
     assert np.sqrt((e[:, :2] ** 2).sum(axis=1).mean()) < 0.06
-    used = tr.status == ekf.Status.USED
+    used = tr.status == rf.Status.USED
     assert (used & out).sum() < 0.1 * out.sum()  # the gate rejects nearly all of them

@@ -22,7 +22,7 @@ import pytest
 from scipy import stats
 
 import relmap as rm
-from relmap import filter as ekf
+import relmap.filter as rf
 from relmap import models
 from relmap.errors import NonFiniteError, NumericalError, ParameterError, ShapeError
 from relmap.lie import se2
@@ -60,7 +60,7 @@ def simulated_log(rng, steps=60, per_step=3, clutter=0.1):
         index += [k] * per_step
         zs.append(z)
         sigs.append(np.where(fake, -7, idx))
-    return ekf.Log(np.arange(steps + 1.0), motion, np.array(index), np.concatenate(zs),
+    return rf.Log(np.arange(steps + 1.0), motion, np.array(index), np.concatenate(zs),
                    np.concatenate(sigs))  # fmt: skip
 
 
@@ -70,8 +70,8 @@ def test_run_is_the_textbook_procedure_step_by_step(associate):
     (relmap.models) for each prediction, the reference correction of test_landmarks."""
     rng = np.random.default_rng(5)
     log = simulated_log(rng)
-    lmap = ekf.LandmarkMap(LANDMARKS)
-    tr = ekf.run(log, MOTION, SENSOR, lmap, start=START, associate=associate)
+    lmap = rf.LandmarkMap(LANDMARKS)
+    tr = rf.run(log, MOTION, SENSOR, lmap, start=START, associate=associate)
     state = START
     means, covs = [state.mean], [state.cov]
     for k in range(1, len(log.t)):
@@ -90,7 +90,7 @@ def test_run_is_the_textbook_procedure_step_by_step(associate):
         covs.append(state.cov)
     assert np.abs(se2.minus(tr.mean, np.array(means))).max() < 1e-9
     np.testing.assert_allclose(tr.cov, np.array(covs), rtol=1e-8, atol=1e-14)
-    assert tr.count(ekf.Status.USED) == (tr.status == ekf.Status.USED).sum() > 0
+    assert tr.count(rf.Status.USED) == (tr.status == rf.Status.USED).sum() > 0
 
 
 def test_range_only_run_is_the_textbook_procedure_step_by_step():
@@ -107,10 +107,10 @@ def test_range_only_run_is_the_textbook_procedure_step_by_step():
         zs.append(np.hypot(*(LANDMARKS[idx] - truth[:2]).T) + rng.normal(0, 0.1, 2))
         index += [k, k]
         sigs.append(idx)
-    log = ekf.Log(np.arange(41.0), steps, np.array(index), np.concatenate(zs),
+    log = rf.Log(np.arange(41.0), steps, np.array(index), np.concatenate(zs),
                   np.concatenate(sigs))  # fmt: skip
-    tr = ekf.run(log, MOTION, sensor, LANDMARKS, start=START, gate=0.999999)
-    assert tr.y.shape == tr.S.shape == (80,) and (tr.status == ekf.Status.USED).all()
+    tr = rf.run(log, MOTION, sensor, LANDMARKS, start=START, gate=0.999999)
+    assert tr.y.shape == tr.S.shape == (80,) and (tr.status == rf.Status.USED).all()
     state = START
     for k in range(1, 41):
         state = rm.compound(state, MOTION.increment(steps[k - 1]))
@@ -150,8 +150,8 @@ def test_a_motion_model_that_is_not_relative_is_stepped(keep):
     steps between readings compounded first — the same states to rounding."""
     log = simulated_log(np.random.default_rng(7))
     kw = dict(start=START, associate="mahalanobis", keep=keep)
-    composed = ekf.run(log, MOTION, SENSOR, LANDMARKS, **kw)
-    stepped = ekf.run(log, Stepped(), SENSOR, LANDMARKS, **kw)
+    composed = rf.run(log, MOTION, SENSOR, LANDMARKS, **kw)
+    stepped = rf.run(log, Stepped(), SENSOR, LANDMARKS, **kw)
     np.testing.assert_array_equal(stepped.t, composed.t)
     np.testing.assert_array_equal(stepped.status, composed.status)
     assert np.abs(se2.minus(stepped.mean, composed.mean)).max() < 1e-12
@@ -169,10 +169,10 @@ def test_a_batch_of_filters_is_each_filter_alone_bitwise():
     sensor = SENSOR.replace(sigma_range=0.08 * scale)
     nu = np.where(scale > 1.5, 4.0, np.inf)
     for associate in ("mahalanobis", "jcbb"):
-        batch = ekf.run(log, motion, sensor, LANDMARKS, start=START, associate=associate, nu=nu)
+        batch = rf.run(log, motion, sensor, LANDMARKS, start=START, associate=associate, nu=nu)
         assert batch.mean.shape == (2, 3, len(log.t), 3) and batch.loglik.shape == (2, 3)
         for i, j in itertools.product(range(2), range(3)):
-            alone = ekf.run(log, Odometry(DistanceNoise(0.004 * scale[i, j], 0.003 * scale[i, j],
+            alone = rf.run(log, Odometry(DistanceNoise(0.004 * scale[i, j], 0.003 * scale[i, j],
                                                         0.001)),
                             SENSOR.replace(sigma_range=0.08 * scale[i, j]), LANDMARKS, start=START,
                             associate=associate, nu=nu[i, j])  # fmt: skip
@@ -188,9 +188,9 @@ def test_keep_modes_and_summary_do_not_hold_every_state():
     log = simulated_log(rng)
     motion = Odometry(DistanceNoise(np.full(50, 0.004), 0.003, 0.001))
     kw = dict(start=START, associate="mahalanobis")
-    full = ekf.run(log, motion, SENSOR, LANDMARKS, **kw)
-    events = ekf.run(log, motion, SENSOR, LANDMARKS, keep="events", **kw)
-    summary = ekf.run(log, motion, SENSOR, LANDMARKS, keep="summary", readings=False, **kw)
+    full = rf.run(log, motion, SENSOR, LANDMARKS, **kw)
+    events = rf.run(log, motion, SENSOR, LANDMARKS, keep="events", **kw)
+    summary = rf.run(log, motion, SENSOR, LANDMARKS, keep="summary", readings=False, **kw)
     assert summary.mean.shape == (50, 1, 3) and summary.y.shape == (50, 0, 2)
     np.testing.assert_array_equal(summary.mean[:, 0], full.mean[:, -1])
     np.testing.assert_array_equal(summary.loglik, full.loglik)
@@ -198,7 +198,7 @@ def test_keep_modes_and_summary_do_not_hold_every_state():
     np.testing.assert_array_equal(events.t, np.concatenate([[0.0], log.t[at]]))
     np.testing.assert_array_equal(events.mean[:, 1:], full.mean[:, at])
     with pytest.raises(ParameterError, match="keep"):
-        ekf.run(log, motion, SENSOR, LANDMARKS, start=START, keep="everything")
+        rf.run(log, motion, SENSOR, LANDMARKS, start=START, keep="everything")
 
 
 # ----------------------------------------------------------------- likelihood and robustness
@@ -208,7 +208,7 @@ def three_readings(rng):
     written out)."""
     state = rm.AT([0.2, 0.1, 0.3], np.diag([0.05, 0.04, 0.01]))
     z = SENSOR.h(state.mean, LANDMARKS[:3]) + rng.normal(size=(3, 2)) * [0.3, 0.05]
-    log = ekf.Log(np.array([0.0]), np.zeros((0, 2)), np.zeros(3, np.int64), z, np.arange(3))
+    log = rf.Log(np.array([0.0]), np.zeros((0, 2)), np.zeros(3, np.int64), z, np.arange(3))
     h, H, _ = SENSOR.linearize(state.mean, LANDMARKS[:3])
     y = (z - h).reshape(-1)
     y[1::2] = se2.wrap_angle(y[1::2])
@@ -219,13 +219,13 @@ def three_readings(rng):
 
 
 def run_one(log, state, **kw):
-    return ekf.run(log, MOTION, SENSOR, LANDMARKS, start=state, **kw)
+    return rf.run(log, MOTION, SENSOR, LANDMARKS, start=state, **kw)
 
 
 def test_loglik_is_the_gaussian_or_student_t_density_of_the_stacked_innovation():
     state, log, y, Hs, R, S = three_readings(np.random.default_rng(8))
     gauss = run_one(log, state, gate=0.999999)
-    assert (gauss.status == ekf.Status.USED).all()
+    assert (gauss.status == rf.Status.USED).all()
     assert gauss.loglik == pytest.approx(
         stats.multivariate_normal(np.zeros(6), S).logpdf(y), rel=1e-10
     )
@@ -252,7 +252,7 @@ def test_inflation_scales_the_update_but_not_the_gate_nor_the_likelihood():
     state, log, y, Hs, R, S = three_readings(np.random.default_rng(9))
     c = 2.5
     tr = run_one(log, state, gate=0.999999, inflation=c)
-    assert (tr.status == ekf.Status.USED).all()
+    assert (tr.status == rf.Status.USED).all()
     assert tr.loglik == pytest.approx(stats.multivariate_normal(np.zeros(6), S).logpdf(y),
                                       rel=1e-10)  # fmt: skip
     assert tr.nis == pytest.approx(y @ np.linalg.solve(S, y), rel=1e-10)
@@ -283,7 +283,7 @@ def test_innovations_given_the_readings_before_are_the_stacked_one_decomposed():
     state, log, y, Hs, R, S = three_readings(np.random.default_rng(8))
     for kw in ({}, {"nu": 4.0}, {"inflation": 2.5}):
         tr = run_one(log, state, gate=0.999999, **kw)
-        assert (tr.status == ekf.Status.USED).all()
+        assert (tr.status == rf.Status.USED).all()
         ll = 0.0
         for k in range(3):
             a, b = slice(2 * k, 2 * k + 2), slice(0, 2 * k)
@@ -295,7 +295,7 @@ def test_innovations_given_the_readings_before_are_the_stacked_one_decomposed():
     shift = np.array([3.0, 0.0])  # the third reading moved 3 m in range: gated
     far = log._replace(z=log.z + np.array([[0.0, 0.0], [0.0, 0.0], shift]))
     tr = run_one(far, state)
-    np.testing.assert_array_equal(tr.status, [ekf.Status.USED, ekf.Status.USED, ekf.Status.GATED])
+    np.testing.assert_array_equal(tr.status, [rf.Status.USED, rf.Status.USED, rf.Status.GATED])
     u = slice(0, 4)
     K = state.cov @ Hs[u].T @ np.linalg.inv(S[u, u])
     post = (np.eye(3) - K @ Hs[u]) @ state.cov
@@ -314,11 +314,11 @@ def test_the_mount_is_the_sensors():
     mounted = RangeBearingSensor(0.1, 0.02, mount=[0.3, -0.1, 0.2])
     state = rm.AT([1.0, 2.0, 0.4], np.diag([0.01, 0.01, 0.001]))
     z = mounted.h(state.mean, LANDMARKS)
-    log = ekf.Log(np.array([0.0]), np.zeros((0, 2)), np.zeros(6, np.int64), z, np.arange(6))
-    tr = ekf.run(log, MOTION, mounted, LANDMARKS, start=state)
+    log = rf.Log(np.array([0.0]), np.zeros((0, 2)), np.zeros(6, np.int64), z, np.arange(6))
+    tr = rf.run(log, MOTION, mounted, LANDMARKS, start=state)
     np.testing.assert_allclose(tr.y, 0.0, atol=1e-12)
     np.testing.assert_allclose(tr.mean[0], state.mean, atol=1e-12)
-    centred = ekf.run(log, MOTION, RangeBearingSensor(0.1, 0.02), LANDMARKS, start=state,
+    centred = rf.run(log, MOTION, RangeBearingSensor(0.1, 0.02), LANDMARKS, start=state,
                       gate=0.999999)  # fmt: skip
     want = z - RangeBearingSensor(0.1, 0.02).h(state.mean, LANDMARKS)
     want[:, 1] = se2.wrap_angle(want[:, 1])
@@ -333,7 +333,7 @@ def test_log_from_velocities_merges_odometry_and_reading_times():
     v, w = np.array([1.0, 2.0, 3.0, 4.0]), np.array([0.1, 0.2, 0.3, 0.4])
     rt = np.array([-1.0, 0.5, 1.0, 1.0, 2.25, 9.0])  # before, between, on, twice, after
     z = np.column_stack([np.arange(6.0) + 1, np.zeros(6)])
-    log = ekf.Log.from_velocities(ot, v, w, rt, z, np.arange(6), end=2.5)
+    log = rf.Log.from_velocities(ot, v, w, rt, z, np.arange(6), end=2.5)
     np.testing.assert_array_equal(log.t, [0.0, 0.5, 1.0, 2.0, 2.25])
     np.testing.assert_allclose(log.motion, [[0.5, 0.05], [0.5, 0.05], [2.0, 0.2], [0.75, 0.075]])
     np.testing.assert_array_equal(log.reading_index, [1, 2, 2, 4])
@@ -349,8 +349,8 @@ def test_filter_without_readings_is_dead_reckoning():
     motion = np.column_stack([rng.uniform(0, 0.01, 2000), rng.normal(0, 0.01, 2000)])
     noise = DistanceNoise(0.004, 0.02, 0.001)
     start = rm.AT.from_sigmas([0.5, 0.2, -3.0], [0.02, 0.02, 0.02])
-    log = ekf.Log(np.arange(2001.0), motion, np.zeros(0, np.int64), np.zeros((0, 2)))
-    est = ekf.run(log, Odometry(noise), SENSOR, np.zeros((0, 2)), start=start,
+    log = rf.Log(np.arange(2001.0), motion, np.zeros(0, np.int64), np.zeros((0, 2)))
+    est = rf.run(log, Odometry(noise), SENSOR, np.zeros((0, 2)), start=start,
                   associate="mahalanobis")  # fmt: skip
     dr = models.dead_reckon(motion, noise, start=start)
     np.testing.assert_allclose(est.mean, dr.mean, atol=1e-10)
@@ -363,41 +363,41 @@ def test_a_0_over_0_reading_in_a_run_is_counted_alike_alone_and_in_a_batch():
     start = rm.AT([0.0, 0.0, 0.0], np.diag([0.01, 0.01, 0.001]))
     lm = np.array([[SENSOR.mount[0], SENSOR.mount[1]], [3.0, 1.0]])
     z = np.array([[1.0, 0.0], SENSOR.h(start.mean, lm[1])])
-    log = ekf.Log(np.arange(2.0), np.zeros((1, 2)), np.array([1, 1]), z, np.array([0, 1]))
-    one = ekf.run(log, MOTION, SENSOR, lm, start=start)
-    assert list(one.status) == [ekf.Status.DEGENERATE, ekf.Status.USED]
+    log = rf.Log(np.arange(2.0), np.zeros((1, 2)), np.array([1, 1]), z, np.array([0, 1]))
+    one = rf.run(log, MOTION, SENSOR, lm, start=start)
+    assert list(one.status) == [rf.Status.DEGENERATE, rf.Status.USED]
     pair = SENSOR.replace(sigma_range=np.full(2, SENSOR.sigma_range))
-    both = ekf.run(log, MOTION, pair, lm, start=start)
+    both = rf.run(log, MOTION, pair, lm, start=start)
     np.testing.assert_array_equal(both.status[1], one.status)
     np.testing.assert_array_equal(both.mean[1], one.mean)
     assert np.isfinite(both.mean).all() and np.isfinite(both.cov).all()
 
 
 def test_an_unknown_landmark_and_an_empty_map_are_counted_never_nan():
-    flog = ekf.Log(np.arange(3.0), np.zeros((2, 2)), np.array([1, 2]), np.array([[1.0, 0.0]] * 2),
+    flog = rf.Log(np.arange(3.0), np.zeros((2, 2)), np.array([1, 2]), np.array([[1.0, 0.0]] * 2),
                    np.array([99, 0]))  # fmt: skip
     start = rm.AT([0.0, 0.0, 0.0], np.eye(3) * 0.01)
     sensor = RangeBearingSensor(0.1, 0.01)
-    tr = ekf.run(flog, MOTION, sensor, [[1.0, 0.0]], start=start)
-    assert list(tr.status) == [ekf.Status.UNKNOWN, ekf.Status.USED]
+    tr = rf.run(flog, MOTION, sensor, [[1.0, 0.0]], start=start)
+    assert list(tr.status) == [rf.Status.UNKNOWN, rf.Status.USED]
     for associate in ("signatures", "mahalanobis", "jcbb"):
-        tr = ekf.run(flog, MOTION, sensor, np.zeros((0, 2)), start=start, associate=associate)
-        assert list(tr.status) == [ekf.Status.UNKNOWN, ekf.Status.UNKNOWN]
-        assert tr.count(ekf.Status.UNKNOWN) == 2 and tr.dof == 0 and tr.loglik == 0.0
+        tr = rf.run(flog, MOTION, sensor, np.zeros((0, 2)), start=start, associate=associate)
+        assert list(tr.status) == [rf.Status.UNKNOWN, rf.Status.UNKNOWN]
+        assert tr.count(rf.Status.UNKNOWN) == 2 and tr.dof == 0 and tr.loglik == 0.0
         assert np.isfinite(tr.mean).all()
     with pytest.raises(NonFiniteError):
-        ekf.run(flog._replace(motion=np.full((2, 2), np.nan)), MOTION, sensor, [[1.0, 0.0]],
+        rf.run(flog._replace(motion=np.full((2, 2), np.nan)), MOTION, sensor, [[1.0, 0.0]],
                 start=start)  # fmt: skip
 
 
 def test_bad_logs_and_parameters():
     start = rm.AT([0.0, 0.0, 0.0], np.diag([0.01, 0.01, 0.001]))
-    good = ekf.Log(
+    good = rf.Log(
         np.arange(3.0), np.zeros((2, 2)), np.array([1]), np.array([[1.0, 0.1]]), np.array([0])
     )
 
     def run(log, sensor=SENSOR, **kw):
-        return ekf.run(log, MOTION, sensor, LANDMARKS, start=start, **kw)
+        return rf.run(log, MOTION, sensor, LANDMARKS, start=start, **kw)
 
     with pytest.raises(ParameterError, match="empty"):
         run(good._replace(t=np.zeros(0)))
@@ -422,13 +422,13 @@ def test_bad_logs_and_parameters():
     with pytest.raises(ParameterError, match="associate"):
         run(good, associate="psychic")
     with pytest.raises(ParameterError, match="must not decrease"):
-        ekf.Log.from_velocities([0.0, 2.0, 1.0], [0, 0, 0], [0, 0, 0], [], np.zeros((0, 2)))
+        rf.Log.from_velocities([0.0, 2.0, 1.0], [0, 0, 0], [0, 0, 0], [], np.zeros((0, 2)))
     with pytest.raises(ParameterError, match="no odometry"):
-        ekf.Log.from_velocities([], [], [], [], np.zeros((0, 2)))
+        rf.Log.from_velocities([], [], [], [], np.zeros((0, 2)))
     # NaN readings are counted, the filter stays finite
     nan = good._replace(z=np.array([[np.nan, 0.1]]))
     tr = run(nan)
-    assert tr.status[0] == ekf.Status.INVALID and tr.count(ekf.Status.INVALID) == 1
+    assert tr.status[0] == rf.Status.INVALID and tr.count(rf.Status.INVALID) == 1
     assert np.isfinite(tr.mean).all()
     # overflow: a clear error naming the time, never a NaN state
     huge = good._replace(motion=np.array([[1e300, 0.0], [1e300, 0.0]]))
