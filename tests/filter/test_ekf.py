@@ -24,6 +24,7 @@ from relmap.models import (
     Motion,
     Odometry,
     PositionFix,
+    RangeBearingSensor,
     WheelNoise,
     increment,
     step,
@@ -223,6 +224,28 @@ def test_a_singular_prior_is_fine_and_a_noise_not_positive_definite_is_refused()
             ekf.correct(state, z, noise)
     with pytest.raises(ParameterError, match="positive definite"):
         ekf.correct(PRIOR, [0.3, 0.0], PositionFix(0.1), R=np.diag([0.01, -0.01]))
+
+
+def test_a_reading_of_a_known_landmark_is_the_textbook_correction():
+    """``correct`` with a landmark: Eq. 20's reading through the mount, its bearing wrapped in
+    the innovation (a reading across ±π), Eqs. 26-28; ``R`` given replaces the model's."""
+    sensor = RangeBearingSensor(0.1, 0.02, mount=[0.1, 0.05, 0.0])
+    lm = np.array([-4.0, -0.2])  # behind the robot: a bearing near ±π
+    h, H, _ = sensor.linearize(PRIOR.mean, lm)
+    assert abs(h[1]) > 3.0
+    z = np.array([h[0] + 0.05, se2.wrap_angle(h[1] + 0.06)])
+    y = np.array([0.05, 0.06])
+    for R in (np.diag([0.01, 0.0004]), np.array([[0.04, 0.001], [0.001, 0.0009]])):
+        given = None if R[0, 1] == 0 else R
+        c = ekf.correct(PRIOR, z, sensor, lm, R=given)
+        S = H @ PRIOR.cov @ H.T + R
+        K = PRIOR.cov @ H.T @ np.linalg.inv(S)
+        np.testing.assert_allclose(c.y, y, atol=1e-12)
+        np.testing.assert_allclose(c.S, S, rtol=1e-12)
+        np.testing.assert_allclose(se2.minus(c.state.mean, se2.plus(PRIOR.mean, K @ y)), 0.0,
+                                   atol=1e-12)  # fmt: skip
+        np.testing.assert_allclose(c.state.cov, PRIOR.cov - K @ S @ K.T, rtol=1e-10, atol=1e-15)
+        assert float(c.nis) == pytest.approx(y @ np.linalg.solve(S, y), rel=1e-12)
 
 
 def test_correct_bad_input():
