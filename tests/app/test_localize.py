@@ -37,10 +37,8 @@ import numpy as np
 import pytest
 
 import relmap as rm
-from relmap import models
-from relmap.errors import NonFiniteError, ParameterError, ShapeError
-from relmap.filter import ekf
-from relmap.models import DistanceNoise, increments_from_velocities
+from relmap.errors import ParameterError, ShapeError
+from relmap.filter import Status
 
 ROBOTS = (1, 2, 3, 4, 5)
 KEYS = {
@@ -149,7 +147,7 @@ def test_signature_ekf_consistency_is_reported_within_broad_bands(signature_runs
         assert s.rejected == r["gated"] + r["lost"] + r["degenerate"]
         assert r["wrong"] == 0  # signatures name the landmark
         assert r["ambiguous"] == 0  # one landmark per barcode: never a mixture
-        assert r["used"] == int((run.trace.status == ekf.Status.USED).sum())
+        assert r["used"] == int((run.trace.status == Status.USED).sum())
         # the filter's own check, without truth: NIS per component, below 1 by the whitening
         assert 0.02 < run.anis < 1.5, k
         assert s.rejected < 0.1 * (used + s.rejected), k
@@ -170,12 +168,20 @@ def test_noise_comes_from_the_runs_own_innovations(signature_runs):
         assert 0.1 <= cal.delay <= 0.35, k
         assert cal.scale == 1.0
         assert cal.inflation > 2.0 and cal.correlation[0] > 0.3, k
-        p = cal.parameters
+        sensor = cal.sensor
         # measured σ 0.069-0.21 m and 0.0057-0.0089 rad (one reading's spread: not inflated)
-        assert 0.03 < float(p.sigma_r) < 0.5 and 0.001 < float(p.sigma_b) < 0.03, k
-        assert np.isinf(p.nu) and 3.0 <= cal.nu < 10.0, k
-        assert p.inflation == cal.inflation, k
+        assert 0.03 < float(sensor.sigma_range) < 0.5, k
+        assert 0.001 < float(sensor.sigma_bearing) < 0.03, k
+        assert 3.0 <= cal.nu < 10.0, k  # the readings' dof; the filter is the linear one
+        assert cal.options == {"inflation": cal.inflation, "clutter": 0.0}, k
         assert run.summary()["calibration"]["method"] == "auto"
+        # the JSON parameters: the models' by name, the readings' dof and the filter's weights
+        assert run.summary()["parameters"] == {
+            "k_s": float(cal.motion.k_s), "k_theta": float(cal.motion.k_theta),
+            "k_theta_s": float(cal.motion.k_theta_s), "sigma_range": float(sensor.sigma_range),
+            "sigma_bearing": float(sensor.sigma_bearing), "nu": cal.nu,
+            "inflation": cal.inflation, "clutter": 0.0,
+        }, k  # fmt: skip
 
 
 def test_mahalanobis_association_stays_near_signatures_on_robots_1_and_4(
@@ -213,7 +219,9 @@ def test_plaza_range_only_ekf(plaza_run):
     cal = run.calibration
     assert cal.scale == pytest.approx(1.07, abs=0.01)
     assert cal.turn_bias == pytest.approx(-0.0053, abs=0.001)
-    assert 0.3 < float(cal.parameters.sigma_r) < 0.8
+    assert 0.3 < float(cal.sensor.sigma_range) < 0.8
+    assert set(run.summary()["parameters"]) == {"k_s", "k_theta", "k_theta_s", "sigma_range",
+                                                "nu", "inflation", "clutter"}  # fmt: skip
 
 
 def test_plaza_runs_on_the_second_half(plaza_dir, plaza_run):
@@ -226,73 +234,6 @@ def test_plaza_runs_on_the_second_half(plaza_dir, plaza_run):
 
 
 # ---------------------------------------------------------------------- the machinery
-def test_log_from_velocities_merges_odometry_and_reading_times():
-    """The filter's times are the odometry times merged with the reading times; each step is
-    the velocity of the last record before it times the step's duration."""
-    ot = np.array([0.0, 1.0, 2.0, 3.0])
-    v, w = np.array([1.0, 2.0, 3.0, 4.0]), np.array([0.1, 0.2, 0.3, 0.4])
-    rt = np.array([-1.0, 0.5, 1.0, 1.0, 2.25, 9.0])  # before, between, on, twice, after
-    z = np.column_stack([np.arange(6.0) + 1, np.zeros(6)])
-    log = ekf.Log.from_velocities(ot, v, w, rt, z, np.arange(6), end=2.5)
-    np.testing.assert_array_equal(log.t, [0.0, 0.5, 1.0, 2.0, 2.25])
-    np.testing.assert_allclose(log.motion, [[0.5, 0.05], [0.5, 0.05], [2.0, 0.2], [0.75, 0.075]])
-    np.testing.assert_array_equal(log.reading_index, [1, 2, 2, 4])
-    np.testing.assert_array_equal(log.signature, [1, 2, 3, 4])
-    np.testing.assert_array_equal(log.z[:, 0], [2, 3, 4, 5])
-    held = [0, 0, 1, 2, 2]  # the record in force at each time
-    np.testing.assert_allclose(increments_from_velocities(log.t, v[held], w[held]), log.motion)
-
-
-def test_filter_without_readings_is_dead_reckoning():
-    """ekf.run with no readings against relmap.models.dead_reckon (compounding in numpy)."""
-    rng = np.random.default_rng(4)
-    motion = np.column_stack([rng.uniform(0, 0.01, 2000), rng.normal(0, 0.01, 2000)])
-    noise = DistanceNoise(0.004, 0.02, 0.001)
-    start = rm.AT.from_sigmas([0.5, 0.2, -3.0], [0.02, 0.02, 0.02])
-    log = ekf.Log(np.arange(2001.0), motion, np.zeros(0, np.int64), np.zeros((0, 2)))
-    params = ekf.NoiseParameters(noise.k_s, noise.k_theta, noise.k_theta_s, 0.1, 0.01)
-    est = ekf.run(log, np.zeros((0, 2)), params, start=start, association="mahalanobis")
-    dr = models.dead_reckon(motion, noise, start=start)
-    np.testing.assert_allclose(est.mean, dr.mean, atol=1e-10)
-    np.testing.assert_allclose(est.cov, dr.cov, rtol=1e-8, atol=1e-14)
-
-
-def test_range_only_correction_is_the_stacked_kalman_update():
-    """Range-only readings (Eq. 20's first row) through ekf.correct_landmarks, against the
-    textbook update written out here."""
-    prior = rm.AT([1.0, 2.0, 0.3], np.diag([0.5, 0.3, 0.1]) + 0.05)
-    beacons = np.array([[10.0, 2.0], [1.0, -8.0], [-30.0, 40.0]])
-    sensor = models.RangeBearingSensor(0.3, 0.0)
-    r_true = np.hypot(*(beacons - [1.4, 1.7]).T)
-    z = r_true[[0, 1]] + [0.1, -0.2]
-    kw = dict(range_only=True, associate="signatures", landmark_signatures=[0, 1, 2])
-    up = ekf.correct_landmarks(prior, z, sensor, beacons, signatures=[0, 1], **kw)
-    assert list(up.status) == [ekf.Status.USED, ekf.Status.USED] and list(up.landmark) == [0, 1]
-    P, x = prior.cov, prior.mean
-    d = beacons[:2] - x[:2]
-    r = np.hypot(*d.T)
-    H = np.column_stack([-d / r[:, None], np.zeros(2)])
-    S = H @ P @ H.T + 0.09 * np.eye(2)
-    K = P @ H.T @ np.linalg.inv(S)
-    np.testing.assert_allclose(up.state.mean, x + K @ (z - r), atol=1e-12)
-    np.testing.assert_allclose(up.state.cov, P - K @ S @ K.T, atol=1e-12)
-    np.testing.assert_allclose(up.mahalanobis2, (z - r) ** 2 / np.diag(S))
-    np.testing.assert_allclose(up.y, z - r)
-    np.testing.assert_allclose(up.S, np.diag(S))
-    # an outlier is gated at the χ²₁ quantile and changes nothing
-    far = ekf.correct_landmarks(prior, [r[0] + 20.0], sensor, beacons, signatures=[0], **kw)
-    assert far.status[0] == ekf.Status.GATED
-    np.testing.assert_array_equal(far.state.mean, prior.mean)
-    np.testing.assert_array_equal(far.state.cov, prior.cov)
-    # without ids: the nearest beacon in Mahalanobis distance; unknown id: UNKNOWN
-    near = ekf.correct_landmarks(prior, [r_true[2]], sensor, beacons, range_only=True)
-    assert near.landmark[0] == 2 and near.status[0] == ekf.Status.USED
-    unknown = ekf.correct_landmarks(prior, [5.0, np.nan], sensor, beacons, signatures=[-1, 0], **kw)
-    assert list(unknown.status) == [ekf.Status.UNKNOWN, ekf.Status.INVALID]
-    with pytest.raises(ParameterError):
-        ekf.correct_landmarks(prior, z, sensor, beacons, **kw)  # signatures need the ids
-
-
 def test_score_of_the_truth_itself():
     from relmap.app.localize import score
 
@@ -473,11 +414,12 @@ def test_association_modes_report_what_they_paired_wrongly(
         assert 0 < r["ambiguous"] <= r["used"], mode
         label = _labels(mrclam, run)
         assert len(label) == len(run.trace.status) and r["ignored"] == 0
-        used = run.trace.status == ekf.Status.USED
+        used = run.trace.status == Status.USED
         assert r["wrong"] == int((run.trace.landmark[used] != label[used]).sum())
         assert r["not_in_map"] == int((label < 0).sum()) > 0.1 * len(label)
         assert 0 < r["not_in_map_used"] == int((used & (label < 0)).sum()) < 0.2 * r["not_in_map"]
-        assert float(run.calibration.parameters.clutter) > 0
+        assert run.calibration.clutter > 0
+        assert run.summary()["parameters"]["clutter"] == run.calibration.clutter
         assert run.summary()["readings"]["wrong"] == r["wrong"]
         assert run.summary()["readings"]["ambiguous"] == r["ambiguous"]
         assert run.summary()["readings"]["not_in_map_used"] == r["not_in_map_used"]
@@ -547,8 +489,17 @@ def test_calibrate_from_run(mrclam_dir, mrclam, signature_runs, capsys):
     run = localize(mrclam_dir, robot=1, calibrate_from=2)
     assert run.score == localize_mrclam(mrclam, 1, calibration=calibrate_mrclam(mrclam, 2)).score
     assert run.summary()["calibration"]["method"] == "from-run"
-    p = noise_from_run(mrclam, 3)
-    assert p == calibrate_mrclam(mrclam, 3).parameters and np.isinf(p.nu)
+    cal = noise_from_run(mrclam, 3)
+    assert cal == calibrate_mrclam(mrclam, 3) and np.isinf(cal.nu)
+    assert cal.motion.noise == cal.odometry and cal.options == {"inflation": 1.0, "clutter": 0.0}
+    assert (cal.sensor.sigma_range, cal.sensor.sigma_bearing) == (cal.sigma_range,
+                                                                  cal.sigma_bearing)  # fmt: skip
+    c2 = run.calibration  # robot 2's: its models' parameters by name, Gaussian, no weights
+    assert c2.trained_on == "robot 2" and run.summary()["parameters"] == {
+        "k_s": c2.odometry.k_s, "k_theta": c2.odometry.k_theta,
+        "k_theta_s": c2.odometry.k_theta_s, "sigma_range": c2.sigma_range,
+        "sigma_bearing": c2.sigma_bearing, "nu": None, "inflation": 1.0, "clutter": 0.0,
+    }  # fmt: skip
     other = localize(mrclam_dir, robot=1, calibrate_from=3)
     assert other.calibration.trained_on == "robot 3"
     wide = localize(mrclam_dir, robot=1, calibrate_from=2, gate=0.999999)  # the gate is used
@@ -589,15 +540,3 @@ def test_bad_logs_give_clear_errors_or_counted_rejections(mrclam):
     assert run.readings["invalid"] > 0
     assert np.isfinite(run.estimate.mean).all() and np.isfinite(run.estimate.cov).all()
     assert np.isfinite(run.score.rmse_position) and np.isfinite(run.score.anees)
-    # an unknown landmark (signature not in the map) and an empty map: counted, never NaN
-    flog = ekf.Log(np.arange(3.0), np.zeros((2, 2)), np.array([1, 2]), np.array([[1.0, 0.0]] * 2),
-                   np.array([99, 0]))  # fmt: skip
-    params = ekf.NoiseParameters(0.01, 0.01, 0.001, 0.1, 0.01)
-    start = rm.AT([0.0, 0.0, 0.0], np.eye(3) * 0.01)
-    tr = ekf.run(flog, [[1.0, 0.0]], params, start=start, landmark_signatures=[0])
-    assert list(tr.status) == [ekf.Status.UNKNOWN, ekf.Status.USED]
-    tr = ekf.run(flog, np.zeros((0, 2)), params, start=start)
-    assert list(tr.status) == [ekf.Status.UNKNOWN, ekf.Status.UNKNOWN]
-    assert np.isfinite(tr.mean).all()
-    with pytest.raises(NonFiniteError):
-        ekf.run(flog._replace(motion=np.full((2, 2), np.nan)), [[1.0, 0.0]], params, start=start)
