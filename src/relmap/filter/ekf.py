@@ -29,7 +29,7 @@ from relmap.models.base import Measurement, Motion
 from relmap.models.pose import FullPose
 from relmap.typing import ArrayLike, FloatArray
 from relmap.uncertain.at import AT
-from relmap.uncertain.gaussian import confidence_k2, inverse_pd, not_positive_definite
+from relmap.uncertain.gaussian import confidence_k2, inverse_pd
 from relmap.uncertain.propagate import EUCLIDEAN, SE2, Chart
 
 __all__ = [
@@ -189,9 +189,6 @@ def correct(
     R = model.noise(h) if R is None else np.asarray(R, dtype=np.float64)
     if not (np.isfinite(y).all() and np.isfinite(H).all() and np.isfinite(R).all()):
         raise ParameterError("the innovation, H and R must be finite (a landmark at the sensor?)")
-    if (bad := not_positive_definite(R)) is not None:  # update inverts R
-        raise ParameterError(f"the reading's noise R{list(bad[0]) or ''} is not positive "
-                             f"definite{bad[1]}")  # fmt: skip
     S = H @ P @ _T(H) + R
     up = update(P, y[..., None, :], H[..., None, :, :], R[..., None, :, :])
     return Correction(_like(state, chart.plus(x, up.delta), up.P), y, S, up.nis)
