@@ -14,7 +14,7 @@ import pytest
 from scipy import stats
 
 import relmap as rm
-from relmap.errors import NonFiniteError, ParameterError, ShapeError
+from relmap.errors import NonFiniteError, NumericalError, ParameterError, ShapeError
 from relmap.filter import ekf
 from relmap.lie import se2
 from relmap.models import (
@@ -193,37 +193,40 @@ def test_generic_steps_are_the_textbook_equations(analytic):
     np.testing.assert_allclose(c.nis, (y[..., 0] ** 2) / S[..., 0, 0], **tol)
 
 
-def test_a_singular_prior_is_fine_and_a_noise_not_positive_definite_is_refused():
-    """P = 0 (a state known exactly): the reading changes nothing and its NIS is y²/R — no 0/0.
-    R must be positive definite (the update inverts it): R = 0 is a clear error, not a NaN
-    state."""
+@dataclasses.dataclass(frozen=True)
+class First(Measurement):
+    """The first component of a plain vector, noise ``r``."""
+
+    r: float = 0.25
+    dim: ClassVar[int] = 1
+    state_chart: ClassVar = EUCLIDEAN
+
+    def h(self, x, landmark=None):
+        return x[..., :1]
+
+    def noise(self, z):
+        return np.full((*np.shape(z)[:-1], 1, 1), self.r)
+
+
+def test_singular_priors_and_readings():
+    """P = 0 (a state known exactly): the reading changes nothing and its NIS is y²/R — no
+    0/0. R = 0 (an exact reading) of an uncertain state: the state takes the reading (K = 1).
+    Neither (S = H P Hᵀ + R singular, no information to weigh): a clear error, not a NaN."""
     belief = ekf.Belief(np.zeros((2, 2)), np.stack([np.zeros((2, 2)), np.eye(2)]))
-
-    @dataclasses.dataclass(frozen=True)
-    class First(Measurement):
-        r: float = 0.25
-        dim: ClassVar[int] = 1
-        state_chart: ClassVar = EUCLIDEAN
-
-        def h(self, x, landmark=None):
-            return x[..., :1]
-
-        def noise(self, z):
-            return np.full((*np.shape(z)[:-1], 1, 1), self.r)
-
     c = ekf.correct(belief, [[1.0], [1.0]], First())
     np.testing.assert_array_equal(c.state.x[0], [0.0, 0.0])
     np.testing.assert_array_equal(c.state.P[0], 0.0)
     np.testing.assert_allclose(c.state.x[1], [1.0 / 1.25, 0.0], rtol=1e-15)  # K = 1/(1 + R)
     np.testing.assert_allclose(c.nis, [1.0 / 0.25, 1.0 / 1.25], rtol=1e-15)
     assert np.isfinite(c.state.P).all()
-    for noise in (First(0.0), PositionFix(0.0)):
-        state = belief if isinstance(noise, First) else PRIOR
-        z = [[1.0], [1.0]] if isinstance(noise, First) else [0.3, 0.0]
-        with pytest.raises(ParameterError, match="positive definite"):
-            ekf.correct(state, z, noise)
-    with pytest.raises(ParameterError, match="positive definite"):
-        ekf.correct(PRIOR, [0.3, 0.0], PositionFix(0.1), R=np.diag([0.01, -0.01]))
+    exact = ekf.correct(ekf.Belief(np.zeros((1, 2)), np.eye(2)[None]), [[1.0]], First(0.0))
+    np.testing.assert_allclose(exact.state.x, [[1.0, 0.0]], atol=1e-15)
+    np.testing.assert_allclose(exact.state.P, [[[0.0, 0.0], [0.0, 1.0]]], atol=1e-15)
+    fix = ekf.correct(PRIOR, [0.3, 0.0], PositionFix(0.0))  # GPS without error: x, y known
+    np.testing.assert_allclose(fix.state.mean[:2], [0.3, 0.0], atol=1e-14)
+    np.testing.assert_allclose(fix.state.cov[:2], 0.0, atol=1e-15)
+    with pytest.raises(NumericalError, match="not positive definite"):
+        ekf.correct(belief, [[1.0], [1.0]], First(0.0))  # the first filter: S = 0
 
 
 def test_a_reading_of_a_known_landmark_is_the_textbook_correction():
@@ -275,13 +278,13 @@ def random_problem(rng, batch, n, m, d, *, singular=False):
 
 @pytest.mark.parametrize("singular", [False, True], ids=["regular", "singular P"])
 def test_update_is_the_stacked_textbook_update(singular):
-    """``update`` (the gain through the push-through identity, R's blocks inverted) against
-    the (md)×(md) textbook update: the correction, the Joseph covariance, the NIS and
-    log det S; batches and several reading sizes; a singular P too."""
+    """``update`` against the (md)×(md) textbook update written out: the correction, the
+    Joseph covariance, the NIS and log det S; batches and several reading sizes; a singular P
+    too; ``used``: the readings left out carry no information (the update of the others)."""
     rng = np.random.default_rng(7)
     for batch, n, m, d in [((), 3, 1, 2), ((4,), 3, 5, 2), ((2, 3), 5, 3, 1), ((6,), 4, 2, 3)]:
         P, y, H, R = random_problem(rng, batch, n, m, d, singular=singular)
-        delta, P_new, nis, logdet = ekf.update(P, y, H, R)
+        delta, P_new, nis, logdet, _, _ = ekf.update(P, y, H, R)
         d_want, P_want, nis_want, logdet_want, _ = textbook(P, y, H, R)
         scale = np.abs(P).max()
         np.testing.assert_allclose(delta, d_want, rtol=1e-9, atol=1e-11 * scale)
@@ -290,6 +293,16 @@ def test_update_is_the_stacked_textbook_update(singular):
         np.testing.assert_allclose(logdet, logdet_want, rtol=1e-10, atol=1e-10)
         np.testing.assert_array_equal(P_new, _T(P_new))
         assert (np.linalg.eigvalsh(P_new) > -1e-12 * scale).all()
+        if m > 1:  # the first reading left out (its numbers NaN: never read)
+            used = np.ones((*batch, m), bool)
+            used[..., 0] = False
+            part = ekf.update(P, np.where(used[..., None], y, np.nan), H, R, used)
+            rest = (y[..., 1:, :], H[..., 1:, :, :], R[..., 1:, :, :])
+            d_want, P_want, nis_want, logdet_want, _ = textbook(P, *rest)
+            np.testing.assert_allclose(part.delta, d_want, rtol=1e-9, atol=1e-11 * scale)
+            np.testing.assert_allclose(part.P, P_want, rtol=1e-8, atol=1e-11 * scale)
+            np.testing.assert_allclose(part.nis, nis_want, rtol=1e-9)
+            np.testing.assert_allclose(part.logdet, logdet_want, rtol=1e-10, atol=1e-10)
 
 
 def test_joseph_form_keeps_the_covariance_positive_after_a_precise_reading():
@@ -299,7 +312,7 @@ def test_joseph_form_keeps_the_covariance_positive_after_a_precise_reading():
     P = np.diag([1e4, 1e4, 1.0])
     H = np.array([[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]])
     R = np.array([[[1e-4, 0.0], [0.0, 1e-4]]])
-    _, P_new, _, _ = ekf.update(P, np.array([[0.3, -0.2]]), H, R)
+    P_new = ekf.update(P, np.array([[0.3, -0.2]]), H, R).P
     exact = np.linalg.inv(np.linalg.inv(P) + H[0].T @ np.linalg.inv(R[0]) @ H[0])
     np.testing.assert_allclose(P_new, exact, rtol=1e-9, atol=1e-18)
     assert (np.linalg.eigvalsh(P_new) > 0).all()
@@ -308,12 +321,12 @@ def test_joseph_form_keeps_the_covariance_positive_after_a_precise_reading():
 def test_innovations_given_the_readings_before_are_the_gaussian_conditionals():
     """Reading i given readings j < i: ``y_i - S_i< S_<<⁻¹ y_<`` and
     ``S_ii - S_i< S_<<⁻¹ S_<i`` of the stacked innovation (the Gaussian conditional), whose
-    densities multiply to the stacked one (the prediction-error decomposition); the correction
-    and covariance with all the readings are :func:`update`'s."""
+    densities multiply to the stacked one (the prediction-error decomposition), from
+    ``update(..., given=True)``."""
     rng = np.random.default_rng(8)
     for batch, n, m, d in [((), 3, 4, 2), ((3,), 4, 3, 1)]:
         P, y, H, R = random_problem(rng, batch, n, m, d)
-        y_g, S_g, delta, P_all = ekf.innovations_given(P, y, H, R)
+        delta, P_all, _, _, y_g, S_g = ekf.update(P, y, H, R, given=True)
         d_want, P_want, _, _, S = textbook(P, y, H, R)
         np.testing.assert_allclose(delta, d_want, rtol=1e-9, atol=1e-12)
         np.testing.assert_allclose(P_all, P_want, rtol=1e-8, atol=1e-12)
