@@ -105,8 +105,8 @@ def test_the_chains_ending_at_given_times():
 
 
 def test_batched_parameters_give_each_models_chains():
-    """A batch of noise parameters (B,): the covariance (B, N + 1, 3, 3), each filter's what its parameters give alone; the mean, which
-    the noise does not move, shared."""
+    """A batch of noise parameters (B,): the covariance (B, N + 1, 3, 3), each filter's what
+    its parameters give alone; the mean, which the noise does not move, shared."""
     rng = np.random.default_rng(3)
     N, B = 120, 5
     u = MODELS["distance-midpoint"][1](rng, N)
