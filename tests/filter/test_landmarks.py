@@ -515,7 +515,8 @@ def test_well_conditioned_problems_agree_to_1e_12():
 
 def test_precise_reading_against_vague_prior():
     """tr(AΣ) far above 1e5 (quadratic noise at 0.1 m, a 5 m prior): the result must still
-    match the stacked (2k×2k) textbook update."""
+    match the stacked (2k×2k) textbook update (to 1e-10: the update solves I + P A, whose
+    condition number is about tr(AΣ), in the readings' information)."""
     sensor = RangeBearingSensor(0.1, 0.01, fov=2 * np.pi, noise_model="quadratic")
     lm = rf.LandmarkMap([[0.1, 0.02], [3.0, 1.0], [-2.0, 4.0]])
     state = rm.AT([0.0, 0.0, 0.1], np.diag([25.0, 16.0, 1.0]))
@@ -523,8 +524,8 @@ def test_precise_reading_against_vague_prior():
     kw = dict(associate="signatures", signatures=np.arange(3))
     up = rf.correct_landmarks(state, z, sensor, lm, gate=0.999999, **kw)
     assert (up.status == rf.Status.USED).all()
-    assert_same(up, reference(state, z, sensor, lm, gate=0.999999, **kw), atol_mean=1e-11,
-                rtol_cov=1e-11)  # fmt: skip
+    assert_same(up, reference(state, z, sensor, lm, gate=0.999999, **kw), atol_mean=1e-10,
+                rtol_cov=1e-10)  # fmt: skip
 
 
 def test_a_sensor_without_noise_is_refused():

@@ -24,12 +24,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from relmap.errors import NumericalError, ParameterError, ShapeError
+from relmap.errors import ParameterError, ShapeError
 from relmap.models.base import Measurement, Motion
 from relmap.models.pose import FullPose
 from relmap.typing import ArrayLike, FloatArray
 from relmap.uncertain.at import AT
-from relmap.uncertain.gaussian import confidence_k2, inverse_pd
+from relmap.uncertain.gaussian import confidence_k2, inverse_pd, not_positive_definite
 from relmap.uncertain.propagate import EUCLIDEAN, SE2, Chart
 
 __all__ = [
@@ -77,11 +77,9 @@ def _T(a: FloatArray) -> FloatArray:
 def predict(state: State, u: ArrayLike, motion: Motion) -> State:
     """The prediction (lecture Eq. 13) of ``state`` by the input ``u`` (..., k) of ``motion``."""
     x, P, _ = _arrays(state)
-    u = np.asarray(u, dtype=np.float64)
-    F, G = motion.jacobians(x, u)
-    Q = G @ motion.input_noise(u) @ _T(G)
-    P = F @ P @ _T(F) + Q
-    return _like(state, motion.f(x, u), 0.5 * (P + _T(P)))
+    x_new, F, G, Qu = motion.linearize(x, np.asarray(u, dtype=np.float64))
+    P = F @ P @ _T(F) + G @ Qu @ _T(G)
+    return _like(state, x_new, 0.5 * (P + _T(P)))
 
 
 class Update(NamedTuple):
@@ -116,48 +114,49 @@ def update(
     multiply to the stacked innovation's).
     """
     n, (m, d) = P.shape[-1], y.shape[-2:]
-    if used is not None and not used.all():  # an unused reading: y = 0, H = 0, R = I
-        y = np.where(used[..., None], y, 0.0)  # (its numbers may be NaN)
+    masked = used is not None and not used.all()
+    if masked:  # an unused reading: y = 0, H = 0, R = I (its numbers may be NaN)
+        y = np.where(used[..., None], y, 0.0)
         H = np.where(used[..., None, None], H, 0.0)
         R = np.where(used[..., None, None], R, np.eye(d))
-    # the readings stacked: y (..., md), H (..., md, n), R block diagonal (..., md, md)
-    y = y.reshape(*y.shape[:-2], m * d, 1)
-    H = H.reshape(*H.shape[:-3], m * d, n)
-    R = R[..., 0, :, :] if m == 1 else np.einsum("ij,...iab->...iajb", np.eye(m), R).reshape(
-        *R.shape[:-3], m * d, m * d)
-    PHt = P @ _T(H)
-    S = H @ PHt + R
-    # S = C Cᵀ (Cholesky), S⁻¹ = C⁻ᵀ C⁻¹: with e = C⁻¹ y and W = C⁻¹ H P, the gain
-    # K = P Hᵀ S⁻¹ = Wᵀ C⁻¹, K y = Wᵀ e, yᵀ S⁻¹ y = eᵀ e and log det S = 2 Σ log C_ii
-    C = _cholesky(S)
-    Ci = np.linalg.inv(C)
-    e, W = Ci @ y, Ci @ _T(PHt)
-    K = _T(W) @ Ci
-    # Joseph form P = (I - KH) P (I - KH)ᵀ + K R Kᵀ rather than Eq. 28's P - K S Kᵀ: a sum of
-    # two congruences, so P stays symmetric positive semi-definite under rounding, even after
-    # a reading far more precise than the prior.
-    I_KH = np.eye(n) - K @ H
-    P_new = I_KH @ P @ _T(I_KH) + K @ R @ _T(K)
+    Ri = inverse_pd(R)
+    # The readings are independent (R block diagonal), so the gain K = P Hᵀ S⁻¹ with
+    # S = H P Hᵀ + R is taken as K = P⁺ Hᵀ R⁻¹, P⁺ = (I + P A)⁻¹ P, from the readings'
+    # information A = Hᵀ R⁻¹ H: R inverted block by block and one n×n matrix solved, never
+    # the (md)×(md) S (nor P: a singular P is fine). The readings as rows: (..., md, ·).
+    Hs, ys = _rows(H), _rows(y[..., None])
+    RiH, Riy = _rows(Ri @ H), _rows(Ri @ y[..., None])
+    A, b = _T(Hs) @ RiH, _T(Hs) @ Riy  # Hᵀ R⁻¹ H and Hᵀ R⁻¹ y
+    I_PA = np.eye(n) + P @ A
+    Pp = np.linalg.solve(I_PA, P)
+    delta = Pp @ b  # K y
+    # Joseph form P = (I - KH) P (I - KH)ᵀ + K R Kᵀ (KH = P⁺ A, K R Kᵀ = P⁺ A P⁺) rather than
+    # Eq. 28's P - K S Kᵀ: a sum of two congruences, so P stays symmetric positive
+    # semi-definite under rounding, even after a reading far more precise than the prior.
+    I_KH = np.eye(n) - Pp @ A
+    P_new = I_KH @ P @ _T(I_KH) + Pp @ A @ Pp
+    # yᵀ S⁻¹ y = yᵀ R⁻¹ (y - H K y) (Woodbury), det S = det R det(I + P A) (Sylvester)
+    nis = (_T(ys) @ Riy - _T(b) @ delta)[..., 0, 0]
+    logdet = np.linalg.slogdet(R)[1].sum(axis=-1) + np.linalg.slogdet(I_PA)[1]
     y_given = S_given = np.empty(0)
-    if given:  # S = L D Lᵀ block by block: C_ii = chol(D_i), the given innovations L⁻¹ y
-        C_ii = np.einsum("...iaib->...iab", C.reshape(*C.shape[:-2], m, d, m, d))
-        y_given = (C_ii @ e.reshape(*e.shape[:-2], m, d, 1))[..., 0]
-        S_given = C_ii @ _T(C_ii)
-    logdet = 2.0 * np.log(np.diagonal(C, axis1=-2, axis2=-1)).sum(axis=-1)
-    return Update((_T(W) @ e)[..., 0], 0.5 * (P_new + _T(P_new)), (e * e).sum(axis=(-2, -1)),
-                  logdet, y_given, S_given)  # fmt: skip
+    if given:  # each reading given the ones before it: the update by their information
+        P_i, y_given = P[..., None, :, :], y
+        if m > 1:
+            each = _T(H) @ Ri  # (..., m, n, d): Hᵢᵀ R⁻¹ᵢ
+            zero = np.zeros((*A.shape[:-2], 1, n, n))
+            A_i = np.concatenate([zero, np.cumsum((each @ H)[..., :-1, :, :], axis=-3)], -3)
+            b_i = np.concatenate([zero[..., :1], np.cumsum((each @ y[..., None])[..., :-1, :, :],
+                                                           axis=-3)], -3)  # fmt: skip
+            P_i = np.linalg.solve(np.eye(n) + P_i @ A_i, P_i)
+            y_given = y - (H @ (P_i @ b_i))[..., 0]
+        S_given = H @ P_i @ _T(H) + R
+        S_given = 0.5 * (S_given + _T(S_given))
+    return Update(delta[..., 0], 0.5 * (P_new + _T(P_new)), nis, logdet, y_given, S_given)
 
 
-def _cholesky(S: FloatArray) -> FloatArray:
-    """The Cholesky factor of the innovation covariances ``S`` (positive definite, else a
-    :class:`relmap.errors.NumericalError`)."""
-    try:
-        return np.linalg.cholesky(S)
-    except np.linalg.LinAlgError:
-        raise NumericalError(
-            "an innovation covariance S = H P Hᵀ + R is not positive definite (P, R or H not "
-            "finite, or P indefinite)"
-        ) from None
+def _rows(a: FloatArray) -> FloatArray:
+    """The readings' blocks ``(..., m, d, k)`` stacked as rows ``(..., md, k)``."""
+    return a.reshape(*a.shape[:-3], a.shape[-3] * a.shape[-2], a.shape[-1])
 
 
 class Correction(NamedTuple):
@@ -189,6 +188,9 @@ def correct(
     R = model.noise(h) if R is None else np.asarray(R, dtype=np.float64)
     if not (np.isfinite(y).all() and np.isfinite(H).all() and np.isfinite(R).all()):
         raise ParameterError("the innovation, H and R must be finite (a landmark at the sensor?)")
+    if (bad := not_positive_definite(R)) is not None:  # update weighs by R⁻¹
+        raise ParameterError(f"the reading's noise R{list(bad[0]) or ''} is not positive "
+                             f"definite{bad[1]}")  # fmt: skip
     S = H @ P @ _T(H) + R
     up = update(P, y[..., None, :], H[..., None, :, :], R[..., None, :, :])
     return Correction(_like(state, chart.plus(x, up.delta), up.P), y, S, up.nis)

@@ -458,7 +458,7 @@ def _correct(
     K = rows.shape[-1]
     v = sensor.innovation(z[:, :, None, :], pred.h)  # (B, m, K, d): every candidate pair
     with np.errstate(invalid="ignore"):
-        d2 = (v[..., None, :] @ pred.S_inv @ v[..., :, None])[..., 0, 0]
+        d2 = (v[..., :, None] * pred.S_inv * v[..., None, :]).sum(axis=(-2, -1))  # vᵀ S⁻¹ v
     pair = pending[..., None] & cand & np.isfinite(d2)  # a prediction exists (not at the sensor)
     d2 = np.where(pair, d2, np.inf)
     inside = d2 <= s.gate2

@@ -285,8 +285,10 @@ def run(
     x_end = AT._trusted(*moves.advance(x, P, len(times)))
     if not (np.isfinite(x_end.mean).all() and np.isfinite(x_end.cov).all()):
         _overflow(x_end.mean, x_end.cov, t, len(t) - 1)
-    loglik, nis, dof, ambiguous = (np.sum([r[j] for r in totals], axis=0) if totals else
-                                   np.zeros(B, int if j >= 2 else float) for j in range(4))  # fmt: skip
+    # (each filter's sums over its own row: a filter of a batch adds as it does alone)
+    loglik, nis, dof, ambiguous = (np.stack([r[j] for r in totals], axis=-1).sum(axis=-1)
+                                   if totals else np.zeros(B, int if j >= 2 else float)
+                                   for j in range(4))  # fmt: skip
     updates = np.sum([r[2] > 0 for r in totals], axis=0) if totals else np.zeros(B, np.int64)
     mean, cov, kept_t = _kept(kp, t, times, x_end, posteriors, moves, start, batch, B)
     if len(logs) > 1:  # each filter's last time

@@ -74,7 +74,10 @@ def chains(
     if key not in memo:
         memo[key] = _chains(unit.batched(1), u, cut, at)
     mean, cov = memo[key]
-    return Chains(mean, np.tensordot(weights, cov, axes=(-1, 0)))
+    # Σ_p w_p cov_p elementwise (not a matrix product: a filter of a batch adds the same numbers
+    # in the same order as alone)
+    w = weights[..., None, None, None]
+    return Chains(mean, sum(w[..., p, :, :, :] * cov[p] for p in range(len(cov))))
 
 
 Memo = dict[tuple[object, ...], tuple[FloatArray, FloatArray]]

@@ -60,7 +60,8 @@ def angles_chart(angles: tuple[int, ...]) -> Chart:
     plain): ``plus(x, δ) = x + δ`` and ``minus(a, b) = a - b``, angles wrapped."""
     if not angles:
         return EUCLIDEAN
-    index = list(angles)
+    consecutive = list(angles) == list(range(angles[0], angles[-1] + 1))
+    index = slice(angles[0], angles[-1] + 1) if consecutive else list(angles)
 
     def wrap(v: FloatArray) -> FloatArray:
         v = np.array(v, dtype=np.float64)  # (a copy: the caller's array stays as it was)
@@ -132,6 +133,14 @@ class Motion(Model):
         G = numerical_jacobian(lambda uu: self.f(x[..., None, :], uu), u, chart_out=self.chart)
         return F, G
 
+    def linearize(
+        self, x: FloatArray, u: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """``(f, F, G, Qu)`` at once (a model that computes them from shared pieces writes
+        this)."""
+        F, G = self.jacobians(x, u)
+        return self.f(x, u), F, G, self.input_noise(u)
+
 
 @dataclasses.dataclass(frozen=True)
 class RelativeMotion(Motion):
@@ -160,9 +169,15 @@ class RelativeMotion(Motion):
 
     def jacobians(self, x: FloatArray, u: FloatArray) -> tuple[FloatArray, FloatArray]:
         """``F = ∂(x ⊕ Δ)/∂x`` and ``G = ∂(x ⊕ Δ)/∂Δ · J_w`` (Eq. 3's H and K)."""
-        delta, J, _ = self.step(u)
-        _, F, K = se2.compose(x, delta, jacobians=True)
-        return F, K @ J
+        return self.linearize(x, u)[1:3]
+
+    def linearize(
+        self, x: FloatArray, u: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """``(x ⊕ Δ, F, G, Q_w)`` from one step."""
+        delta, J, Q = self.step(u)
+        moved, F, K = se2.compose(x, delta, jacobians=True)
+        return moved, F, K @ J, Q
 
 
 @dataclasses.dataclass(frozen=True)
