@@ -18,25 +18,32 @@ The contenders (the issue's speed floors in brackets):
   the map a ``LandmarkMap`` built once; signature association (the landmark ids as signatures)
   [>= 2x filterpy], and Mahalanobis association (informative: filterpy is told the pairs);
 - one filter over the whole log: ``relmap.filter.run`` (keep="all", readings kept);
-- (a) a batch of 1000 filters, one lap of the circle, signature association [>= 20x filterpy per
-  filter-step]: Monte Carlo (1000 runs each with its own noise and readings, padded to the
+- (a) a batch of 1000 filters, signature association [>= 20x filterpy per filter-step]: Monte Carlo (1000 runs each with its own noise and readings, padded to the
   step's largest count, stepped from Python with ``predict`` + ``correct_landmarks`` on the
   whole batch) and calibration (``run`` of one log with 1000 noise parameter sets,
   ``keep="summary"``);
 - (b) the same with Mahalanobis association (nearest of all 50 landmarks, one to one, χ² gate)
   [>= 10x filterpy per filter-step];
 - ``run`` of MRCLAM robot 1 (50 201 filter times, 1 534 readings) with 64 and with 1000
-  parameter sets, ``keep="summary"`` (what likelihood-based calibration calls), signature
-  association, when the data is present (``$RELMAP_DATA`` or ``../shared/data``).
+  parameter sets about its noise (``MRCLAM_NOISE``), ``keep="summary"`` (what likelihood-based
+  calibration calls), signature association, when the data is present (``$RELMAP_DATA`` or
+  ``../shared/data``).
 
 Before any timing, every relmap contender's states are checked against filterpy's (given the
-pairs relmap used) at every step, to 1e-9: the single filters, the first filter of each Monte
-Carlo batch, and (through the single filter) the parameter batches, whose first and last filters
-are checked against the same filter run alone.
+pairs relmap used), to 1e-9: with signatures over the whole run, the single filter and the first
+filter of the Monte Carlo batch; with Mahalanobis association step by step (filterpy from
+relmap's state before each step), leaving out the steps where relmap took a reading as a mixture
+of the landmarks inside its gate (module ``relmap.filter.landmarks``; no filterpy update says
+that); ``run`` against the filter stepped; the first and last filters of each parameter batch
+against the same filter run alone, to 1e-12.
 
-Timings: min and median of interleaved repeats (the machine is shared and noisy; the load
-averages are printed). Run: ``python benchmarks/bench_ekf.py [--steps 2000] [--batch 1000]
-[--batch-steps 380] [--repeat 5] [--no-mrclam]`` (about 3 minutes with the defaults).
+Timings: wall min and median, and CPU (process time) min, of interleaved repeats (the machine is
+shared and noisy; the load averages are printed; the CPU time is the least disturbed). Run: ``python benchmarks/bench_ekf.py [--steps 1000] [--batch 1000]
+[--batch-steps 100] [--repeat 3] [--no-mrclam]`` (about 4 minutes with these defaults on the
+shared 2-core machine, most of it relmap's Mahalanobis batches). The batches run the first 100
+steps of a lap by default (--batch-steps 380: the whole lap); they see a few more landmarks per
+step than the single filter (both counts are printed), which if anything understates relmap's
+ratio.
 """
 
 from __future__ import annotations
@@ -304,7 +311,7 @@ def main() -> None:
     parser.add_argument("--batch", type=int, default=1000, help="filters in a batch")
     parser.add_argument("--batch-steps", type=int, default=100,
                         help="steps of a batch (380: one lap)")  # fmt: skip
-    parser.add_argument("--repeat", type=int, default=5, help="interleaved repeats")
+    parser.add_argument("--repeat", type=int, default=3, help="interleaved repeats")
     parser.add_argument("--no-mrclam", action="store_true", help="skip the MRCLAM runs")
     args = parser.parse_args()
     T, B, TB = args.steps, args.batch, args.batch_steps

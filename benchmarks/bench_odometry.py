@@ -122,7 +122,7 @@ def main() -> None:
 
 
 def _step_covs(motion: np.ndarray, noise: WheelNoise, drive: DiffDrive) -> np.ndarray:
-    _, J = increment(motion, jacobian=True)
+    _, J = increment(motion, jacobians=True)
     S = noise.covariance(motion, drive)
     return J @ S @ np.swapaxes(J, -1, -2)
 
