@@ -25,9 +25,9 @@ The contenders (the issue's speed floors in brackets):
 - (b) the same with Mahalanobis association (nearest of all 50 landmarks, one to one, χ² gate)
   [>= 10x filterpy per filter-step];
 - ``run`` of MRCLAM robot 1 (50 201 filter times, 1 534 readings) with 64 and with 1000
-  parameter sets about its noise (``MRCLAM_NOISE``), ``keep="summary"`` (what likelihood-based
-  calibration calls), signature association, when the data is present (``$RELMAP_DATA`` or
-  ``../shared/data``).
+  parameter sets about robot 2's noise against its ground truth (``calibrate_mrclam``),
+  ``keep="summary"`` (what likelihood-based calibration calls), signature association, when the
+  data is present (``$RELMAP_DATA`` or ``../shared/data``).
 
 Before any timing, every relmap contender's states are checked against filterpy's (given the
 pairs relmap used), to 1e-9: with signatures over the whole run, the single filter and the first
@@ -72,8 +72,6 @@ STEP = np.array([0.1, 0.1 / 6.0])  # commanded (Δs, Δθ): circles of radius 6 
 START = rm.AT([6.0, 0.0, np.pi / 2], np.diag([0.01, 0.01, 0.001]))
 MRCLAM_SETS = (64, 1000)
 TOL = 1e-9
-#: MRCLAM's noise about where autocalibration puts it: k_s, k_theta, k_theta_s, σr, σφ
-MRCLAM_NOISE = (0.01, 0.01, 0.002, 0.1, 0.03)
 FLOORS = {"a": 20.0, "b": 10.0, "c": 2.0}  # issue 31, item 4
 
 Steps = list[tuple[np.ndarray, np.ndarray, np.ndarray]]  # per step: z (B, m, 2), valid, ids
@@ -278,9 +276,11 @@ def load() -> str:
 
 
 def mrclam_setup(folder: Path):
-    """MRCLAM robot 1's log, map and start, or None without the data."""
+    """MRCLAM robot 1's log, map and start, and the models of robot 2's noise against its ground
+    truth; or None without the data."""
     if not Path(folder, "landmarks", "mrclam6").is_dir():
         return None
+    from relmap.app.localize import calibrate_mrclam
     from relmap.io import read_mrclam
 
     data = read_mrclam(Path(folder, "landmarks", "mrclam6"))
@@ -295,14 +295,15 @@ def mrclam_setup(folder: Path):
         end=float(r1.odometry_t[o[-1]]),
     )  # fmt: skip
     start = rm.AT(r1.truth_at(log.t[:1])[0], np.diag([4e-4, 4e-4, 4e-4]))
-    return log, LandmarkMap(data.landmark_xy), start
+    cal = calibrate_mrclam(data, 2)
+    return log, LandmarkMap(data.landmark_xy), start, cal.motion, cal.sensor
 
 
-def mrclam_models(n: int) -> tuple[Odometry, RangeBearingSensor]:
-    """n parameter sets about MRCLAM's noise (k_s and σr scaled by 0.5 ... 4)."""
+def mrclam_models(motion: Odometry, sensor: RangeBearingSensor, n: int):
+    """n parameter sets about the given noise (k_s and σr scaled by 0.5 ... 4)."""
     scale = np.linspace(0.5, 4.0, n)
-    return (Odometry(DistanceNoise(MRCLAM_NOISE[0] * scale, *MRCLAM_NOISE[1:3])),
-            RangeBearingSensor(MRCLAM_NOISE[3] * scale, MRCLAM_NOISE[4]))  # fmt: skip
+    return (motion.replace(k_s=motion.noise.k_s * scale),
+            sensor.replace(sigma_range=sensor.sigma_range * scale))  # fmt: skip
 
 
 def main() -> None:
@@ -360,8 +361,8 @@ def main() -> None:
                                  Path(__file__).resolve().parents[2] / "shared" / "data"))  # fmt: skip
     mr = None if args.no_mrclam else mrclam_setup(folder)
     if mr is not None:
-        mlog, mmap, mstart = mr
-        m64, s64 = mrclam_models(MRCLAM_SETS[0])
+        mlog, mmap, mstart, mmotion, msensor = mr
+        m64, s64 = mrclam_models(mmotion, msensor, MRCLAM_SETS[0])
         whole = run(mlog, m64, s64, mmap, start=mstart, keep="summary", readings=False)
         alone = run(mlog, m64.replace(k_s=m64.noise.k_s[0]),
                     s64.replace(sigma_range=s64.sigma_range[0]), mmap, start=mstart,
@@ -404,7 +405,7 @@ def main() -> None:
     }  # fmt: skip
     if mr is not None:
         for n in MRCLAM_SETS:
-            mm, ss = mrclam_models(n)
+            mm, ss = mrclam_models(mmotion, msensor, n)
             runs[f"MRCLAM robot 1, {n} parameter sets"] = Timed(
                 lambda mm=mm, ss=ss: run(mlog, mm, ss, mmap, start=mstart, keep="summary",
                                          readings=False), len(mlog.t) * n)  # fmt: skip
