@@ -14,7 +14,7 @@ import pytest
 from scipy import stats
 
 import relmap as rm
-from relmap.errors import NonFiniteError, NumericalError, ParameterError, ShapeError
+from relmap.errors import NonFiniteError, ParameterError, ShapeError
 from relmap.filter import ekf
 from relmap.lie import se2
 from relmap.models import (
@@ -219,7 +219,7 @@ def test_singular_priors_and_readings():
     np.testing.assert_allclose(c.state.x[1], [1.0 / 1.25, 0.0], rtol=1e-15)  # K = 1/(1 + R)
     np.testing.assert_allclose(c.nis, [1.0 / 0.25, 1.0 / 1.25], rtol=1e-15)
     assert np.isfinite(c.state.P).all()
-    with pytest.raises(ParameterError, match="noise R.*not positive definite"):
+    with pytest.raises(ParameterError, match=r"noise R.*not positive definite"):
         ekf.correct(ekf.Belief(np.zeros((1, 2)), np.eye(2)[None]), [[1.0]], First(0.0))
     with pytest.raises(ParameterError, match="not positive definite"):
         ekf.correct(PRIOR, [0.3, 0.0], PositionFix(0.0))  # GPS without error

@@ -50,8 +50,8 @@ from relmap.io.datasets import (
     recognise,
 )
 from relmap.lie import se2
-from relmap.models.calibration import fit_distance_noise
 from relmap.models.base import Measurement
+from relmap.models.calibration import fit_distance_noise
 from relmap.models.odometry import DistanceNoise, Odometry
 from relmap.models.range_bearing import RangeBearingSensor, RangeOnly
 from relmap.typing import ArrayLike, FloatArray
@@ -135,8 +135,10 @@ class Calibration(NamedTuple):
             return RangeOnly(self.sigma_range)
         return RangeBearingSensor(self.sigma_range, self.sigma_bearing)
 
-    #: The filter's weights: none (the readings are taken as Gaussian and white).
-    options = {"inflation": 1.0, "clutter": 0.0}
+    @property
+    def options(self) -> dict[str, float]:
+        """The filter's weights: none (the readings are taken as Gaussian and white)."""
+        return {"inflation": 1.0, "clutter": 0.0}
 
 
 class Score(NamedTuple):

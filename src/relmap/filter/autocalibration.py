@@ -22,7 +22,8 @@ never read. Three stages, each a standard tool of filter tuning:
    Every paired reading counts, the gated ones too (:func:`loglik`): a filter
    that lost its way and gates most of its readings must not look likely for having few terms.
    Fitted: the motion model's noise parameters (odometry: ``k_s, k_theta, k_theta_s`` of
-   :class:`relmap.models.DistanceNoise`), the sensor's (``sigma_range, sigma_bearing``) and ``nu``, and, when the association is not by
+   :class:`relmap.models.DistanceNoise`), the sensor's (``sigma_range, sigma_bearing``) and
+   ``nu``, and, when the association is not by
    signatures, the clutter density ``clutter`` λ of readings of nothing in the map (a reading is
    of one of the L landmarks or, with probability π, uniform over the measurement volume the
    run's readings span: :func:`loglik`, :func:`measurement_volume`; the search starts at
@@ -94,9 +95,9 @@ __all__ = [
     "ITERATIONS",
     "NU_MAX",
     "NU_MIN",
+    "NU_START",
     "PAIR_GAP",
     "REFINE_STEPS",
-    "NU_START",
     "SCALES",
     "TURN_BIASES",
     "Calibrated",
@@ -183,8 +184,9 @@ class Recording(NamedTuple):
         if since is not None:
             keep = np.asarray(self.reading_t) >= since
             sig = None if self.signature is None else np.asarray(self.signature)[keep]
-            return self._replace(reading_t=np.asarray(self.reading_t)[keep],
-                                 z=np.asarray(self.z)[keep], signature=sig).log(delay, scale, turn_bias)  # fmt: skip
+            kept = self._replace(reading_t=np.asarray(self.reading_t)[keep],
+                                 z=np.asarray(self.z)[keep], signature=sig)  # fmt: skip
+            return kept.log(delay, scale, turn_bias)
         z = np.array(self.z, dtype=np.float64)
         if z.ndim == 1:
             z = z / scale
@@ -350,7 +352,8 @@ def loglik(
     (``trace.y``, ``S``) counts that error once per reading, a composite likelihood whose
     maximum strays further than its curvature says (docs/consistency.md: a simulated robot
     reading five landmarks a scan, σ_b up to 8.5% too large where this one is within 0.5%).
-    With a clutter density ``clutter`` λ > 0 (*batch; :func:`relmap.filter.run`'s) a reading is of one of the map's L landmarks, each equally likely a
+    With a clutter density ``clutter`` λ > 0 (*batch; :func:`relmap.filter.run`'s) a reading
+    is of one of the map's L landmarks, each equally likely a
     priori (its paired landmark's density g), or, with probability π, of clutter uniform over
     the sensor's measurement volume (:func:`measurement_volume`): the density
     ``(1 - π) g / L + π / V_m`` is, up to the constant ``-log L``, ``log(g + λ) - log(1 + λV)``
@@ -602,10 +605,13 @@ def calibrate(
         m, s = models(p)
         logs = [log] if isinstance(log, Log) else log
         starts = [start(float(one.t[0])) for one in logs]
-        first = starts[0] if len(starts) == 1 else AT(
-            np.stack([a.mean for a in starts]), np.stack([a.cov for a in starts]))
-        trace = run(log, m, s, lmap, start=first, associate=assoc, gate=gate,
-                    inflation=p.get("inflation", 1.0), clutter=p["clutter"], keep="summary")  # fmt: skip
+        first = (
+            starts[0]
+            if len(starts) == 1
+            else AT(np.stack([a.mean for a in starts]), np.stack([a.cov for a in starts]))
+        )
+        trace = run(log, m, s, lmap, start=first, associate=assoc, gate=gate, keep="summary",
+                    inflation=p.get("inflation", 1.0), clutter=p["clutter"])  # fmt: skip
         return trace._replace(loglik=loglik(trace, p["nu"], p["clutter"], volume))
 
     signatures = assoc is Association.SIGNATURES
@@ -614,7 +620,8 @@ def calibrate(
     # per landmark (loglik)
     volume = measurement_volume(recording.z) / len(lmap)
     p0: Params = {**{k: float(getattr(motion, k)) for k in mnames},
-                  **{k: float(getattr(sensor, k)) for k in snames}, "nu": NU_START, "clutter": 0.0}  # fmt: skip
+                  **{k: float(getattr(sensor, k)) for k in snames},
+                  "nu": NU_START, "clutter": 0.0}  # fmt: skip
     if not signatures:  # λ of the clutter fraction CLUTTER_START: π = λV / (1 + λV)
         p0["clutter"] = CLUTTER_START / ((1.0 - CLUTTER_START) * volume)
     tick = progress or (lambda k, n: None)

@@ -37,11 +37,11 @@ __all__ = [
     "Correction",
     "PoseUpdate",
     "State",
+    "Update",
     "correct",
     "correct_pose",
     "predict",
     "update",
-    "Update",
 ]
 
 

@@ -37,7 +37,7 @@ import numpy as np
 
 from relmap import _core
 from relmap.errors import NonFiniteError, ParameterError, ShapeError
-from relmap.filter.ekf import State, Update, _arrays, _like, _T, update
+from relmap.filter.ekf import _T, State, Update, _arrays, _like, update
 from relmap.models.base import Measurement
 from relmap.typing import ArrayLike, FloatArray, IntArray, Option
 from relmap.uncertain.gaussian import check_probability, confidence_k2, inverse_pd, log_density
@@ -278,7 +278,7 @@ def _per_landmark(
     reading's candidate (B, m) — the first landmark it serves inside the gate, else the first
     that refused it, -1 for none — and its status, and the update's pairs (readings (B, K),
     their use (B, K)) in landmark order."""
-    B, m, K = cost.shape
+    B, m, _ = cost.shape
     best = cost.argmin(axis=1)  # (B, K): each landmark's cheapest reading
     finite = np.isfinite(np.take_along_axis(cost, best[:, None], 1)[:, 0])
     take = finite & np.take_along_axis(inside, best[:, None], 1)[:, 0]
@@ -336,9 +336,7 @@ def _setup(
                   col["nu"], col["inflation"], col["clutter"], reweighted, given)  # fmt: skip
 
 
-def _candidates(
-    s: _Setup, signatures: IntArray | None, m: int
-) -> tuple[IntArray, np.ndarray]:
+def _candidates(s: _Setup, signatures: IntArray | None, m: int) -> tuple[IntArray, np.ndarray]:
     """Each reading's candidates, for readings of signatures (..., m) or of none: ``rows``
     (..., m, K) of the map (-1: none), or (1, L) when every reading has every landmark, and
     ``cand`` (..., m, K): its signature's landmarks under signature association, else every
@@ -510,7 +508,8 @@ def _correct(
             H[b, j], R[b, j] = H_mix, R_mix
             S[b, j] = H_mix @ P[b] @ _T(H_mix) + R_mix
             pair_d2 = pair_d2.copy()
-            pair_d2[b, j] = (y[b, j][:, None, :] @ inverse_pd(S[b, j]) @ y[b, j][:, :, None])[:, 0, 0]
+            yb = y[b, j]
+            pair_d2[b, j] = (yb[:, None, :] @ inverse_pd(S[b, j]) @ yb[:, :, None])[:, 0, 0]
             ambiguous = mixed.sum(axis=-1)
 
     # the update's pairs in order (B, U, ...)
@@ -531,7 +530,8 @@ def _correct(
             y_given[b, pair_reading[b, u]] = stats.y_given[b, u]
             S_given[b, pair_reading[b, u]] = stats.S_given[b, u]
         else:
-            y_given[pair_used], S_given[pair_used] = stats.y_given[pair_used], stats.S_given[pair_used]
+            y_given[pair_used] = stats.y_given[pair_used]
+            S_given[pair_used] = stats.S_given[pair_used]
         gated = (status == _GATED) & got
         if gated.any():
             b, j = np.nonzero(gated)
@@ -564,7 +564,7 @@ def _one_to_one(
     """Greedy one-to-one pairing, cheapest pair first (the compiled search; with ``split`` the
     pairs inside the gate first): each reading's candidate (B, m), -1 for none. Readings of one
     candidate each, no two of them the same landmark, need no search: each takes its own."""
-    B, m, K = cost.shape
+    m, K = cost.shape[1:]
     finite = np.isfinite(cost)
     if K == 1:
         own = rows[..., 0][..., :m] if rows.shape[1] == m else None

@@ -5,10 +5,11 @@ times, the readings at some of them — through the filter of :mod:`relmap.filte
 and at every time with readings correct with all of them in one stacked update
 (:func:`relmap.filter.landmarks.correct_landmarks`: association, gating, weights). The batch is
 the broadcast of the models' parameters, of ``nu``, ``inflation`` and ``clutter``, of the
-start and of the logs (several logs of the same readings with their own motion inputs, say
-under several clock offsets): a batch of candidate noise parameters is one call. It returns a :class:`Trace`: states at
-the kept times, every reading's innovation, S, status and landmark, and per filter the
-log-likelihood of the innovations, the NIS and the counts.
+start and of the logs (several logs read at the same times with their own motion inputs and
+reading values, say under several clock offsets, or Monte Carlo runs): a batch of candidate
+noise parameters is one call. It returns a :class:`Trace`: states at the kept times, every
+reading's innovation, S, status and landmark, and per filter the log-likelihood of the
+innovations, the NIS and the counts.
 
 A :class:`relmap.models.RelativeMotion` (odometry) needs no Python per step: the steps between two
 reading times are compounded first (:mod:`relmap.filter.segments`), and the filter predicts once
@@ -222,7 +223,7 @@ def run(
     if not logs:
         raise ParameterError("run needs a log")
     checked = [_checked(one, sensor) for one in logs]
-    t, u, index, z = checked[0]
+    t, _, index, z = checked[0]
     if len(logs) > 1:
         if kp is not Keep.SUMMARY:
             raise ParameterError("a batch of logs keeps the final states only (keep='summary')")
@@ -314,7 +315,8 @@ def _same_readings(logs: list[Log], checked: list[tuple]) -> None:
     t0, _, i0, z0 = checked[0]
     for j, (one, (t, _, index, z)) in enumerate(zip(logs, checked, strict=True)):
         same_sig = (one.signature is None) == (logs[0].signature is None) and (
-            one.signature is None or np.array_equal(one.signature, logs[0].signature))
+            one.signature is None or np.array_equal(one.signature, logs[0].signature)
+        )
         if not (len(z) == len(z0) and np.array_equal(t[index], t0[i0]) and same_sig):
             raise ParameterError(
                 f"the logs of a batch must read at the same times with the same signatures: "
@@ -374,8 +376,11 @@ class _Prediction:
             if not moving.any():  # (a log of its start time alone: no step to compound)
                 continue
             mine = self.which == j
-            motion = self.motion if len(self.inputs) == 1 else self.motion.replace(
-                **{k: getattr(self.motion, k)[mine] for k in names})
+            motion = (
+                self.motion
+                if len(self.inputs) == 1
+                else self.motion.replace(**{k: getattr(self.motion, k)[mine] for k in names})
+            )
             ch = chains(motion, u, cut, to[moving])
             self.mean[j, moving] = ch.mean
             self.cov[np.ix_(mine, moving)] = ch.cov

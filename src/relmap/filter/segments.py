@@ -109,8 +109,12 @@ def _chains(
     theta = _restart_cumsum(delta[:, 2], starts)
     before = theta - delta[:, 2]  # the heading at each step's start
     c, s = np.cos(before), np.sin(before)
-    t = np.stack([_restart_cumsum(c * delta[:, 0] - s * delta[:, 1], starts),
-                  _restart_cumsum(s * delta[:, 0] + c * delta[:, 1], starts)])  # (2, N)
+    t = np.stack(
+        [
+            _restart_cumsum(c * delta[:, 0] - s * delta[:, 1], starts),
+            _restart_cumsum(s * delta[:, 0] + c * delta[:, 1], starts),
+        ]
+    )  # (2, N)
     # each step's covariance in its segment's frame: C' = M Q_w Mᵀ, M = blkdiag(R, 1) J_w
     Jt = np.moveaxis(Jw, 0, -1)  # (3, w, N)
     M = np.stack([c * Jt[0] - s * Jt[1], s * Jt[0] + c * Jt[1], Jt[2]])
@@ -140,13 +144,13 @@ def _chains(
     C0, C1 = sums[..., 6:8, :], sums[..., 8:12, :].reshape(*sums.shape[:-2], 2, 2, -1)
     A0 = sums[..., [12, 13, 13, 14], :].reshape(*sums.shape[:-2], 2, 2, -1)
     # Σ_j T_jk C'_j T_jkᵀ with ℓ = t_k - t_j (J ℓ = (-ℓy, ℓx)): the (x, y) block is
-    # A0 + J L + (J L)ᵀ + J O Jᵀ with L = Σ ℓ c'ᵀ = t_k C0ᵀ - C1 and O = Σ q ℓ ℓᵀ
+    # A0 + J L + (J L)ᵀ + J Λ Jᵀ with L = Σ ℓ c'ᵀ = t_k C0ᵀ - C1 and Λ = Σ q ℓ ℓᵀ
     L = t[:, None] * C0[..., None, :, :] - C1
-    O = Q0[..., None, None, :] * t[:, None] * t[None] - t[:, None] * Q1[..., None, :, :]
-    O = O - Q1[..., :, None, :] * t[None] + Q2
+    Lam = Q0[..., None, None, :] * t[:, None] * t[None] - t[:, None] * Q1[..., None, :, :]
+    Lam = Lam - Q1[..., :, None, :] * t[None] + Q2
     JL = np.stack([-L[..., 1, :, :], L[..., 0, :, :]], axis=-3)
-    JOJ = np.stack([np.stack([O[..., 1, 1, :], -O[..., 1, 0, :]], -2),
-                    np.stack([-O[..., 0, 1, :], O[..., 0, 0, :]], -2)], -3)  # fmt: skip
+    JOJ = np.stack([np.stack([Lam[..., 1, 1, :], -Lam[..., 1, 0, :]], -2),
+                    np.stack([-Lam[..., 0, 1, :], Lam[..., 0, 0, :]], -2)], -3)  # fmt: skip
     Ptt = A0 + JL + np.swapaxes(JL, -3, -2) + JOJ
     Ptq = C0 + np.stack([-(Q0 * t[1] - Q1[..., 1, :]), Q0 * t[0] - Q1[..., 0, :]], axis=-2)
     first = 0 if at is not None else 1  # (all times: the identity at 0 first)

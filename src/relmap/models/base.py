@@ -47,7 +47,9 @@ def positive(value: ArrayLike, name: str, *, strict: bool = False) -> float | Fl
     try:
         a = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
-        raise ParameterError(f"{name} must be a number or an array of numbers; got {value!r}")
+        raise ParameterError(
+            f"{name} must be a number or an array of numbers; got {value!r}"
+        ) from None
     bad = ~np.isfinite(a) | ((a <= 0) if strict else (a < 0))
     if bad.any():
         what = "positive" if strict else "non-negative"
@@ -186,8 +188,9 @@ class Measurement(Model):
 
     A subclass writes :meth:`h` and :meth:`noise` (and may write :meth:`jacobians` and
     :meth:`usable`), and states ``dim`` (d, the reading's size), ``angles`` (the components of
-    z that are angles), ``ranges`` (those that are distances), ``landmark_dim`` (p: the size of a landmark, 0 for a reading of the
-    state alone) and ``state_chart`` (the chart of the state it reads).
+    z that are angles), ``ranges`` (those that are distances), ``landmark_dim`` (p: the size
+    of a landmark, 0 for a reading of the state alone) and ``state_chart`` (the chart of the
+    state it reads).
     """
 
     dim: ClassVar[int] = 2

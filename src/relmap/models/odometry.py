@@ -69,7 +69,6 @@ __all__ = [
 ]
 
 
-
 class Integration(Option):
     """How a step ``(Δs, Δθ)`` becomes a relative motion."""
 
@@ -348,9 +347,7 @@ class Odometry(RelativeMotion):
     drive: DiffDrive | None = None
 
     def __post_init__(self) -> None:
-        object.__setattr__(
-            self, "integration", Integration.parse(self.integration, "integration")
-        )
+        object.__setattr__(self, "integration", Integration.parse(self.integration, "integration"))
 
     @property
     def noise_parameters(self) -> tuple[str, ...]:  # type: ignore[override]

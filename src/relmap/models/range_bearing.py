@@ -279,9 +279,7 @@ def polar_to_cartesian(mean: ArrayLike, cov: ArrayLike, method: Method | str = "
     return AT._trusted(out.mean, out.cov)
 
 
-def cartesian_to_polar(
-    at: AT, method: Method | str = "linear"
-) -> tuple[FloatArray, FloatArray]:
+def cartesian_to_polar(at: AT, method: Method | str = "linear") -> tuple[FloatArray, FloatArray]:
     """The polar ``(r, φ, θ)`` mean and covariance of a Cartesian AT (inverse of the above)."""
     if (np.hypot(at.mean[..., 0], at.mean[..., 1]) == 0).any():
         raise ParameterError("the bearing of a frame at the origin is undefined")
