@@ -60,13 +60,16 @@ def wrap_angle(theta: ArrayLike) -> FloatArray:
     if isinstance(theta, float) and -np.pi <= theta < np.pi:  # one angle in range: at once
         return np.array(theta)
     theta = np.asarray(theta, dtype=np.float64)
+    # Angles already in range are returned untouched: shifting by π would cost them an ulp of π.
+    inside = (theta >= -np.pi) & (theta < np.pi)
+    if inside.all():
+        return theta.copy()
     # θ - 2π k, k = ⌊(θ + π)/2π⌋ (not np.mod, many times slower on large arrays)
     wrapped = theta - _TWO_PI * np.floor((theta + np.pi) / _TWO_PI)
     # rounding can land a result on +π (or a hair outside): folded back
     wrapped = np.where(wrapped >= np.pi, wrapped - _TWO_PI, wrapped)
     wrapped = np.where(wrapped < -np.pi, wrapped + _TWO_PI, wrapped)
-    # Angles already in range are returned untouched: shifting by π would cost them an ulp of π.
-    return np.where((theta >= -np.pi) & (theta < np.pi), theta, wrapped)
+    return np.where(inside, theta, wrapped)
 
 
 def angle_difference(a: ArrayLike, b: ArrayLike) -> FloatArray:
