@@ -1,8 +1,23 @@
-"""Helpers shared by the tests: numeric comparisons, random poses and ATs, the Fig. 3 bridge."""
+"""Helpers shared by the tests: numeric comparisons, a valid cross-covariance, the Fig. 3 bridge;
+random poses and ATs are relmap.sim's (re-exported here under the tests' short names)."""
 
 from __future__ import annotations
 
 import numpy as np
+
+from relmap.sim.robots import random_at3s, random_ats, random_poses
+from relmap.sim.robots import random_covariances as random_covs
+
+__all__ = [
+    "assert_poses_close",
+    "fig3_bridge",
+    "random_at3s",
+    "random_ats",
+    "random_covs",
+    "random_poses",
+    "valid_cross_cov",
+    "wrapped",
+]
 
 
 def wrapped(a: np.ndarray) -> np.ndarray:
@@ -15,23 +30,6 @@ def assert_poses_close(a: np.ndarray, b: np.ndarray, atol: float = 1e-12) -> Non
     a, b = np.asarray(a), np.asarray(b)
     np.testing.assert_allclose(a[..., :2], b[..., :2], atol=atol, rtol=0)
     np.testing.assert_allclose(wrapped(a[..., 2] - b[..., 2]), 0.0, atol=atol)
-
-
-def random_poses(
-    rng: np.random.Generator, shape: tuple[int, ...], scale: float = 3.0
-) -> np.ndarray:
-    """Random poses ``(*shape, 3)``: translations ~ N(0, scale²), headings uniform."""
-    t = rng.normal(scale=scale, size=(*shape, 2))
-    th = rng.uniform(-np.pi, np.pi, size=(*shape, 1))
-    return np.concatenate([t, th], axis=-1)
-
-
-def random_covs(
-    rng: np.random.Generator, shape: tuple[int, ...], n: int = 3, scale: float = 0.1
-) -> np.ndarray:
-    """Random SPD covariances ``(*shape, n, n)`` with varied correlations."""
-    L = rng.normal(scale=scale, size=(*shape, n, n))
-    return L @ np.swapaxes(L, -1, -2) + 1e-4 * scale**2 * np.eye(n)
 
 
 def valid_cross_cov(
@@ -51,32 +49,6 @@ def valid_cross_cov(
         return U * np.sqrt(np.clip(lam, 0.0, None))[..., None, :]
 
     return root(cov_a) @ K @ np.swapaxes(root(cov_b), -1, -2)
-
-
-def random_ats(
-    seed: int | np.random.Generator,
-    shape: tuple[int, ...],
-    scale: float = 0.1,
-    pose_scale: float = 3.0,
-):  # -> relmap.AT
-    """Random ATs ``shape``: poses as :func:`random_poses` (translations σ ``pose_scale``),
-    covariances as :func:`random_covs` (``scale``); ``seed`` or a generator."""
-    import relmap as rm
-
-    g = np.random.default_rng(seed)
-    return rm.AT(random_poses(g, shape, scale=pose_scale), random_covs(g, shape, scale=scale))
-
-
-def random_at3s(seed: int, n: int, scale: float = 0.05):  # -> relmap.AT3
-    """``n`` random AT3s: uniform rotations, translations σ 2 m, covariances as
-    :func:`random_covs` (6×6, ``scale``)."""
-    from scipy.spatial.transform import Rotation
-
-    import relmap as rm
-
-    g = np.random.default_rng(seed)
-    q = Rotation.random(n, random_state=seed).as_quat()
-    return rm.AT3(g.normal(scale=2.0, size=(n, 3)), q, random_covs(g, (n,), n=6, scale=scale))
 
 
 def fig3_bridge(sigmas=None):  # -> relmap.RelationalMap
