@@ -38,10 +38,10 @@ Panorama = _definitions(EXAMPLE)["Panorama"]
 #: The example's world: 8 landmarks with heights, the robot patrolling 4 m back and forth.
 LANDMARKS = random_landmarks(5, 8, (-6, -6, 1.5), (6, 6, 3))
 ROUTE = [[2, 0], [-2, 0]]
-ODOMETRY, CAMERA = Odometry(DistanceNoise(0.01, 0.01, 0.002)), Panorama(0.002)
-TRUTH = {"k_s": 0.01, "k_theta": 0.01, "k_theta_s": 0.002, "sigma": 0.002}
+ODOMETRY, CAMERA = Odometry(DistanceNoise(0.01, 0.01, 0.002)), Panorama(0.005)
+TRUTH = {"k_s": 0.01, "k_theta": 0.01, "k_theta_s": 0.002, "sigma": 0.005}
 #: Where the calibration starts: five times the truth (cautious).
-GUESS = Odometry(DistanceNoise(0.05, 0.05, 0.01)), Panorama(0.01)
+GUESS = Odometry(DistanceNoise(0.05, 0.05, 0.01)), Panorama(0.025)
 #: The length of the calibrated run (odometry steps of 0.1 s, a reading time each).
 STEPS = 2000
 
@@ -53,7 +53,7 @@ def _fitted(cal: autocalibration.Calibrated) -> dict[str, float]:
 @pytest.mark.slow
 def test_the_example_runs_in_30_lines():
     """Its own short run (300 steps): every reading paired with its landmark, the fitted noise
-    near the truth (measured: k_s +0.9%, k_theta -13%, k_theta_s +12%, σ +0.3%; the standard
+    near the truth (measured: k_s -1.9%, k_theta -13%, k_theta_s +9.2%, σ +0.4%; the standard
     errors of so short a run are ~10%)."""
     assert len(EXAMPLE.read_text(encoding="utf-8").splitlines()) <= 30
     done = subprocess.run([sys.executable, str(EXAMPLE)], capture_output=True, text=True,
