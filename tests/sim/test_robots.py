@@ -211,7 +211,7 @@ def test_log_recording_and_scans_are_one_run_three_ways():
         for name in log._fields:
             np.testing.assert_array_equal(getattr(log, name), getattr(again, name))
     scans = sim.scans()
-    np.testing.assert_array_equal(scans.index, np.arange(2, 61, 2))
+    np.testing.assert_array_equal(scans.reading_index, np.arange(2, 61, 2))
     assert scans.valid.sum() == len(sim.z)
     r, j, s = np.nonzero(scans.valid)
     np.testing.assert_array_equal(scans.z[r, j, s], sim.z)  # (ordered by run, time, as listed)

@@ -178,11 +178,12 @@ def _open_loop(commands: FloatArray) -> Controller:
 
 # ------------------------------------------------------------------ the simulated robot
 class Scans(NamedTuple):
-    """The readings of every run by reading time, padded: ``index`` (K,) the odometry time of
-    each; ``z`` (*batch, K, m, d), ``valid`` (*batch, K, m) (False: padding) and ``landmark``
-    (*batch, K, m) (the true row, -1: clutter or padding); m the most readings of a scan."""
+    """The readings of every run by reading time, padded: ``reading_index`` (K,) the odometry
+    time indices with readings (in any run); ``z`` (*batch, K, m, d), ``valid`` (*batch, K, m)
+    (False: padding) and ``landmark`` (*batch, K, m) (the true row, -1: clutter or padding);
+    m the most readings of a scan."""
 
-    index: IntArray
+    reading_index: IntArray
     z: FloatArray
     valid: np.ndarray
     landmark: IntArray
@@ -384,7 +385,7 @@ def simulate(
         x0 = np.broadcast_to(s0, (*batch, 3))
 
     # the truth, step by step (a controller plans from it)
-    t = np.arange(T + 1) * float(dt)
+    t: FloatArray = np.arange(T + 1, dtype=np.float64) * float(dt)
     dts = np.diff(t)
     W = None if motion.drive is None else np.linalg.inv(motion.drive.wheel_map())
     truth = np.empty((*batch, T + 1, 3))
