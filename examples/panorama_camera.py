@@ -22,8 +22,8 @@ class Panorama(rm.models.Measurement):  # landmarks (x, y, height); numeric Jaco
 
 
 lm, x0 = rm.sim.random_landmarks(5, 8, (-6, -6, 1.5), (6, 6, 3)), rm.AT([-2.0, 0.0, 0.0])
-truth = rm.models.Odometry(rm.models.DistanceNoise(0.01, 0.01, 0.002)), Panorama(0.005)
-guess = rm.models.Odometry(rm.models.DistanceNoise(0.05, 0.05, 0.01)), Panorama(0.025)
+truth = rm.models.Odometry(rm.models.DistanceNoise(0.01, 0.01, 0.002)), Panorama(0.02)
+guess = rm.models.Odometry(rm.models.DistanceNoise(0.05, 0.05, 0.01)), Panorama(0.1)
 sim = rm.sim.simulate(rm.sim.Patrol([[2, 0], [-2, 0]]), *truth, lm, start=x0, steps=300, seed=1)
 paired = rm.filter.run(sim.log(), *truth, lm, start=x0, associate="mahalanobis").landmark
 cal = calibrate(sim.recording(), *guess, lm, start=lambda t: x0, association="mahalanobis")

@@ -201,6 +201,41 @@ def test_keep_modes_and_summary_do_not_hold_every_state():
         rf.run(log, motion, SENSOR, LANDMARKS, start=START, keep="everything")
 
 
+@pytest.mark.parametrize("associate", ["signatures", "mahalanobis"])
+def test_a_batch_of_logs_is_each_log_alone(associate):
+    """Logs with the same times and signatures, their own inputs and readings (some NaN: a
+    landmark not seen), as a batch axis of their own: each filter gives, bit for bit, what it
+    gives alone (its final state, the states after each reading time, its totals); logs of
+    other times keep the final state only."""
+    rng = np.random.default_rng(11)
+    base = simulated_log(rng)
+    logs = [base]
+    for _ in range(2):
+        z = base.z + rng.normal(size=base.z.shape) * [0.05, 0.01]
+        z[rng.random(len(z)) < 0.2] = np.nan
+        logs.append(base._replace(motion=base.motion + rng.normal(size=base.motion.shape) * 0.01,
+                                  z=z))  # fmt: skip
+    motion = Odometry(DistanceNoise([[0.004], [0.008]], 0.003, 0.001))  # batch (2, 3)
+    kw = dict(start=START, associate=associate)
+    events = rf.run(logs, motion, SENSOR, LANDMARKS, keep="events", **kw)
+    summary = rf.run(logs, motion, SENSOR, LANDMARKS, keep="summary", **kw)
+    assert events.mean.shape[:2] == (2, 3) and summary.t.shape == (2, 3, 1)
+    for i, j in itertools.product(range(2), range(3)):
+        one = Odometry(DistanceNoise(0.004 * (i + 1), 0.003, 0.001))
+        alone = rf.run(logs[j], one, SENSOR, LANDMARKS, keep="events", **kw)
+        np.testing.assert_array_equal(events.mean[i, j], alone.mean)
+        np.testing.assert_array_equal(events.cov[i, j], alone.cov)
+        np.testing.assert_array_equal(events.t, alone.t)
+        np.testing.assert_array_equal(summary.mean[i, j, 0], alone.mean[-1])
+        for k in ("loglik", "nis", "dof", "counts"):
+            np.testing.assert_array_equal(getattr(summary, k)[i, j], getattr(alone, k))
+    later = logs[1]._replace(t=logs[1].t + 0.5)
+    with pytest.raises(ParameterError, match="keep"):
+        rf.run([logs[0], later], MOTION, SENSOR, LANDMARKS, keep="events", **kw)
+    with pytest.raises(ParameterError, match="keep"):
+        rf.run(logs, MOTION, SENSOR, LANDMARKS, **kw)
+
+
 # ----------------------------------------------------------------- likelihood and robustness
 def three_readings(rng):
     """One time stamp with readings of landmarks 0-2 about a prior ``state``: its log, the

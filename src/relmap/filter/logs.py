@@ -216,7 +216,8 @@ def run(
     motion inputs and reading values (say, under several clock offsets or range scales): they
     form a batch axis of their own (the last one, broadcast with the others'), each filter on
     its log; then ``keep`` is ``"summary"`` and ``Trace.t`` holds each filter's last time,
-    shaped (*batch, 1)."""
+    shaped (*batch, 1), or, for logs with the same times (e.g. Monte Carlo runs, unseen
+    landmarks' readings NaN), ``"events"``."""
     kp = Keep.parse(keep, "keep")
     a = Association.parse(associate, "associate")
     logs = [log] if isinstance(log, Log) else list(log)
@@ -225,8 +226,12 @@ def run(
     checked = [_checked(one, sensor) for one in logs]
     t, _, index, z = checked[0]
     if len(logs) > 1:
-        if kp is not Keep.SUMMARY:
-            raise ParameterError("a batch of logs keeps the final states only (keep='summary')")
+        shared_t = all(np.array_equal(c[0], t) for c in checked)
+        if not (kp is Keep.SUMMARY or (kp is Keep.EVENTS and shared_t)):
+            raise ParameterError(
+                "a batch of logs keeps the final states (keep='summary'), or, when the logs "
+                "share their times, the states after each reading time (keep='events')"
+            )
         _same_readings(logs, checked)
     if a is Association.SIGNATURES and logs[0].signature is None:
         raise ParameterError("signature association needs the signatures of the readings")
@@ -292,7 +297,7 @@ def run(
                                    for j in range(4))  # fmt: skip
     updates = np.sum([r[2] > 0 for r in totals], axis=0) if totals else np.zeros(B, np.int64)
     mean, cov, kept_t = _kept(kp, t, times, x_end, posteriors, moves, start, batch, B)
-    if len(logs) > 1:  # each filter's last time
+    if len(logs) > 1 and kp is Keep.SUMMARY:  # each filter's last time
         kept_t = np.array([c[0][-1] for c in checked])[which].reshape(*batch, 1)
     counts = np.stack([(status == s).sum(axis=-1) for s in Status], axis=-1)
     y, S, yg, Sg = out_f["y"], out_f["S"], out_f["y_given"], out_f["S_given"]
