@@ -119,8 +119,8 @@ def test_mahalanobis_association_in_moderate_clutter():
 
 @pytest.mark.slow
 def test_anees_of_200_runs_of_run_within_its_chi2_interval():
-    """200 simulated robots, each its own log replayed by relmap.filter.run (readings every
-    step with their true landmark, known noise): at every time the average NEES over the runs,
+    """200 simulated robots, each its own log replayed by relmap.filter.run as one batch of
+    filters (readings every step with their true landmark, known noise): at every time the average NEES over the runs,
     divided by 3 (ANEES), is χ²(3·200)/600 if the filters are consistent: at the last time it
     lies in its 95% interval, at ≥ 85% of all times too (95% expected; the times are
     correlated, and the linearized filter runs slightly conservative: measured 88% inside, the
@@ -129,27 +129,28 @@ def test_anees_of_200_runs_of_run_within_its_chi2_interval():
     rng = np.random.default_rng(14)
     landmarks = rng.uniform(-12.0, 12.0, (L, 2))
     Su = NOISE.covariance(STEP)
-    nees = np.empty((runs, T + 1))
-    for r in range(runs):
+    logs, truths = [], []
+    for _ in range(runs):  # each run's log reads every landmark at every step (NaN: not seen)
         truth = [PRIOR.sample(1, rng)[0]]
-        index, zs, ids = [], [], []
+        z = np.full((T, L, 2), np.nan)
         for k in range(1, T + 1):
             truth.append(
                 se2.compose(truth[-1], increment(STEP + rng.multivariate_normal([0, 0], Su)))
             )
-            z = SENSOR.h(truth[-1], landmarks)
-            seen = np.flatnonzero(SENSOR.in_view(z))
-            zs.append(
-                z[seen]
+            zk = SENSOR.h(truth[-1], landmarks)
+            seen = np.flatnonzero(SENSOR.in_view(zk))
+            z[k - 1, seen] = (
+                zk[seen]
                 + rng.normal(size=(len(seen), 2)) * [SENSOR.sigma_range, SENSOR.sigma_bearing]
             )
-            index += [k] * len(seen)
-            ids.append(seen)
-        log = rf.Log(np.arange(T + 1.0), np.tile(STEP, (T, 1)), np.array(index, np.int64),
-                      np.concatenate(zs), np.concatenate(ids))  # fmt: skip
-        tr = rf.run(log, MOTION, SENSOR, landmarks, start=PRIOR, gate=1 - 1e-6)
-        truth = np.array(truth)
-        nees[r] = gaussian.mahalanobis2(se2.minus(truth, tr.mean), 0.0, tr.cov)
+        logs.append(rf.Log(np.arange(T + 1.0), np.tile(STEP, (T, 1)),
+                           np.repeat(np.arange(1, T + 1), L), z.reshape(-1, 2),
+                           np.tile(np.arange(L), T)))  # fmt: skip
+        truths.append(truth)
+    # the runs as one batch of filters, each on its own log
+    tr = rf.run(logs, MOTION, SENSOR, landmarks, start=PRIOR, gate=1 - 1e-6, keep="events",
+                readings=False)  # fmt: skip
+    nees = gaussian.mahalanobis2(se2.minus(np.array(truths), tr.mean), 0.0, tr.cov)
     anees = nees[:, 1:].mean(axis=0) / 3.0
     lo, hi = (gaussian.confidence_k2(p, 3 * runs) / (3 * runs) for p in (0.025, 0.975))
     inside = (anees >= lo) & (anees <= hi)
