@@ -32,8 +32,7 @@ never read. Three stages, each a standard tool of filter tuning:
    with the ground-truth residuals and lowered coverage.) Found first by batched coordinate
    ascent from the cautious values given (every candidate move of every parameter one filter
    of one batch of :func:`relmap.filter.run`; the step shrinks when no move gains; coarse, to
-   :data:`COARSE`; with signatures on the run's first :data:`COARSE_SHARE` only, without them
-   on the whole run, whose pairings and clutter a part misleads), then, once the clock is set,
+   :data:`COARSE`, on the run's first :data:`COARSE_SHARE`), then, once the clock is set,
    refined on the whole run by Newton steps whose gradient and Hessian come from one batch of
    finite differences.
 2. **The clock.** The odometry's time stamps may be offset from the readings' (MRCLAM's
@@ -139,11 +138,9 @@ INFLATIONS = tuple(round(float(v), 4) for v in np.geomspace(1.0, 16.0, 41))
 ITERATIONS = 40
 #: The coarse fit stops when its log-scale step falls below this (a factor of 1.1).
 COARSE = float(np.log(1.1))
-#: With signatures, the coarse fit and the clock read this first share of the run (its
-#: readings' times): enough to come down from the cautious start, at a fraction of the cost.
-#: Without signatures they read the whole run: from a quarter, the search settled on other
-#: pairings and clutter (MRCLAM JCBB robot 4: log-likelihood 6545 against 7640 from the whole
-#: run, RMSE 1.81 m against 0.35; docs/consistency.md).
+#: The coarse fit and the clock read this first share of the run (its readings' times):
+#: enough to come down from the cautious start, at a fraction of the cost. (Without
+#: signatures a quarter's pairings and clutter can mislead the search: docs/consistency.md.)
 COARSE_SHARE = 0.25
 #: The log-scale step of the coarse fit's first round (×2 per move); it shrinks by 3 when no
 #: move gains. Each round moves a parameter by these multiples of the step, both ways.
@@ -632,8 +629,7 @@ def calibrate(
     tick = progress or (lambda k, n: None)
     tick(0, 3)
     t0 = float(recording.odometry_t[0])
-    share = COARSE_SHARE if signatures else 1.0
-    early = recording._replace(end=t0 + share * (recording.end - t0))
+    early = recording._replace(end=t0 + COARSE_SHARE * (recording.end - t0))
     if not np.any(np.asarray(early.reading_t) <= early.end):
         early = recording
     p, _ = _fit(early.log(), p0, free, run_filters, _STEP, COARSE)
