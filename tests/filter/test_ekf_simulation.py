@@ -139,10 +139,10 @@ def test_anees_of_200_runs_of_run_within_its_chi2_interval():
             )
             zk = SENSOR.h(truth[-1], landmarks)
             seen = np.flatnonzero(SENSOR.in_view(zk))
-            z[k - 1, seen] = (
-                zk[seen]
-                + rng.normal(size=(len(seen), 2)) * [SENSOR.sigma_range, SENSOR.sigma_bearing]
-            )
+            z[k - 1, seen] = zk[seen] + rng.normal(size=(len(seen), 2)) * [
+                SENSOR.sigma_range,
+                SENSOR.sigma_bearing,
+            ]
         logs.append(rf.Log(np.arange(T + 1.0), np.tile(STEP, (T, 1)),
                            np.repeat(np.arange(1, T + 1), L), z.reshape(-1, 2),
                            np.tile(np.arange(L), T)))  # fmt: skip
