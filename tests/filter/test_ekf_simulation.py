@@ -122,9 +122,10 @@ def test_anees_of_200_runs_of_run_within_its_chi2_interval():
     """200 simulated robots, each its own log replayed by relmap.filter.run as one batch of
     filters (readings every step with their true landmark, known noise): at every time the
     average NEES over the runs, divided by 3 (ANEES), is χ²(3·200)/600 if the filters are
-    consistent: at the last time it lies in its 95% interval, at ≥ 85% of all times too (95% expected; the times are
-    correlated, and the linearized filter runs slightly conservative: measured 88% inside, the
-    misses below), and the ANEES over all times is 1 within 0.05 (measured 0.954)."""
+    consistent: at the last time it lies in its 95% interval, at ≥ 85% of all times too (95%
+    expected; the times are correlated, and the linearized filter runs slightly conservative:
+    measured 88% inside, the misses below), and the ANEES over all times is 1 within 0.05
+    (measured 0.954)."""
     runs = 200
     rng = np.random.default_rng(14)
     landmarks = rng.uniform(-12.0, 12.0, (L, 2))
