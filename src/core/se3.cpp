@@ -1,6 +1,6 @@
-// SE(3) compounding and reversal with first-order covariance over a batch (relmap.at3).
+// SE(3) compounding and reversal with first-order covariance over a batch (relmap.uncertain.at3).
 //
-// Conventions (relmap.at3, docs/architecture.md): a pose is a homogeneous 4×4 matrix, its
+// Conventions (relmap.uncertain.at3, docs/architecture.md): a pose is a homogeneous 4×4 matrix, its
 // covariance 6×6 on (δt, δφ): translation perturbation in the parent frame, rotation
 // perturbation on the left, T' = (t + δt, Exp(δφ) R). Batches arrive entry-major, as relmap
 // stores them: poses (4, 4, N), covariances (6, 6, N), any strides (a stride of 0 broadcasts one

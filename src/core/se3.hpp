@@ -1,4 +1,4 @@
-// SE(3) compounding and reversal with first-order covariance, batched (relmap.at3).
+// SE(3) compounding and reversal with first-order covariance, batched (relmap.uncertain.at3).
 #pragma once
 
 #include "core.hpp"
