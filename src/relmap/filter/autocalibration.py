@@ -32,9 +32,9 @@ never read. Three stages, each a standard tool of filter tuning:
    with the ground-truth residuals and lowered coverage.) Found first by batched coordinate
    ascent from the cautious values given (every candidate move of every parameter one filter
    of one batch of :func:`relmap.filter.run`; the step shrinks when no move gains; coarse, to
-   :data:`COARSE`, on the run's first :data:`COARSE_SHARE`), then, once the clock is set,
-   refined on the whole run by Newton steps whose gradient and Hessian come from one batch of
-   finite differences.
+   :data:`COARSE`, on the run's first :data:`COARSE_SHARE`; without signatures, once the
+   clock is set, rounds on the whole run too), then refined on the whole run by Newton steps
+   whose gradient and Hessian come from one batch of finite differences.
 2. **The clock.** The odometry's time stamps may be offset from the readings' (MRCLAM's
    velocities are commands, executed about 0.2 s later). The offset ``delay`` is the
    maximum-likelihood one over :data:`DELAYS` (the motion stamped ``s`` happened at
@@ -139,8 +139,10 @@ ITERATIONS = 40
 #: The coarse fit stops when its log-scale step falls below this (a factor of 1.1).
 COARSE = float(np.log(1.1))
 #: The coarse fit and the clock read this first share of the run (its readings' times):
-#: enough to come down from the cautious start, at a fraction of the cost. (Without
-#: signatures a quarter's pairings and clutter can mislead the search: docs/consistency.md.)
+#: enough to come down from the cautious start, at a fraction of the cost. Without
+#: signatures a quarter's pairings and clutter can mislead the search (MRCLAM JCBB robot 4:
+#: 1.81 m), so the coarse fit then takes rounds on the whole run as well, at its first step
+#: (×2, ×4, ×8 each way) until none gains (docs/consistency.md).
 COARSE_SHARE = 0.25
 #: The log-scale step of the coarse fit's first round (×2 per move); it shrinks by 3 when no
 #: move gains. Each round moves a parameter by these multiples of the step, both ways.
@@ -637,6 +639,8 @@ def calibrate(
     ranges_only = bool(sensor.ranges) and not sensor.angles
     delay, scale, turn_bias = _clock(early, p, run_filters, ranges_only, signatures)
     log = recording.log(delay, scale, turn_bias)
+    if not signatures:  # rounds of the coarse fit on the whole run, at its first step only
+        p, _ = _fit(log, p, free, run_filters, _STEP, _STEP)
     p, fitted = _refine(log, p, free, run_filters)
     tick(2, 3)
     factor, rho0, trace = _whitened(log, p, run_filters)
