@@ -544,15 +544,26 @@ def _whitened(log: Log, p: Params, run: Runner) -> tuple[float, float, Trace]:
     measuring the correlation :func:`innovation_correlation` of its innovations and the factor
     that correlation asks for (:func:`variance_factor`'s square root); the factor is the one of
     the grid nearest the fixed point where the two agree (linearly between the grid's
-    factors; 1 when the filter without one is white)."""
-    f = np.array(INFLATIONS)
-    trace = run(log, {**{k: np.full(len(f), v) for k, v in p.items()}, "inflation": f})
+    factors; 1 when the filter without one is white: that filter runs alone first, and the
+    batch only when it is not)."""
+    f = np.array(INFLATIONS)  # (f[0] = 1: no factor)
     t = log.t[log.reading_index]
-    asked, rho0 = np.empty(len(f)), float("nan")
-    for j in range(len(f)):
+
+    def filters(factors: FloatArray) -> Trace:
+        return run(log, {**{k: np.full(len(factors), v) for k, v in p.items()},
+                         "inflation": factors})  # fmt: skip
+
+    def asks(trace: Trace, j: int) -> tuple[float, float]:
+        """The factor filter ``j``'s correlation asks for, and its lag-one correlation."""
         (r1, n1), (r2, _) = (innovation_correlation(_one(trace, j), t, lag=k) for k in (1, 2))
-        rho0 = r1 if j == 0 else rho0
-        asked[j] = np.sqrt(variance_factor(r1, r2, n1))
+        return float(np.sqrt(variance_factor(r1, r2, n1))), r1
+
+    first = filters(f[:1])
+    asked0, rho0 = asks(first, 0)
+    if asked0 <= f[0]:
+        return float(f[0]), rho0, _one(first, 0)
+    trace = filters(f)
+    asked = np.array([asks(trace, j)[0] for j in range(len(f))])
     excess = asked - f  # > 0: the filter at this factor asks for more
     down = np.flatnonzero(excess <= 0)
     if not len(down):
