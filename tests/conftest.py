@@ -50,13 +50,7 @@ def rng() -> np.random.Generator:
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """Every test that reads the shared datasets (through ``data_dir``) is marked ``real_data``,
-    so that ``pytest -m "not slow and not real_data"`` is the quick subset. The modules with a
-    slow or real-data test run first (each module's order kept): pytest-xdist hands whole
-    modules to its workers in this order, so the long ones start early and the short ones fill
-    in after."""
+    so that ``pytest -m "not slow and not real_data"`` is the quick subset."""
     for item in items:
         if "data_dir" in getattr(item, "fixturenames", ()):
             item.add_marker(pytest.mark.real_data)
-    long = {item.path for item in items if item.get_closest_marker("slow") or
-            item.get_closest_marker("real_data")}  # fmt: skip
-    items.sort(key=lambda item: item.path not in long)
