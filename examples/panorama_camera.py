@@ -26,5 +26,5 @@ truth = rm.models.Odometry(rm.models.DistanceNoise(0.01, 0.01, 0.002)), Panorama
 guess = rm.models.Odometry(rm.models.DistanceNoise(0.05, 0.05, 0.01)), Panorama(0.1)
 sim = rm.sim.simulate(rm.sim.Patrol([[2, 0], [-2, 0]]), *truth, lm, start=x0, steps=300, seed=1)
 paired = rm.filter.run(sim.log(), *truth, lm, start=x0, associate="mahalanobis").landmark
-cal = calibrate(sim.recording(), *guess, lm, start=lambda t: x0, association="mahalanobis")
+cal = calibrate(sim.recording(), *guess, lm, start=lambda t: x0, associate="mahalanobis")
 print(f"paired right {np.mean(paired == sim.landmark):.1%}", cal.motion.noise, cal.sensor, sep="\n")

@@ -79,7 +79,7 @@ def calibrated() -> autocalibration.Calibrated:
     sim = simulate(Patrol(ROUTE), ODOMETRY, CAMERA, LANDMARKS, start=x0, steps=STEPS, seed=1)
     wall, cpu = time.perf_counter(), time.process_time()
     cal = autocalibration.calibrate(sim.recording(), *GUESS, LANDMARKS, start=lambda t: x0,
-                                    association="mahalanobis", gate=GATE)  # fmt: skip
+                                    associate="mahalanobis", gate=GATE)  # fmt: skip
     print(f"\ncalibrate, {STEPS} reading times: {time.perf_counter() - wall:.0f} s "
           f"({time.process_time() - cpu:.0f} s CPU)")  # fmt: skip
     return cal

@@ -57,7 +57,7 @@ def test_calibration_recovers_the_clutter_fraction():
     0.412, σ within 2.4%)."""
     rec, truth = simulate(1, steps=1500)
     rec = with_clutter(rec, truth, 5, radius=0.3)
-    cal = ac.calibrate(rec, *CAUTIOUS, LANDMARKS, start=start, association="mahalanobis")
+    cal = ac.calibrate(rec, *CAUTIOUS, LANDMARKS, start=start, associate="mahalanobis")
     frac = float((rec.signature < 0).mean())
     assert cal.clutter_fraction == pytest.approx(frac, abs=0.05)
     assert float(cal.sensor.sigma_range) == pytest.approx(SIGMA_R, rel=0.1)

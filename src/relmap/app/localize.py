@@ -458,7 +458,7 @@ def _localization(
     if cal is None:  # from the cautious start (autocalibration) to the run's own noise
         noise = autocalibration.calibrate(
             recording, Odometry(DistanceNoise(*START_ODOMETRY)), sensor, landmarks, start=start,
-            association=associate, gate=gate, progress=tick,
+            associate=associate, gate=gate, progress=tick,
         )  # fmt: skip
     else:
         noise = cal

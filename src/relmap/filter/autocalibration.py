@@ -589,7 +589,7 @@ def calibrate(
     landmarks: ArrayLike | LandmarkMap,
     *,
     start: Callable[[float], AT],
-    association: Association | str = Association.SIGNATURES,
+    associate: Association | str = Association.SIGNATURES,
     gate: float = 0.99,
     progress: Progress | None = None,
 ) -> Calibrated:
@@ -599,10 +599,10 @@ def calibrate(
     from the values given (cautious, large ones: the search comes down to the data), with the
     readings' Student-t dof (from :data:`NU_START`) and, without signatures, the clutter
     density. ``start(t0)`` gives the filter's start AT at the log's first time ``t0`` (which
-    moves with the clock offset). ``association`` and ``gate`` as in
+    moves with the clock offset). ``associate`` and ``gate`` as in
     :func:`relmap.filter.run`: the calibration filters with the association it is for.
     """
-    assoc = Association.parse(association, "association")
+    assoc = Association.parse(associate, "associate")
     lmap = landmarks if isinstance(landmarks, LandmarkMap) else LandmarkMap(landmarks)
     if not len(lmap):  # (the clutter's volume is per landmark)
         raise ShapeError(f"landmarks must have shape (L, p) with L ≥ 1; got {lmap.xy.shape}")
