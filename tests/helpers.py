@@ -1,16 +1,19 @@
-"""Helpers shared by the tests: numeric comparisons, a valid cross-covariance, the Fig. 3 bridge;
-random poses and ATs are relmap.sim's (re-exported here under the tests' short names)."""
+"""Helpers shared by the tests: numeric comparisons, a valid cross-covariance, the Fig. 3 bridge,
+relmap's pose-graph residual as a GTSAM custom factor's error; random poses and ATs are
+relmap.sim's (re-exported here under the tests' short names)."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from relmap.lie import se2
 from relmap.sim.robots import random_at3s, random_ats, random_poses
 from relmap.sim.robots import random_covariances as random_covs
 
 __all__ = [
     "assert_poses_close",
     "fig3_bridge",
+    "gtsam_between_error",
     "random_at3s",
     "random_ats",
     "random_covs",
@@ -67,3 +70,22 @@ def fig3_bridge(sigmas=None):  # -> relmap.RelationalMap
         at = r.at if sigmas is None else rm.AT.from_sigmas(r.at.mean, sigmas)
         g.add(r.src, r.dst, at, name=r.name)
     return g
+
+
+def gtsam_between_error(zk: np.ndarray):
+    """The error function of a ``gtsam.CustomFactor`` on two Pose2 keys with relmap's
+    residual of the measured AT ``zk`` (``between(a, b) ⊟ zk``, in relmap's chart), its
+    Jacobians mapped to GTSAM's right perturbations: GTSAM then minimizes relmap's objective."""
+
+    def error(this, values, H):
+        a, b = this.keys()
+        pa, pb = values.atPose2(a), values.atPose2(b)
+        va = np.array([pa.x(), pa.y(), pa.theta()])
+        vb = np.array([pb.x(), pb.y(), pb.theta()])
+        d, Ja, Jb = se2.between(va, vb, jacobians=True)
+        if H is not None:  # GTSAM perturbs on the right: δ(chart) = M δξ
+            H[0] = Ja @ se2.body_to_chart(va)
+            H[1] = Jb @ se2.body_to_chart(vb)
+        return se2.minus(d, zk)
+
+    return error

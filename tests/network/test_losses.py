@@ -19,7 +19,7 @@ from relmap.lie import SE2, SE3, se2
 from relmap.network.losses import L2, Huber, Loss, parse_loss
 from relmap.network.optimal import optimize
 from relmap.network.problem import Problem
-from tests.helpers import random_covs
+from tests.helpers import gtsam_between_error, random_covs
 
 # ------------------------------------------------------------------------------ the losses
 
@@ -270,27 +270,12 @@ def test_huber_optimum_equals_gtsams_with_the_same_residual():
     g, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     for f in range(p.n):
         values.insert(f, gtsam.Pose2(*p.guess[f]))
-
-    def factor(zk):
-        def error(this, vals, H):
-            a, b = this.keys()
-            pa, pb = vals.atPose2(a), vals.atPose2(b)
-            va = np.array([pa.x(), pa.y(), pa.theta()])
-            vb = np.array([pb.x(), pb.y(), pb.theta()])
-            d, Ja, Jb = se2.between(va, vb, jacobians=True)
-            if H is not None:  # GTSAM perturbs on the right: δ(chart) = M δξ
-                H[0] = Ja @ se2.body_to_chart(va)
-                H[1] = Jb @ se2.body_to_chart(vb)
-            return se2.minus(d, zk)
-
-        return error
-
     for e in range(len(p.i)):
         noise = gtsam.noiseModel.Robust.Create(
             gtsam.noiseModel.mEstimator.Huber.Create(k),
             gtsam.noiseModel.Gaussian.Covariance(p.cov[e]),
         )
-        g.add(gtsam.CustomFactor(noise, [int(p.i[e]), int(p.j[e])], factor(p.z[e])))
+        g.add(gtsam.CustomFactor(noise, [int(p.i[e]), int(p.j[e])], gtsam_between_error(p.z[e])))
     g.add(
         gtsam.PriorFactorPose2(
             0, gtsam.Pose2(*p.guess[0]), gtsam.noiseModel.Isotropic.Sigma(3, 1e-9)
